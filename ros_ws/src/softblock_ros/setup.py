@@ -1,0 +1,24 @@
+from setuptools import find_packages, setup
+
+package_name = "softblock_ros"
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml"]),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="softblock maintainers",
+    maintainer_email="maintainers@softblock.dev",
+    description="ROS 2 nodes of the soft building-block robot stack.",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+            "assembly_state = softblock_ros.assembly_state_node:main",
+        ],
+    },
+)

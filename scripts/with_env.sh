@@ -1,0 +1,14 @@
+#!/usr/bin/env bash
+# Runs a command inside the project's environment: venv, built ros_ws, DDS on loopback.
+set -euo pipefail
+repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+venv="${SOFTBLOCK_VENV:-$repo/.venv}"
+source "$venv/bin/activate"
+export AMENT_PREFIX_PATH="$venv${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}"
+set +u
+source "$repo/ros_ws/install/setup.bash"
+set -u
+export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
+export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-$(( $$ % 100 + 1 ))}"
+export PYTHONUNBUFFERED=1
+exec "$@"
