@@ -1,0 +1,72 @@
+"""Helpers for in-process ROS tests: wait for a condition, call a service, collect messages, spin nodes."""
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+
+import rclpy
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile
+
+DEFAULT_TIMEOUT = 15.0  # [s] generous: the suite runs on two loaded cores
+
+
+def wait_for(predicate: Callable[[], object], timeout: float = DEFAULT_TIMEOUT, what: str = "condition"):
+    """Poll ``predicate`` until it returns something truthy and return that; TimeoutError otherwise."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = predicate()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"timed out after {timeout} s waiting for {what}")
+        time.sleep(0.01)
+
+
+def call(client, request, timeout: float = DEFAULT_TIMEOUT):
+    """Call a service from a node that is being spun and return the response."""
+    if not client.wait_for_service(timeout_sec=timeout):
+        raise TimeoutError(f"service {client.srv_name} did not appear within {timeout} s")
+    future = client.call_async(request)
+    wait_for(future.done, timeout, what=f"the reply of {client.srv_name}")
+    return future.result()
+
+
+class Inbox:
+    """A subscription that keeps every message it receives (the node must be spun)."""
+
+    def __init__(self, node: Node, msg_type, topic: str, qos: QoSProfile | int = 10):
+        self.topic = topic
+        self.messages: list = []
+        self._subscription = node.create_subscription(msg_type, topic, self.messages.append, qos)
+
+    def wait(self, predicate: Callable[[object], bool] = lambda msg: True, timeout: float = DEFAULT_TIMEOUT):
+        """The first message (oldest first, incl. ones already received) that satisfies ``predicate``."""
+
+        def first_match():
+            return next((msg for msg in list(self.messages) if predicate(msg)), None)
+
+        return wait_for(first_match, timeout, what=f"a matching message on {self.topic}")
+
+
+class Spinner:
+    """A MultiThreadedExecutor running in a daemon thread; nodes can be added while it spins."""
+
+    def __init__(self, context: rclpy.Context, num_threads: int = 4):
+        self.executor = MultiThreadedExecutor(num_threads=num_threads, context=context)
+        self.nodes: list[Node] = []
+        self._thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self._thread.start()
+
+    def add(self, *nodes: Node) -> None:
+        for node in nodes:
+            self.executor.add_node(node)
+            self.nodes.append(node)
+
+    def close(self) -> None:
+        self.executor.shutdown(timeout_sec=5.0)
+        self._thread.join(timeout=5.0)
+        for node in reversed(self.nodes):
+            node.destroy_node()
