@@ -1,0 +1,185 @@
+"""Piecewise-constant-curvature kinematics against hand-computed cases."""
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from planner.kinematics import (
+    BLOCK_RADIUS,
+    CAP_LENGTH,
+    block_end_offsets,
+    block_transforms,
+    chain_shape,
+    planar_chain,
+)
+
+C = CAP_LENGTH
+
+
+def test_single_block_end_is_cap_chord_cap():
+    theta, length = 0.6, 0.015
+    expected_x = length * (1 - math.cos(theta)) / theta + C * math.sin(theta)
+    expected_z = C + length * math.sin(theta) / theta + C * math.cos(theta)
+    planar = planar_chain([theta], [length])
+    np.testing.assert_allclose(planar.ends[-1], [expected_x, expected_z], atol=1e-15)
+    assert planar.end_headings[-1] == pytest.approx(theta)
+    spatial = chain_shape([theta], [length])
+    np.testing.assert_allclose(spatial.positions[-1], [expected_x, 0.0, expected_z], atol=1e-15)
+
+
+def test_arc_samples_lie_on_the_bending_circle():
+    theta, length = 1.1, 0.02
+    shape = planar_chain([theta], [length], samples_per_block=12)
+    radius = length / theta
+    arc = shape.points[2:-1]  # after the first cap's end, before the second cap's end
+    centre = np.array([radius, C])
+    np.testing.assert_allclose(np.linalg.norm(arc - centre, axis=-1), radius, rtol=1e-12)
+
+
+def test_straight_block_has_length_of_rod_and_two_caps():
+    shape = planar_chain([0.0], [0.02])
+    assert np.all(np.isfinite(shape.points))
+    np.testing.assert_allclose(shape.ends[-1], [0.0, 0.02 + 2 * C], atol=1e-15)
+    np.testing.assert_allclose(shape.points[:, 0], 0.0, atol=1e-15)
+
+
+def test_tiny_angles_are_continuous_with_zero():
+    x0, z0 = block_end_offsets(0.0, 0.015)
+    x1, z1 = block_end_offsets(1e-9, 0.015)
+    assert x1 == pytest.approx(x0 + (0.015 / 2 + C) * 1e-9, abs=1e-15)
+    assert z1 == pytest.approx(z0, abs=1e-15)
+
+
+def test_constant_curvature_chain_adds_the_angles():
+    theta = math.radians(32.15)
+    shape = planar_chain(np.full(4, theta), 0.015)
+    assert shape.end_headings[-1] == pytest.approx(4 * theta)
+    assert np.all(np.diff(shape.headings) >= 0)
+
+
+def test_worm_of_half_turns_straightens_out():
+    # phi = 180 deg flips the bending side: two identical blocks make a point-symmetric S whose end
+    # tangent is parallel to the base axis again; a longer worm advances along a straight line.
+    two = planar_chain([0.5, 0.5], 0.015, [0.0, math.pi])
+    assert two.end_headings[-1] == pytest.approx(0.0, abs=1e-15)
+    np.testing.assert_allclose(two.ends[2], 2 * two.ends[1], atol=1e-15)
+    worm = planar_chain(np.full(8, 0.5), 0.015, [0.0] + [math.pi] * 7)
+    direction = worm.ends[2] / np.linalg.norm(worm.ends[2])
+    np.testing.assert_allclose(worm.ends[::2] @ [direction[1], -direction[0]], 0.0, atol=1e-15)
+    np.testing.assert_allclose(worm.end_headings[::2], 0.0, atol=1e-15)
+    spatial = chain_shape(np.full(8, 0.5), 0.015, [0.0] + [math.pi] * 7)
+    np.testing.assert_allclose(spatial.positions[:, 1], 0.0, atol=1e-15)
+    np.testing.assert_allclose(spatial.positions[:, [0, 2]], worm.ends, atol=1e-15)
+
+
+def test_helix_block_ends_follow_the_screw_motion_of_one_block():
+    theta, length, turn, blocks = 0.4, 0.015, math.radians(30), 30
+    shape = chain_shape(np.full(blocks, theta), length, turn)
+    one = block_transforms([theta], [length], [turn])[0]
+    rotation, translation = one[:3, :3], one[:3, 3]
+    rotvec = Rotation.from_matrix(rotation).as_rotvec()
+    angle = np.linalg.norm(rotvec)
+    axis = rotvec / angle
+    pitch = axis @ translation
+    point_on_axis = np.linalg.lstsq(np.eye(3) - rotation, translation - pitch * axis, rcond=None)[0]
+    k = np.arange(blocks + 1)
+    helix = (
+        point_on_axis
+        + Rotation.from_rotvec(np.outer(k * angle, axis)).apply(-point_on_axis)
+        + np.outer(k * pitch, axis)
+    )
+    np.testing.assert_allclose(shape.positions, helix, atol=1e-12)
+    # In projection along the screw axis the block ends lie on one circle.
+    radial = shape.positions - point_on_axis
+    radial -= np.outer(radial @ axis, axis)
+    base_radial = point_on_axis - (point_on_axis @ axis) * axis
+    np.testing.assert_allclose(np.linalg.norm(radial, axis=-1), np.linalg.norm(base_radial), rtol=1e-9)
+
+
+def test_spatial_agrees_with_planar_for_half_turns():
+    rng = np.random.default_rng(1)
+    theta = rng.uniform(-0.2, 1.0, (3, 6))
+    length = rng.choice([0.01, 0.015, 0.02], (3, 6))
+    phi = rng.choice([0.0, math.pi], (3, 6))
+    planar = planar_chain(theta, length, phi)
+    spatial = chain_shape(theta, length, phi)
+    np.testing.assert_allclose(spatial.points, planar.to_3d(), atol=1e-14)
+    tangents = spatial.sample_rotations()[..., :, 2]
+    expected = np.stack([np.sin(planar.headings), np.zeros_like(planar.headings), np.cos(planar.headings)], -1)
+    np.testing.assert_allclose(tangents, expected, atol=1e-14)
+
+
+def test_batch_agrees_with_a_loop_over_designs():
+    rng = np.random.default_rng(2)
+    theta = rng.uniform(0.0, 1.2, (4, 5, 7))
+    length = rng.choice([0.01, 0.015, 0.02], (4, 5, 7))
+    phi = rng.integers(0, 12, (4, 5, 7)) * math.radians(30)
+    batch = chain_shape(theta, length, phi)
+    flips = rng.choice([0.0, math.pi], (4, 5, 7))
+    planar_batch = planar_chain(theta, length, flips)
+    for index in np.ndindex(4, 5):
+        single = chain_shape(theta[index], length[index], phi[index])
+        np.testing.assert_allclose(batch.points[index], single.points, atol=1e-15)
+        np.testing.assert_allclose(batch.frames[index], single.frames, atol=1e-15)
+        planar = planar_chain(theta[index], length[index], flips[index])
+        np.testing.assert_allclose(planar_batch.points[index], planar.points, atol=1e-15)
+
+
+def test_composed_block_transforms_give_the_end_frames():
+    rng = np.random.default_rng(3)
+    theta, length = rng.uniform(0, 1, 5), np.full(5, 0.015)
+    phi = rng.integers(0, 12, 5) * math.radians(30)
+    frame = np.eye(4)
+    for transform in block_transforms(theta, length, phi):
+        frame = frame @ transform
+    np.testing.assert_allclose(chain_shape(theta, length, phi).frames[-1], frame, atol=1e-15)
+
+
+def test_periphery_points_are_radial_and_collinear():
+    shape = planar_chain([0.7, 0.3], 0.015, [0.0, math.pi])
+    plus, minus = shape.periphery()
+    np.testing.assert_allclose(np.linalg.norm(plus - shape.points, axis=-1), BLOCK_RADIUS)
+    np.testing.assert_allclose((plus + minus) / 2, shape.points, atol=1e-15)
+    tangent = np.stack([np.sin(shape.headings), np.cos(shape.headings)], -1)
+    np.testing.assert_allclose(np.sum((plus - shape.points) * tangent, -1), 0.0, atol=1e-15)
+    straight_plus, _ = planar_chain([0.0], 0.015).periphery()
+    np.testing.assert_allclose(straight_plus[:, 0], BLOCK_RADIUS)  # +x side at phi = 0
+
+
+def test_tube_surrounds_the_centerline_at_the_block_radius():
+    shape = chain_shape([0.5, 0.4, 0.9], 0.015, [0.0, math.radians(90), math.radians(210)])
+    tube = shape.tube(around=8)
+    assert tube.shape == (shape.points.shape[0], 8, 3)
+    offset = tube - shape.points[:, None, :]
+    np.testing.assert_allclose(np.linalg.norm(offset, axis=-1), BLOCK_RADIUS)
+    tangent = shape.sample_rotations()[:, :, 2]
+    np.testing.assert_allclose(np.einsum("pkj,pj->pk", offset, tangent), 0.0, atol=1e-15)
+
+
+def test_transformed_shape_moves_points_and_frames():
+    shape = chain_shape([0.5, 0.2], 0.015, [0.0, math.radians(60)])
+    rotation = Rotation.from_euler("x", 180, degrees=True).as_matrix()
+    moved = shape.transformed(rotation, [0.03, 0.0, 0.1])
+    np.testing.assert_allclose(moved.points, shape.points @ rotation.T + [0.03, 0.0, 0.1])
+    parent = np.eye(4)
+    parent[:3, :3], parent[:3, 3] = rotation, [0.03, 0.0, 0.1]
+    np.testing.assert_allclose(moved.frames, parent @ shape.frames, atol=1e-15)
+
+
+@pytest.mark.parametrize(
+    ("call", "message"),
+    [
+        (lambda: planar_chain([0.3, 0.3], 0.015, [0.0, math.radians(30)]), "phi must be 0 or pi"),
+        (lambda: chain_shape([0.3], [0.0]), "length"),
+        (lambda: chain_shape([np.nan], [0.015]), "theta must be finite"),
+        (lambda: chain_shape(np.zeros(3), np.full(2, 0.015)), "do not broadcast"),
+        (lambda: chain_shape(np.zeros(0), 0.015), "at least one block"),
+        (lambda: chain_shape(0.3, 0.015), "scalars"),
+        (lambda: planar_chain([0.3], 0.015, samples_per_block=2), "samples_per_block"),
+        (lambda: chain_shape([0.3], 0.015).tube(around=2), "around"),
+    ],
+)
+def test_bad_input_is_named(call, message):
+    with pytest.raises(ValueError, match=message):
+        call()
