@@ -1,0 +1,424 @@
+"""HvSupply: owns the serial link, runs the supervised control loop in its own thread.
+
+Thread model: one loop thread does all serial I/O; the public methods (thread-safe) only change
+the supervisor's state under a lock and wake the loop, which applies the change within one cycle.
+"""
+import atexit
+import math
+import signal
+import threading
+import time
+import weakref
+from dataclasses import dataclass
+
+import serial
+
+from .config import ChannelConfig
+from .dialects import Dialect, IsegEdcp, ProtocolError
+from .dialects.iseg_edcp import TRIP_ACTION_OFF_WITHOUT_RAMP
+from .faults import Fault
+from .link import Link, LinkError
+from .supervisor import ChannelCommand, Supervisor
+
+# The device-side ramp is set this much faster than the host slew limit: fast enough to follow the
+# streamed setpoints, slow enough to cap the slew if the host misbehaves.
+DEVICE_RAMP_MARGIN = 1.2
+# Device-side current trip limit relative to the host trip level, and its delay: a second line of
+# defence that acts only if the host loop fails to.
+DEVICE_CURRENT_MARGIN = 1.5
+DEVICE_TRIP_TIME_S = 0.1
+
+
+class ConfigurationError(RuntimeError):
+    """The device did not accept or read back the configured limits."""
+
+
+@dataclass(frozen=True)
+class ChannelSnapshot:
+    name: str
+    index: int
+    setpoint: float            # [V] commanded to the supply
+    target: float              # [V] end of the running ramp
+    measured_voltage: float    # [V]
+    measured_current: float    # [A]
+    ceiling: float             # [V]
+    output_enabled: bool
+    ramping: bool
+    faults: Fault
+    fault_text: str
+
+
+@dataclass(frozen=True)
+class SupplySnapshot:
+    device_id: str
+    port: str
+    estop: bool
+    link_error: str            # last failed exchange, "" when the last one succeeded
+    channels: tuple[ChannelSnapshot, ...]
+
+    def channel(self, name: str) -> ChannelSnapshot:
+        return next(c for c in self.channels if c.name == name)
+
+
+@dataclass
+class _Sent:
+    """What the device was last told on one channel."""
+
+    setpoint: float = 0.0
+    output_on: bool = False
+    emergency: bool = False
+
+
+class RampHandle:
+    """A running ramp of one channel: ``wait``, ``done``, ``cancel`` (ramps to 0 V)."""
+
+    def __init__(self, supply: "HvSupply", channel: str, ramp_id: int, target: float):
+        self._supply, self.channel, self._ramp_id, self.target = supply, channel, ramp_id, target
+
+    def _state(self):
+        ch = self._supply._supervisor.channel(self.channel)
+        superseded = ch.ramp_id != self._ramp_id
+        return ch, superseded or bool(ch.faults) or not ch.ramping
+
+    @property
+    def done(self) -> bool:
+        with self._supply._lock:
+            return self._state()[1]
+
+    @property
+    def message(self) -> str:
+        """Why the ramp ended ("" while it runs)."""
+        with self._supply._lock:
+            ch, done = self._state()
+            if not done:
+                return ""
+            if ch.faults:
+                return f"aborted by faults: {ch.fault_text}"
+            if ch.ramp_id != self._ramp_id:
+                return "superseded by a later request"
+            if ch.setpoint != self.target:
+                return f"stopped at {ch.setpoint:g} V: ceiling lowered to {ch.ceiling:g} V"
+            return f"reached {self.target:g} V"
+
+    @property
+    def succeeded(self) -> bool:
+        return self.message.startswith("reached")
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Block until the ramp ends or ``timeout`` [s] passes; True when it ended."""
+        with self._supply._cycle_done:
+            return self._supply._cycle_done.wait_for(lambda: self._state()[1], timeout)
+
+    def cancel(self) -> None:
+        """Ramp the channel back to 0 V (if this ramp is still the running one)."""
+        with self._supply._lock:
+            ch, done = self._state()
+            if ch.ramp_id == self._ramp_id and not ch.faults and ch.output_enabled:
+                ch.ramp_to(self._supply._clock(), 0.0)
+
+
+class HvSupply:
+    """A multi-channel HV supply behind the safety supervisor.
+
+    port: pyserial URL or device path (a pty path for the simulated supply).
+    channels: one ChannelConfig per output used.
+    loop_rate_hz: control loop rate; each cycle sends new setpoints and reads voltage, current
+        and status of every channel.
+    link_timeout_s: no valid reply for this long trips LINK.
+    heartbeat_timeout_s: None, or no `heartbeat()` for this long ramps enabled outputs to 0 V.
+    reply_timeout_s: time allowed for one echoed answer.
+    """
+
+    def __init__(self, port: str, baudrate: int | None = None, channels: list[ChannelConfig] = (),
+                 loop_rate_hz: float = 100.0, link_timeout_s: float = 0.25,
+                 heartbeat_timeout_s: float | None = None, reply_timeout_s: float = 0.05,
+                 dialect: Dialect | None = None, handle_signals: bool = True, clock=time.monotonic):
+        if not (math.isfinite(loop_rate_hz) and 1.0 <= loop_rate_hz <= 1000.0):
+            raise ValueError(f"loop_rate_hz={loop_rate_hz!r}: between 1 and 1000")
+        if not (math.isfinite(reply_timeout_s) and 0 < reply_timeout_s < link_timeout_s):
+            raise ValueError(f"reply_timeout_s={reply_timeout_s!r}: > 0 and below link_timeout_s")
+        self.port_name = port
+        self.dialect = dialect or IsegEdcp()
+        self.baudrate = baudrate or self.dialect.default_baudrate
+        self.configs = list(channels)
+        self._clock = clock
+        self._supervisor = Supervisor(self.configs, link_timeout=link_timeout_s,
+                                      heartbeat_timeout=heartbeat_timeout_s, now=clock())
+        self._period = 1.0 / loop_rate_hz
+        self._reply_timeout = reply_timeout_s
+        self._handle_signals = handle_signals
+        self._lock = threading.RLock()
+        self._cycle_done = threading.Condition(self._lock)
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._port = self._link = None
+        self._sent = {c.name: _Sent() for c in self.configs}
+        self._measured = {c.name: (0.0, 0.0) for c in self.configs}
+        self._reconfigure = False
+        self._link_error = ""
+        self._cycles = 0
+        self.device_id = ""
+
+    # --- lifecycle -----------------------------------------------------------------------------
+    def open(self) -> "HvSupply":
+        """Open the port, identify the supply, set and read back its limits, start the loop."""
+        self._port = serial.serial_for_url(self.port_name, baudrate=self.baudrate,
+                                           timeout=self._reply_timeout, write_timeout=self._reply_timeout)
+        self._link = Link(self._port, self.dialect, self._reply_timeout)
+        try:
+            self.device_id = self._link.query("identify")
+            indices = [c.index for c in self.configs]
+            self._link.query("set_voltage", indices, 0.0)  # known state: 0 V, off
+            self._link.query("output_off", indices)
+            self._configure_device()
+            for config, register in zip(self.configs, self._link.query("read_status", indices)):
+                report = self.dialect.status_report(register)
+                if report.fault:  # a latched device fault survives reconnects until reset on purpose
+                    self._supervisor.channel(config.name).trip(Fault.DEVICE, report.fault)
+                    self._sent[config.name].emergency = True
+        except (LinkError, ProtocolError, ConfigurationError):
+            self._port.close()
+            raise
+        self._supervisor.link_ok(self._clock())
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name=f"hv-loop {self.port_name}", daemon=True)
+        self._thread.start()
+        self._install_exit_guards()
+        return self
+
+    def _configure_device(self) -> None:
+        """Device-side second line of defence: ramp speed, current limit and trip; read back."""
+        for config in self.configs:
+            ch = [config.index]
+            ramp = config.slew_rate * DEVICE_RAMP_MARGIN
+            current = config.current_trip * DEVICE_CURRENT_MARGIN
+            trip_ms = DEVICE_TRIP_TIME_S * 1000.0
+            for operation, value in (("set_ramp_up", ramp), ("set_ramp_down", ramp),
+                                     ("set_current_limit", current), ("set_trip_time", trip_ms),
+                                     ("set_trip_action", TRIP_ACTION_OFF_WITHOUT_RAMP)):
+                self._link.query(operation, ch, value)
+            for operation, expected in (("read_ramp", ramp), ("read_current_limit", current),
+                                        ("read_trip_time", trip_ms)):
+                (actual,) = self._link.query(operation, ch)
+                if not math.isclose(actual, expected, rel_tol=1e-3):
+                    raise ConfigurationError(f"channel {config.name!r}: {operation} reads {actual:g}, "
+                                             f"configured {expected:g}")
+            (limit,) = self._link.query("read_voltage_limit", ch)
+            with self._lock:
+                self._supervisor.channel(config.name).set_device_limit(limit)
+
+    def close(self, ramp_down_timeout: float = 5.0) -> None:
+        """Ramp every output to 0 V and switch it off, stop the loop, close the port."""
+        if self._thread is None:
+            return
+        with self._lock:
+            for channel in self._supervisor.channels.values():
+                channel.disable(self._clock())
+        with self._cycle_done:
+            self._cycle_done.wait_for(lambda: not any(c.output_enabled for c in self._supervisor.channels.values()),
+                                      ramp_down_timeout)
+        self._shutdown(emergency=False)
+
+    def abort(self) -> None:
+        """Outputs off at once without ramp (exception, signal, exit), stop the loop, close."""
+        if self._thread is not None:
+            with self._lock:
+                self._supervisor.estop()
+            self._shutdown(emergency=True)
+
+    def _shutdown(self, emergency: bool) -> None:
+        self._stop.set()
+        self._wake.set()
+        if self._thread is not threading.current_thread():
+            self._thread.join(timeout=2.0)
+        self._thread = None
+        indices = [c.index for c in self.configs]
+        steps = ["emergency_off"] if emergency else []
+        try:
+            for operation in steps + ["set_voltage", "output_off"]:
+                self._link.query(operation, indices, 0.0 if operation == "set_voltage" else None)
+        except (LinkError, ProtocolError):
+            if not emergency:
+                try:
+                    self._link.query("emergency_off", indices)
+                except (LinkError, ProtocolError):
+                    pass  # the link is gone: the device-side limits and watchdog remain
+        finally:
+            self._port.close()
+            self._remove_exit_guards()
+
+    def __enter__(self):
+        return self.open()
+
+    def __exit__(self, exc_type, exc, tb):
+        self.abort() if exc_type is not None else self.close()
+        return False
+
+    # --- exit guards ---------------------------------------------------------------------------
+    def _install_exit_guards(self) -> None:
+        ref = weakref.ref(self)
+        self._atexit = lambda: (s := ref()) is not None and s.abort()
+        atexit.register(self._atexit)
+        self._previous_sigterm = None
+        if self._handle_signals and threading.current_thread() is threading.main_thread():
+            self._previous_sigterm = signal.signal(signal.SIGTERM, self._on_sigterm)
+
+    def _remove_exit_guards(self) -> None:
+        atexit.unregister(self._atexit)
+        if self._previous_sigterm is not None and threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGTERM, self._previous_sigterm)
+            self._previous_sigterm = None
+
+    def _on_sigterm(self, signum, frame):
+        previous = self._previous_sigterm
+        self.abort()
+        if callable(previous):
+            previous(signum, frame)
+        else:
+            raise SystemExit(128 + signum)
+
+    # --- thread-safe API -----------------------------------------------------------------------
+    def _change(self, action):
+        with self._lock:
+            result = action(self._clock())
+        self._wake.set()
+        return result
+
+    def enable(self, channel: str) -> None:
+        """Switch the output on at 0 V (refused while faults are latched)."""
+        self._change(lambda now: self._supervisor.enable(channel, now))
+
+    def disable(self, channel: str) -> None:
+        """Ramp to 0 V at the slew limit, then switch the output off."""
+        self._change(lambda now: self._supervisor.channel(channel).disable(now))
+
+    def ramp_to(self, channel: str, target_v: float, slew_rate: float | None = None) -> RampHandle:
+        """Start a smooth ramp; a target above the ceiling raises LimitError naming the limit."""
+        ramp_id = self._change(lambda now: self._supervisor.channel(channel).ramp_to(now, target_v, slew_rate))
+        return RampHandle(self, channel, ramp_id, float(target_v))
+
+    def heartbeat(self) -> None:
+        """Sign of life from the controlling client."""
+        self._change(self._supervisor.heartbeat)
+
+    def set_safe_voltage(self, voltage: float | None) -> None:
+        """Assembly safe voltage [V] for every channel (None = unknown)."""
+        self._change(lambda now: self._supervisor.set_safe_voltage(voltage))
+
+    def estop(self) -> None:
+        """Latch ESTOP: every output to 0 V and off within one cycle."""
+        self._change(lambda now: self._supervisor.estop())
+
+    def reset_faults(self) -> None:
+        """Clear latched faults (device emergency state too); outputs stay off until enabled."""
+        def reset(now):
+            self._supervisor.reset(now)
+            self._reconfigure = True
+        self._change(reset)
+
+    def snapshot(self) -> SupplySnapshot:
+        with self._lock:
+            channels = tuple(
+                ChannelSnapshot(name=c.config.name, index=c.config.index, setpoint=c.setpoint, target=c.target,
+                                measured_voltage=self._measured[name][0], measured_current=self._measured[name][1],
+                                ceiling=c.ceiling, output_enabled=c.output_enabled, ramping=c.ramping,
+                                faults=c.faults, fault_text=c.fault_text)
+                for name, c in self._supervisor.channels.items())
+            return SupplySnapshot(self.device_id, self.port_name, self._supervisor.estop_latched,
+                                  self._link_error, channels)
+
+    def wait_cycles(self, count: int = 1, timeout: float | None = None) -> bool:
+        """Block until ``count`` more control cycles have finished."""
+        with self._cycle_done:
+            goal = self._cycles + count
+            return self._cycle_done.wait_for(lambda: self._cycles >= goal, timeout)
+
+    # --- control loop --------------------------------------------------------------------------
+    def _run(self) -> None:
+        next_cycle = self._clock()
+        try:
+            while not self._stop.is_set():
+                tripped = self._cycle()
+                next_cycle += self._period
+                delay = next_cycle - self._clock()
+                if delay < -self._period:  # fell behind: restart the schedule instead of bursting
+                    next_cycle, delay = self._clock(), 0.0
+                if not tripped and self._wake.wait(max(0.0, delay)):
+                    self._wake.clear()
+        except BaseException:
+            with self._lock:
+                self._supervisor.trip_all(Fault.DEVICE, "control loop crashed")
+            self._stop.set()
+            self._safe_off_from_loop()
+            raise
+
+    def _safe_off_from_loop(self) -> None:
+        try:
+            self._link.query("emergency_off", [c.index for c in self.configs])
+        except (LinkError, ProtocolError):
+            pass
+
+    def _cycle(self) -> bool:
+        """One control cycle; True when a new fault latched (the next cycle then runs at once)."""
+        with self._lock:
+            commands = self._supervisor.step(self._clock())
+            reconfigure, self._reconfigure = self._reconfigure, False
+            faults_before = {n: c.faults for n, c in self._supervisor.channels.items()}
+        try:
+            if reconfigure:
+                self._configure_device()
+            for config in self.configs:
+                self._apply(config, commands[config.name])
+            indices = [c.index for c in self.configs]
+            voltages = self._link.query("measure_voltage", indices)
+            currents = self._link.query("measure_current", indices)
+            registers = self._link.query("read_status", indices)
+        except (LinkError, ProtocolError, ConfigurationError) as error:
+            with self._cycle_done:
+                self._link_error = str(error)
+                self._reconfigure |= reconfigure
+                self._cycles += 1
+                self._cycle_done.notify_all()
+            return False
+        with self._cycle_done:
+            now = self._clock()
+            self._supervisor.link_ok(now)
+            self._link_error = ""
+            for config, voltage, current, register in zip(self.configs, voltages, currents, registers):
+                report = self.dialect.status_report(register)
+                sent = self._sent[config.name]
+                fault = report.fault
+                if fault is None and sent.output_on != report.output_on and not sent.emergency:
+                    fault = "supply output " + ("off although commanded on (reset or interlock)"
+                                                if sent.output_on else "on although commanded off")
+                self._supervisor.channel(config.name).observe(now, voltage, current, fault, report.over_current)
+                self._measured[config.name] = (voltage, current)
+            self._cycles += 1
+            self._cycle_done.notify_all()
+            return any(c.faults != faults_before[n] for n, c in self._supervisor.channels.items())
+
+    def _apply(self, config: ChannelConfig, command: ChannelCommand) -> None:
+        """Send what changed on one channel since the last cycle."""
+        sent, ch = self._sent[config.name], [config.index]
+        if command.emergency_off:
+            if not sent.emergency:
+                self._link.query("emergency_off", ch)
+                self._link.query("set_voltage", ch, 0.0)
+                sent.setpoint, sent.output_on, sent.emergency = 0.0, False, True
+            return
+        if sent.emergency:  # faults were reset: release the device's latched emergency off
+            self._link.query("emergency_clear", ch)
+            self._link.query("clear_events", ch)
+            sent.emergency = False
+        if command.output_on and not sent.output_on:
+            self._link.query("set_voltage", ch, 0.0)
+            self._link.query("output_on", ch)
+            sent.setpoint, sent.output_on = 0.0, True
+        if command.output_on and command.setpoint != sent.setpoint:
+            self._link.query("set_voltage", ch, command.setpoint)
+            sent.setpoint = command.setpoint
+        if not command.output_on and sent.output_on:
+            self._link.query("set_voltage", ch, 0.0)
+            self._link.query("output_off", ch)
+            sent.setpoint, sent.output_on = 0.0, False

@@ -1,0 +1,74 @@
+"""Line framing over a serial port: write a command, check its echo, read the one answer line."""
+import time
+
+import serial
+
+from .dialects import Dialect, ProtocolError
+
+# Longest line the driver accepts; anything longer is garbage.
+MAX_LINE = 256
+
+
+class LinkError(ConnectionError):
+    """No reply, a partial reply within the timeout, or the port failed."""
+
+
+class Link:
+    """One command/answer exchange at a time over a pyserial-like port.
+
+    After any failed exchange the next one first discards what is buffered, so a late or garbled
+    answer is never taken for the answer to a later command.
+    """
+
+    def __init__(self, port, dialect: Dialect, reply_timeout: float):
+        self.port = port
+        self.dialect = dialect
+        self.reply_timeout = reply_timeout
+        self._buffer = bytearray()
+        self._stale = False
+
+    def query(self, operation: str, channels=(), value: float | None = None):
+        """Run ``operation`` and return its decoded answer (see `Dialect.decode`)."""
+        line = self.dialect.encode(operation, channels, value)
+        try:
+            reply = self._exchange(line)
+            return self.dialect.decode(operation, reply, max(1, len(channels)))
+        except (LinkError, ProtocolError):
+            self._stale = True
+            raise
+
+    def _exchange(self, line: str) -> str:
+        if self._stale:
+            self._buffer.clear()
+            self._call(self.port.reset_input_buffer)
+            self._stale = False
+        self._call(self.port.write, line.encode("ascii") + self.dialect.terminator)
+        deadline = time.monotonic() + self.reply_timeout
+        if self.dialect.echo:
+            echo = self._read_line(deadline, line)
+            if echo != line:
+                raise ProtocolError(f"wrong echo {echo!r} for {line!r}")
+        return self._read_line(deadline, line)
+
+    def _read_line(self, deadline: float, line: str) -> str:
+        terminator = self.dialect.terminator
+        while (end := self._buffer.find(terminator)) < 0:
+            if len(self._buffer) > MAX_LINE:
+                raise ProtocolError(f"reply to {line!r} longer than {MAX_LINE} bytes without terminator")
+            if time.monotonic() >= deadline:
+                what = f"partial reply {bytes(self._buffer)!r}" if self._buffer else "no reply"
+                raise LinkError(f"{what} to {line!r} within {self.reply_timeout:g} s")
+            self._buffer += self._call(self.port.read, max(1, self._call(lambda: self.port.in_waiting)))
+        raw = bytes(self._buffer[:end])
+        del self._buffer[: end + len(terminator)]
+        try:
+            return raw.decode("ascii")
+        except UnicodeDecodeError:
+            raise ProtocolError(f"non-ASCII reply {raw!r} to {line!r}") from None
+
+    @staticmethod
+    def _call(function, *args):
+        try:
+            return function(*args)
+        except (serial.SerialException, OSError) as error:
+            raise LinkError(f"serial port failed: {error}") from error

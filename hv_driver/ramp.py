@@ -1,0 +1,46 @@
+"""Smooth voltage ramps: minimum-jerk profiles whose peak rate equals the allowed slew rate."""
+import math
+from dataclasses import dataclass
+
+# Peak of d/ds (10 s^3 - 15 s^4 + 6 s^5) on [0, 1], reached at s = 1/2.
+MIN_JERK_PEAK_RATE = 1.875
+
+
+@dataclass(frozen=True)
+class MinimumJerkRamp:
+    """Voltage moving from ``start`` to ``end`` along a minimum-jerk (quintic) profile.
+
+    Zero rate and zero acceleration at both ends, so the DEA is neither jolted nor loaded with a
+    current step; the duration is chosen so the peak rate equals ``slew_rate`` [V/s].
+    """
+
+    start: float
+    end: float
+    t0: float
+    slew_rate: float
+
+    @property
+    def duration(self) -> float:
+        return MIN_JERK_PEAK_RATE * abs(self.end - self.start) / self.slew_rate
+
+    def value(self, t: float) -> float:
+        """Voltage at time ``t`` [s] (held at the ends outside the ramp)."""
+        if self.duration == 0.0 or t >= self.t0 + self.duration:
+            return self.end
+        s = max(0.0, (t - self.t0) / self.duration)
+        shape = s ** 3 * (10.0 - 15.0 * s + 6.0 * s * s)
+        return self.start + (self.end - self.start) * shape
+
+    def finished(self, t: float) -> bool:
+        return t >= self.t0 + self.duration
+
+
+def check_slew_rate(slew_rate: float, maximum: float) -> float:
+    """Validated slew rate: ``maximum`` when None/0, else a finite positive value <= maximum."""
+    if slew_rate is None or slew_rate == 0:
+        return maximum
+    if not (isinstance(slew_rate, (int, float)) and math.isfinite(slew_rate) and slew_rate > 0):
+        raise ValueError(f"slew_rate={slew_rate!r}: finite number > 0 (or 0 for the configured rate)")
+    if slew_rate > maximum:
+        raise ValueError(f"slew_rate={slew_rate:g} V/s exceeds the configured slew limit {maximum:g} V/s")
+    return float(slew_rate)

@@ -1,0 +1,313 @@
+"""Safety supervisor of the HV supply: pure logic, no I/O, time passed in by the caller.
+
+One `ChannelSupervisor` per output holds the commanded setpoint, the running ramp and the latched
+faults; `Supervisor` adds the supply-wide watchdogs (link, client heartbeat) and the e-stop.
+The driver calls `step(now)` once per control cycle and sends the returned commands.
+
+Rules enforced here:
+- ceiling = min(hard maximum, assembly safe voltage, supply limit); a request above it is refused
+  with `LimitError` naming the limit, and the streamed setpoint is still clamped to it;
+- the setpoint rises and falls no faster than the channel's slew limit, except that it drops at
+  once when the ceiling drops below it or a fault latches;
+- faults latch until `reset`; every fault but HEARTBEAT puts the output to 0 V and off at once
+  (emergency off), a lost heartbeat ramps to 0 V at the slew limit and then switches off;
+- after a reset the outputs stay off until enabled again (never resume by themselves).
+"""
+import math
+from dataclasses import dataclass
+
+from .config import ChannelConfig
+from .faults import Fault, fault_names
+from .ramp import MinimumJerkRamp, check_slew_rate
+
+# A lost heartbeat ramps down smoothly; every other fault cuts the output at once.
+RAMP_DOWN_FAULTS = Fault.HEARTBEAT
+IMMEDIATE_FAULTS = Fault(sum(Fault)) & ~RAMP_DOWN_FAULTS
+
+# Largest time step credited to the slew allowance, so a stalled control loop resumes with a
+# slew-limited move instead of a jump.
+MAX_SLEW_STEP_S = 0.1
+
+
+class LimitError(ValueError):
+    """A request exceeds a safety limit; the message names the limit and its value."""
+
+
+class FaultLatchedError(RuntimeError):
+    """A request was refused because faults are latched (reset them first)."""
+
+
+@dataclass(frozen=True)
+class ChannelCommand:
+    """What the driver must command on one channel for this cycle."""
+
+    setpoint: float        # [V]
+    output_on: bool
+    emergency_off: bool    # a fault is latched: output off without ramp, setpoint 0
+
+
+def _finite(value) -> bool:
+    return isinstance(value, (int, float)) and math.isfinite(value)
+
+
+class ChannelSupervisor:
+    """Limits, ramp and latched faults of one output channel."""
+
+    def __init__(self, config: ChannelConfig, now: float = 0.0):
+        self.config = config
+        self._clock = float(now) if _finite(now) else 0.0
+        self.setpoint = 0.0
+        self.target = 0.0
+        self.output_enabled = False
+        self.faults = Fault(0)
+        self._reasons: dict[Fault, str] = {}
+        self.safe_voltage: float | None = None
+        self.device_limit: float | None = None
+        self._ramp: MinimumJerkRamp | None = None
+        self._off_at_zero = False
+        self._mismatch_since: float | None = None
+        self._creep_since: float | None = None
+        self.ramp_id = 0  # counts accepted ramp requests, so a waiting caller sees being superseded
+
+    # --- state -------------------------------------------------------------------------------
+    def limits(self) -> dict[str, float]:
+        """Every voltage limit in force, by name."""
+        named = {"hard maximum": self.config.max_voltage, "assembly safe voltage": self.safe_voltage,
+                 "supply limit": self.device_limit}
+        return {name: value for name, value in named.items() if value is not None}
+
+    @property
+    def ceiling(self) -> float:
+        return min(self.limits().values())
+
+    @property
+    def ramping(self) -> bool:
+        return self._ramp is not None
+
+    @property
+    def fault_text(self) -> str:
+        return "; ".join(f"{fault_names(f)}: {reason}" for f, reason in self._reasons.items())
+
+    def _now(self, now: float) -> float:
+        """Monotonic clock: a time stamp that is not finite or runs backwards counts as no time."""
+        if _finite(now) and now > self._clock:
+            return float(now)
+        return self._clock
+
+    # --- limits ------------------------------------------------------------------------------
+    def set_safe_voltage(self, voltage: float | None) -> None:
+        """Set the assembly's safe voltage [V] (None = unknown, not a limit)."""
+        if voltage is not None and not (_finite(voltage) and voltage >= 0):
+            raise ValueError(f"safe_voltage={voltage!r}: finite number >= 0 or None")
+        self.safe_voltage = None if voltage is None else float(voltage)
+
+    def set_device_limit(self, voltage: float | None) -> None:
+        """Set the supply's own voltage limit [V] as read from the device."""
+        if voltage is not None and not (_finite(voltage) and voltage >= 0):
+            raise ValueError(f"device_limit={voltage!r}: finite number >= 0 or None")
+        self.device_limit = None if voltage is None else float(voltage)
+
+    def check_target(self, target: float) -> float:
+        """Validated target [V]; raises ValueError / LimitError naming the violated limit."""
+        if not _finite(target) or target < 0:
+            raise ValueError(f"target={target!r} V: finite number >= 0")
+        for name, limit in self.limits().items():
+            if target > limit:
+                raise LimitError(f"channel {self.config.name!r}: target {target:g} V exceeds the "
+                                 f"{name} of {limit:g} V")
+        return float(target)
+
+    # --- requests ----------------------------------------------------------------------------
+    def _refuse_if_faulted(self) -> None:
+        if self.faults:
+            raise FaultLatchedError(f"channel {self.config.name!r} has latched faults "
+                                    f"({self.fault_text}); reset them first")
+
+    def enable(self) -> None:
+        """Switch the output on at 0 V."""
+        self._refuse_if_faulted()
+        if not self.output_enabled:
+            self.setpoint = self.target = 0.0
+            self.output_enabled = True
+        self._off_at_zero = False
+
+    def disable(self, now: float) -> None:
+        """Ramp to 0 V at the slew limit, then switch the output off."""
+        now = self._now(now)
+        if self.output_enabled:
+            self._start_ramp(now, 0.0, self.config.slew_rate)
+            self._off_at_zero = True
+
+    def ramp_to(self, now: float, target: float, slew_rate: float | None = None) -> int:
+        """Start a smooth ramp to ``target`` [V]; returns the ramp id. Refuses, never clips."""
+        now = self._now(now)
+        self._refuse_if_faulted()
+        if not self.output_enabled:
+            raise RuntimeError(f"channel {self.config.name!r}: output not enabled")
+        target = self.check_target(target)
+        slew = check_slew_rate(slew_rate, self.config.slew_rate)
+        self._start_ramp(now, target, slew)
+        self._off_at_zero = False
+        self.ramp_id += 1
+        return self.ramp_id
+
+    def _start_ramp(self, now: float, target: float, slew: float) -> None:
+        self._ramp = MinimumJerkRamp(self.setpoint, target, now, slew)
+        self.target = target
+
+    # --- faults ------------------------------------------------------------------------------
+    def trip(self, fault: Fault, reason: str) -> None:
+        """Latch ``fault``; outputs off at once (a lost heartbeat ramps down first)."""
+        if fault not in self.faults:
+            self.faults |= fault
+            self._reasons[fault] = reason
+        if fault & IMMEDIATE_FAULTS:
+            self.setpoint = self.target = 0.0
+            self.output_enabled = False
+            self._ramp = None
+            self._off_at_zero = False
+        elif self.output_enabled and not self._off_at_zero:
+            self._start_ramp(self._clock, 0.0, self.config.slew_rate)
+            self._off_at_zero = True
+
+    def observe(self, now: float, voltage: float, current: float, device_fault: str | None = None,
+                device_over_current: bool = False) -> None:
+        """Check one readback: measured voltage [V] and current [A], the device's own flags."""
+        now = self._now(now)
+        if not (_finite(voltage) and _finite(current)):
+            self.trip(Fault.LINK, f"readback not a finite number ({voltage!r} V, {current!r} A)")
+            return
+        if current > self.config.current_trip:
+            self.trip(Fault.OVER_CURRENT, f"measured {current:.3g} A above the trip level "
+                                          f"{self.config.current_trip:.3g} A")
+        if device_over_current:
+            self.trip(Fault.OVER_CURRENT, "the supply reported a current trip")
+        if device_fault:
+            self.trip(Fault.DEVICE, device_fault)
+        expected = self.setpoint if self.output_enabled else 0.0
+        if abs(voltage - expected) > self.config.mismatch_tolerance:
+            self._mismatch_since = now if self._mismatch_since is None else self._mismatch_since
+            if now - self._mismatch_since > self.config.mismatch_time:
+                self.trip(Fault.READBACK_MISMATCH, f"measured {voltage:.1f} V, commanded {expected:.1f} V "
+                                                   f"for more than {self.config.mismatch_time:g} s")
+        else:
+            self._mismatch_since = None
+        if self.config.creep_voltage is not None and voltage >= self.config.creep_voltage:
+            self._creep_since = now if self._creep_since is None else self._creep_since
+            if now - self._creep_since > self.config.max_time_at_voltage:
+                self.trip(Fault.TIME_AT_VOLTAGE, f"above {self.config.creep_voltage:g} V for more than "
+                                                 f"{self.config.max_time_at_voltage:g} s")
+        else:
+            self._creep_since = None
+
+    def reset(self) -> None:
+        """Clear the latched faults; the output stays off until enabled again."""
+        self.faults = Fault(0)
+        self._reasons.clear()
+        self.setpoint = self.target = 0.0
+        self.output_enabled = False
+        self._ramp = None
+        self._off_at_zero = False
+        self._mismatch_since = self._creep_since = None
+
+    # --- control cycle -----------------------------------------------------------------------
+    def step(self, now: float) -> ChannelCommand:
+        """Advance to ``now`` and return the command for this cycle."""
+        now = self._now(now)
+        dt = min(now - self._clock, MAX_SLEW_STEP_S)
+        self._clock = now
+        if self.faults & IMMEDIATE_FAULTS:
+            return ChannelCommand(0.0, False, True)
+        if not self.output_enabled:
+            self.setpoint = 0.0
+            return ChannelCommand(0.0, False, False)
+        ceiling = self.ceiling
+        if self.target > ceiling:  # the ceiling dropped under a running ramp: re-plan towards it
+            self._start_ramp(now, ceiling, self._ramp.slew_rate if self._ramp else self.config.slew_rate)
+        desired = self._ramp.value(now) if self._ramp else self.target
+        allowance = self.config.slew_rate * dt
+        desired = min(max(desired, self.setpoint - allowance), self.setpoint + allowance)
+        self.setpoint = max(0.0, min(desired, ceiling))
+        if self._ramp is not None and self._ramp.finished(now) and self.setpoint == self._ramp.end:
+            self._ramp = None
+        if self._off_at_zero and self._ramp is None and self.setpoint == 0.0:
+            self.output_enabled = self._off_at_zero = False
+        return ChannelCommand(self.setpoint, self.output_enabled, False)
+
+
+class Supervisor:
+    """All channels of one supply plus the supply-wide link and heartbeat watchdogs."""
+
+    def __init__(self, configs: list[ChannelConfig], *, link_timeout: float,
+                 heartbeat_timeout: float | None = None, now: float = 0.0):
+        if not configs:
+            raise ValueError("channels: at least one ChannelConfig")
+        for parameter, values in (("channel names", [c.name for c in configs]),
+                                  ("channel indices", [c.index for c in configs])):
+            if len(set(values)) != len(values):
+                raise ValueError(f"{parameter} must be unique, got {values}")
+        if not (_finite(link_timeout) and link_timeout > 0):
+            raise ValueError(f"link_timeout={link_timeout!r}: finite number > 0")
+        if heartbeat_timeout is not None and not (_finite(heartbeat_timeout) and heartbeat_timeout > 0):
+            raise ValueError(f"heartbeat_timeout={heartbeat_timeout!r}: None or finite number > 0")
+        self.link_timeout = float(link_timeout)
+        self.heartbeat_timeout = heartbeat_timeout
+        self._clock = float(now) if _finite(now) else 0.0
+        self.channels = {c.name: ChannelSupervisor(c, self._clock) for c in configs}
+        self._last_link_ok = self._last_heartbeat = self._clock
+        self.estop_latched = False
+
+    def _now(self, now: float) -> float:
+        if _finite(now) and now > self._clock:
+            self._clock = float(now)
+        return self._clock
+
+    def channel(self, name: str) -> ChannelSupervisor:
+        try:
+            return self.channels[name]
+        except KeyError:
+            raise ValueError(f"channel={name!r}: unknown, configured are {sorted(self.channels)}") from None
+
+    def link_ok(self, now: float) -> None:
+        """A complete, valid exchange with the supply finished at ``now``."""
+        self._last_link_ok = self._now(now)
+
+    def heartbeat(self, now: float) -> None:
+        self._last_heartbeat = self._now(now)
+
+    def enable(self, name: str, now: float) -> None:
+        channel = self.channel(name)
+        channel.enable()
+        # Enabling counts as a sign of life, so the heartbeat timeout runs from here.
+        self._last_heartbeat = self._now(now)
+
+    def set_safe_voltage(self, voltage: float | None) -> None:
+        for channel in self.channels.values():
+            channel.set_safe_voltage(voltage)
+
+    def estop(self) -> None:
+        self.estop_latched = True
+        for channel in self.channels.values():
+            channel.trip(Fault.ESTOP, "emergency stop")
+
+    def trip_all(self, fault: Fault, reason: str) -> None:
+        for channel in self.channels.values():
+            channel.trip(fault, reason)
+
+    def reset(self, now: float) -> None:
+        """Clear every latched fault; a cause still present trips again at the next step."""
+        self.estop_latched = False
+        self._last_heartbeat = self._now(now)
+        for channel in self.channels.values():
+            channel.reset()
+
+    def step(self, now: float) -> dict[str, ChannelCommand]:
+        now = self._now(now)
+        if now - self._last_link_ok > self.link_timeout:
+            self.trip_all(Fault.LINK, f"no valid reply from the supply for more than {self.link_timeout:g} s")
+        if (self.heartbeat_timeout is not None and now - self._last_heartbeat > self.heartbeat_timeout):
+            for channel in self.channels.values():
+                if channel.output_enabled:
+                    channel.trip(Fault.HEARTBEAT, f"no heartbeat from the controlling client for more "
+                                                  f"than {self.heartbeat_timeout:g} s")
+        return {name: channel.step(now) for name, channel in self.channels.items()}
