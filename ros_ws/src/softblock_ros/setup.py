@@ -19,6 +19,9 @@ setup(
     entry_points={
         "console_scripts": [
             "assembly_state = softblock_ros.assembly_state_node:main",
+            "recorder = softblock_ros.recording.cli:record_main",
+            "player = softblock_ros.recording.cli:play_main",
+            "analyze_recording = softblock_ros.recording.cli:analyze_main",
         ],
     },
 )

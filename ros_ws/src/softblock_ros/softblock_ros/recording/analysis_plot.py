@@ -1,0 +1,62 @@
+"""One PNG per recording: voltage, current, step timeline and predicted block angles."""
+import math
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402  (backend chosen first: no display needed)
+
+from .analysis import RecordingData, step_durations  # noqa: E402
+
+OUTCOME_COLOURS = {"succeeded": "tab:green", "failed": "tab:red", "canceled": "tab:orange",
+                   "unfinished": "tab:gray"}
+
+
+def plot(data: RecordingData, png_path: str, title: str = "") -> None:
+    """Writes the four stacked panels (shared time axis) with fault events marked."""
+    figure, (voltage, current, steps, angles) = plt.subplots(
+        4, 1, sharex=True, figsize=(10, 10), height_ratios=[3, 2, 2, 3])
+    for name, series in sorted(data.hv.items()):
+        line, = voltage.plot(series["time"], [v / 1e3 for v in series["voltage"]],
+                             label=f"{name} measured")
+        voltage.plot(series["time"], [v / 1e3 for v in series["setpoint"]], "--",
+                     color=line.get_color(), alpha=0.6, label=f"{name} setpoint")
+        current.plot(series["time"], [i * 1e3 for i in series["current"]], label=name)
+    voltage.set_ylabel("voltage [kV]")
+    current.set_ylabel("current [mA]")
+    for fault in data.faults:
+        colour = "tab:red" if fault["event"] == "raised" else "tab:blue"
+        for axis in (voltage, current):
+            axis.axvline(fault["time"], color=colour, linestyle=":", linewidth=1)
+        voltage.annotate(f"{fault['channel']}: {fault['event']} {','.join(fault['faults'])}",
+                         (fault["time"], 1), xycoords=("data", "axes fraction"),
+                         rotation=90, va="top", fontsize=7, color=colour)
+    _plot_steps(steps, step_durations(data.events), data.duration)
+    for name, series in sorted(data.angles.items()):
+        width = max(len(a) for a in series["angles"])
+        for block in range(width):
+            angles.plot(series["time"],
+                        [math.degrees(a[block]) if block < len(a) else math.nan
+                         for a in series["angles"]], label=f"{name} block {block}")
+    angles.set_ylabel("predicted angle [deg]")
+    angles.set_xlabel("time [s]")
+    for axis in (voltage, current, angles):
+        if axis.get_legend_handles_labels()[0]:
+            axis.legend(fontsize=7, loc="upper right", ncols=2)
+        axis.grid(alpha=0.3)
+    figure.suptitle(title or "recording")
+    figure.tight_layout()
+    figure.savefig(png_path, dpi=110)
+    plt.close(figure)
+
+
+def _plot_steps(axis, steps: list[dict], duration: float) -> None:
+    for row, step in enumerate(steps):
+        end = step["end"] if step["end"] is not None else duration
+        axis.broken_barh([(step["start"], max(end - step["start"], 1e-3))], (row - 0.4, 0.8),
+                         color=OUTCOME_COLOURS.get(step["outcome"], "tab:gray"))
+    axis.set_yticks(range(len(steps)), [f"{s['step_index']} {s['step_name']}" for s in steps],
+                    fontsize=7)
+    axis.invert_yaxis()
+    axis.set_ylabel("sequence step")
+    axis.grid(alpha=0.3, axis="x")

@@ -1,0 +1,172 @@
+"""MCAP files with the ROS 2 profile: writing, describing and recovering. No rclpy import.
+
+Chunks are compressed and written out at least every `flush_period`, so a recorder killed
+with SIGKILL loses at most the chunk in memory; `recover` turns such a file (no summary, no
+footer, maybe a torn last record) into a complete one.
+"""
+import os
+import struct
+from dataclasses import dataclass, field
+
+import yaml
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, Writer
+
+from .message_definitions import SCHEMA_ENCODING, full_definition
+
+PROFILE = "ros2"
+MESSAGE_ENCODING = "cdr"
+LIBRARY = "softblock-recorder"
+COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
+                "none": CompressionType.NONE}
+DEFAULT_CHUNK_SIZE = 256 * 1024
+
+
+class RecordingWriter:
+    """Writes one ROS 2 MCAP file: a schema per message type, a channel per topic."""
+
+    def __init__(self, path: str, compression: str = "zstd",
+                 chunk_size: int = DEFAULT_CHUNK_SIZE):
+        if compression not in COMPRESSIONS:
+            raise ValueError(f"compression must be one of {sorted(COMPRESSIONS)}, "
+                             f"not {compression!r}")
+        if chunk_size <= 0:
+            raise ValueError(f"chunk_size must be positive, not {chunk_size}")
+        self.path = path
+        self._stream = open(path, "wb")
+        self._writer = Writer(self._stream, chunk_size=chunk_size,
+                              compression=COMPRESSIONS[compression])
+        self._writer.start(profile=PROFILE, library=LIBRARY)
+        self._schema_ids: dict[str, int] = {}
+        self.message_counts: dict[str, int] = {}
+        self._topics: dict[int, str] = {}
+
+    def add_topic(self, topic: str, type_name: str, offered_qos_profiles: str = "",
+                  type_hash: str = "", definition: str | None = None) -> int:
+        """Registers a topic; returns the channel id to pass to `write`.
+
+        `definition` defaults to the full .msg text found through the ament index.
+        """
+        if type_name not in self._schema_ids:
+            text = full_definition(type_name) if definition is None else definition
+            self._schema_ids[type_name] = self._writer.register_schema(
+                type_name, SCHEMA_ENCODING, text.encode())
+        metadata = {"offered_qos_profiles": offered_qos_profiles, "topic_type_hash": type_hash}
+        channel_id = self._writer.register_channel(topic, MESSAGE_ENCODING,
+                                                   self._schema_ids[type_name], metadata)
+        self._topics[channel_id] = topic
+        self.message_counts[topic] = 0
+        return channel_id
+
+    def write(self, channel_id: int, data: bytes, log_time: int, publish_time: int) -> None:
+        """Adds one serialized (CDR) message; times in nanoseconds."""
+        self._writer.add_message(channel_id, log_time, bytes(data), publish_time)
+        self.message_counts[self._topics[channel_id]] += 1
+
+    def flush(self) -> None:
+        """Writes the chunk in progress to disk: what a SIGKILL afterwards cannot lose."""
+        self._writer.flush()
+
+    def close(self) -> None:
+        """Writes indexes, statistics and footer; the file is complete afterwards."""
+        if self._stream.closed:
+            return
+        self._writer.finish()
+        self._stream.close()
+
+
+@dataclass
+class RecoveryResult:
+    success: bool
+    message: str
+    messages: int = 0
+    topics: dict = field(default_factory=dict)
+
+
+def _readable_records(path: str):
+    """Records of `path` in file order, stopping quietly at a truncated tail."""
+    with open(path, "rb") as stream:
+        records = StreamReader(stream, validate_crcs=True).records
+        while True:
+            try:
+                record = next(records)
+            except StopIteration:
+                return
+            except (McapError, struct.error, ValueError, EOFError):
+                return  # torn record at the end of a file whose writer died
+            yield record
+
+
+def recover(source: str, target: str) -> RecoveryResult:
+    """Rewrites the readable prefix of `source` (e.g. a SIGKILL'd recording) as a valid `target`."""
+    if os.path.abspath(source) == os.path.abspath(target):
+        raise ValueError("target must differ from source")
+    schema_ids: dict[int, int] = {}
+    channel_ids: dict[int, int] = {}
+    topics: dict[int, str] = {}
+    counts: dict[str, int] = {}
+    writer = None
+    with open(target, "wb") as stream:
+        for record in _readable_records(source):
+            if isinstance(record, Header):
+                writer = Writer(stream, chunk_size=DEFAULT_CHUNK_SIZE)
+                writer.start(profile=record.profile, library=record.library)
+            elif writer is None:
+                break
+            elif isinstance(record, Schema) and record.id not in schema_ids:
+                schema_ids[record.id] = writer.register_schema(record.name, record.encoding,
+                                                               record.data)
+            elif isinstance(record, Channel) and record.id not in channel_ids:
+                channel_ids[record.id] = writer.register_channel(
+                    record.topic, record.message_encoding, schema_ids.get(record.schema_id, 0),
+                    record.metadata)
+                topics[record.id] = record.topic
+                counts.setdefault(record.topic, 0)
+            elif isinstance(record, Message) and record.channel_id in channel_ids:
+                writer.add_message(channel_ids[record.channel_id], record.log_time,
+                                   record.data, record.publish_time, record.sequence)
+                counts[topics[record.channel_id]] += 1
+            elif isinstance(record, Metadata):
+                writer.add_metadata(record.name, record.metadata)
+            elif isinstance(record, Attachment):
+                writer.add_attachment(record.create_time, record.log_time, record.name,
+                                      record.media_type, record.data)
+        if writer is None:
+            return RecoveryResult(False, f"{source} does not start with an MCAP header")
+        writer.finish()
+    return RecoveryResult(True, f"recovered {sum(counts.values())} messages into {target}",
+                          sum(counts.values()), counts)
+
+
+def describe(path: str) -> dict:
+    """Profile, time span and per-topic type, count and durability of a complete file.
+
+    Raises McapError for a file without summary (writer killed): run `recover` on it.
+    """
+    with open(path, "rb") as stream:
+        reader = make_reader(stream)
+        header = reader.get_header()
+        summary = reader.get_summary()
+    if summary is None or summary.statistics is None:
+        raise McapError(f"{path} has no summary section (recorder did not finish it); "
+                        "run the recover subcommand on it")
+    stats = summary.statistics
+    topics = {}
+    for channel_id, channel in sorted(summary.channels.items()):
+        schema = summary.schemas.get(channel.schema_id)
+        offered = yaml.safe_load(channel.metadata.get("offered_qos_profiles") or "[]") or []
+        topics[channel.topic] = {
+            "type": schema.name if schema else "",
+            "count": stats.channel_message_counts.get(channel_id, 0),
+            "durability": sorted({p.get("durability", "") for p in offered}),
+        }
+    return {
+        "path": path, "profile": header.profile, "library": header.library,
+        "message_count": stats.message_count, "chunk_count": stats.chunk_count,
+        "start_time": stats.message_start_time / 1e9,
+        "duration": (stats.message_end_time - stats.message_start_time) / 1e9,
+        "topics": topics,
+    }

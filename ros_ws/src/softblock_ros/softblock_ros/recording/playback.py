@@ -1,0 +1,111 @@
+"""What to replay and when: topic selection and the recorded timing. No rclpy import."""
+import re
+import threading
+import time
+from dataclasses import dataclass
+
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.records import Channel
+
+
+@dataclass
+class PlaybackOptions:
+    """Player settings. Regexes use `re.search` on the full topic name; empty matches all."""
+
+    rate: float = 1.0            # playback speed factor (2.0 = twice as fast)
+    loop: bool = False           # start over at the end until stopped
+    include: str = ""            # regex: play only matching topics
+    exclude: str = ""            # regex: never play matching topics
+    start_offset: float = 0.0    # seconds into the recording to start from
+    skip_unknown: bool = False   # play the other topics when a type cannot be imported
+    clock_frequency: float = 0.0  # Hz of /clock (rosgraph_msgs/Clock); 0 = no /clock
+
+    def validate(self) -> None:
+        if not self.rate > 0:
+            raise ValueError(f"rate must be positive, not {self.rate}")
+        if self.start_offset < 0:
+            raise ValueError(f"start_offset must be >= 0 s, not {self.start_offset}")
+        if self.clock_frequency < 0:
+            raise ValueError(f"clock_frequency must be >= 0 Hz, not {self.clock_frequency}")
+        for name in ("include", "exclude"):
+            try:
+                re.compile(getattr(self, name))
+            except re.error as error:
+                raise ValueError(f"{name} is not a valid regex: {error}") from error
+
+
+class Recording:
+    """A finished MCAP file: its channels with their schema names, and a time-ordered reader."""
+
+    def __init__(self, path: str):
+        self.path = path
+        self._stream = open(path, "rb")
+        self._reader = make_reader(self._stream)
+        summary = self._reader.get_summary()
+        if summary is None or summary.statistics is None:
+            self._stream.close()
+            raise McapError(f"{path} has no summary section (recorder did not finish it); "
+                            "run the recover subcommand on it first")
+        self.channels: list[Channel] = list(summary.channels.values())
+        self.type_names = {c.id: summary.schemas[c.schema_id].name
+                           for c in self.channels if c.schema_id in summary.schemas}
+        self.start_time = summary.statistics.message_start_time
+        self.end_time = summary.statistics.message_end_time
+
+    def select(self, options: PlaybackOptions) -> list[Channel]:
+        """Channels whose topic passes the include/exclude regexes."""
+        include, exclude = re.compile(options.include), re.compile(options.exclude)
+        return [c for c in self.channels
+                if include.search(c.topic) and not (options.exclude and exclude.search(c.topic))]
+
+    def messages(self, channels: list[Channel], start_offset: float):
+        """(channel, message) in log-time order from `start_offset` seconds in."""
+        start = self.start_time + round(start_offset * 1e9)
+        topics = [c.topic for c in channels]
+        for _, channel, message in self._reader.iter_messages(topics=topics, start_time=start):
+            yield channel, message
+
+    def close(self) -> None:
+        self._stream.close()
+
+
+class PlaybackClock:
+    """Maps wall time to recorded time at a rate factor; waits until a recorded time is due."""
+
+    def __init__(self, rate: float, stop: threading.Event):
+        self.rate = rate
+        self.stop = stop
+        self._origin_recorded = 0
+        self._origin_wall = time.monotonic()
+
+    def restart(self, recorded_time: int) -> None:
+        self._origin_recorded = recorded_time
+        self._origin_wall = time.monotonic()
+
+    def now(self) -> int:
+        """The recorded time (ns) being played now."""
+        return self._origin_recorded + round((time.monotonic() - self._origin_wall)
+                                             * self.rate * 1e9)
+
+    def wait_until(self, recorded_time: int) -> bool:
+        """Sleeps until `recorded_time` is due; False when stopped meanwhile."""
+        delay = (recorded_time - self._origin_recorded) / 1e9 / self.rate
+        remaining = self._origin_wall + delay - time.monotonic()
+        return not (remaining > 0 and self.stop.wait(remaining)) and not self.stop.is_set()
+
+
+def play(recording: Recording, channels: list[Channel], options: PlaybackOptions,
+         clock: PlaybackClock, publish) -> int:
+    """Calls publish(channel, message) at the recorded timing; returns how many were published."""
+    published = 0
+    while not clock.stop.is_set():
+        clock.restart(recording.start_time + round(options.start_offset * 1e9))
+        for channel, message in recording.messages(channels, options.start_offset):
+            if not clock.wait_until(message.log_time):
+                return published
+            publish(channel, message)
+            published += 1
+        if not options.loop:
+            break
+    return published

@@ -1,0 +1,104 @@
+"""Player node: republishes a recording with its timing and recorded QoS, optionally /clock.
+
+Each topic is published with the Python class of its recorded type (`pkg.msg.Type`) and the
+recorded bytes as they are. A type that cannot be imported stops the player before anything is
+published (UnknownMessageTypeError names type and topic), unless `skip_unknown` is set: then
+that topic is left out with a warning and the rest plays.
+"""
+import threading
+
+import rclpy
+from builtin_interfaces.msg import Time
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import QoSProfile
+from rosgraph_msgs.msg import Clock
+
+from .message_types import UnknownMessageTypeError, import_message_type
+from .playback import PlaybackClock, PlaybackOptions, Recording, play
+from .qos_metadata import parse_offered_qos, playback_qos
+
+
+class PlayerNode(Node):
+    def __init__(self, path: str, options: PlaybackOptions | None = None, **kwargs):
+        super().__init__("player", **kwargs)
+        self.options = options or PlaybackOptions()
+        self.options.validate()
+        self.recording = Recording(path)
+        self.publishers_by_channel = {}
+        self.skipped: dict[str, str] = {}
+        for channel in self.recording.select(self.options):
+            self._advertise(channel)
+        self.stop_event = threading.Event()
+        self.finished = threading.Event()
+        self.published = 0
+        self.clock = PlaybackClock(self.options.rate, self.stop_event)
+        if self.options.clock_frequency > 0:
+            self._clock_publisher = self.create_publisher(Clock, "/clock", QoSProfile(depth=1))
+            self.create_timer(1.0 / self.options.clock_frequency, self._publish_clock)
+        self._thread = threading.Thread(target=self._play, name="playback", daemon=True)
+
+    def _advertise(self, channel) -> None:
+        type_name = self.recording.type_names.get(channel.id, "")
+        try:
+            msg_type = import_message_type(type_name, channel.topic)
+        except UnknownMessageTypeError as error:
+            if not self.options.skip_unknown:
+                self.recording.close()
+                raise
+            self.skipped[channel.topic] = str(error)
+            self.get_logger().warning(f"not playing {channel.topic}: {error}")
+            return
+        qos = playback_qos(parse_offered_qos(channel.metadata.get("offered_qos_profiles", "")))
+        self.publishers_by_channel[channel.id] = self.create_publisher(msg_type, channel.topic, qos)
+
+    def start(self) -> None:
+        """Starts playback in a background thread; `finished` is set at the end."""
+        self._thread.start()
+
+    def stop(self) -> None:
+        self.stop_event.set()
+        if self._thread.is_alive():
+            self._thread.join()
+
+    def _play(self) -> None:
+        channels = [c for c in self.recording.channels if c.id in self.publishers_by_channel]
+        try:
+            self.published = play(self.recording, channels, self.options, self.clock,
+                                  self._publish)
+        finally:
+            self.finished.set()
+
+    def _publish(self, channel, message) -> None:
+        self.publishers_by_channel[channel.id].publish(message.data)
+
+    def _publish_clock(self) -> None:
+        seconds, nanoseconds = divmod(self.clock.now(), 1_000_000_000)
+        self._clock_publisher.publish(Clock(clock=Time(sec=seconds, nanosec=nanoseconds)))
+
+    def destroy_node(self):
+        self.stop()
+        self.recording.close()
+        return super().destroy_node()
+
+
+def run(path: str, options: PlaybackOptions, keep_alive: bool = False, ros_args=None) -> int:
+    """Plays `path` to the end (or until SIGINT/SIGTERM); keep_alive keeps latched topics up."""
+    rclpy.init(args=ros_args)
+    node = None
+    try:
+        node = PlayerNode(path, options)
+        node.start()
+        while rclpy.ok() and (keep_alive or not node.finished.is_set()):
+            rclpy.spin_once(node, timeout_sec=0.1)
+        node.get_logger().info(f"published {node.published} messages")
+        return 0
+    except UnknownMessageTypeError as error:
+        rclpy.logging.get_logger("player").error(f"{error} (use --skip-unknown to play the rest)")
+        return 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        return 0
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()

@@ -1,0 +1,115 @@
+"""Recorder node: subscribes (raw CDR) to the stack's topics and writes a ROS 2 MCAP file.
+
+Topics are discovered periodically (all of them, or the `topics` list); each subscription asks
+for what the publishers offer, so latched (transient_local) samples are captured.
+"""
+import re
+import sys
+
+import rclpy
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from .mcap_file import COMPRESSIONS, DEFAULT_CHUNK_SIZE, RecordingWriter
+from .message_definitions import DefinitionNotFoundError
+from .message_types import UnknownMessageTypeError, import_message_type
+from .qos_metadata import offered_qos_yaml, recording_qos
+
+DEFAULT_EXCLUDE = r"^/(rosout|parameter_events)$"
+
+
+def is_hidden(topic: str) -> bool:
+    """Hidden topics (a name part starting with '_', e.g. action internals) as in `ros2 bag`."""
+    return any(part.startswith("_") for part in topic.split("/"))
+
+
+class RecorderNode(Node):
+    def __init__(self, output: str = "recording.mcap", topics=(), **kwargs):
+        super().__init__("recorder", **kwargs)
+        declare = self._declare
+        self.output = declare("output", output, "MCAP file to write")
+        self.topics = declare("topics", list(topics) or Parameter.Type.STRING_ARRAY,
+                              "topics to record (relative names resolve in the node's "
+                              "namespace); empty: every discovered topic") or []
+        self.exclude = re.compile(declare("exclude", DEFAULT_EXCLUDE,
+                                          "regex of topics not recorded in all-topics mode"))
+        compression = declare("compression", "zstd",
+                              f"chunk compression: {', '.join(COMPRESSIONS)}")
+        chunk_size = declare("chunk_size", DEFAULT_CHUNK_SIZE, "bytes per chunk before writing")
+        flush_period = declare("flush_period", 1.0,
+                               "seconds between flushes: the most a SIGKILL can lose")
+        discovery_period = declare("discovery_period", 1.0, "seconds between topic discovery")
+        self.wanted = {self.resolve_topic_name(topic) for topic in self.topics}
+        self.writer = RecordingWriter(self.output, compression, chunk_size)
+        self.skipped: dict[str, str] = {}
+        self._recorded = {}
+        self.create_timer(flush_period, self.writer.flush)
+        self.create_timer(discovery_period, self.discover)
+        self.discover()
+
+    def _declare(self, name, default, description):
+        return self.declare_parameter(
+            name, default, ParameterDescriptor(description=description)).value
+
+    def _selected(self, topic: str) -> bool:
+        if self.wanted:
+            return topic in self.wanted
+        return not is_hidden(topic) and not self.exclude.search(topic)
+
+    def discover(self) -> None:
+        """Subscribes to every selected topic that has publishers and is not recorded yet."""
+        for topic, types in self.get_topic_names_and_types():
+            if topic in self._recorded or topic in self.skipped or not self._selected(topic):
+                continue
+            publishers = self.get_publishers_info_by_topic(topic)
+            if not publishers:
+                continue  # the offered QoS is unknown until a publisher exists
+            if len(types) != 1:
+                self._skip(topic, f"it carries several types {types}")
+                continue
+            self._subscribe(topic, types[0], publishers)
+
+    def _skip(self, topic: str, reason: str) -> None:
+        self.skipped[topic] = reason
+        self.get_logger().warning(f"not recording {topic}: {reason}")
+
+    def _subscribe(self, topic: str, type_name: str, publishers) -> None:
+        try:
+            msg_type = import_message_type(type_name, topic)
+            offered = [info.qos_profile for info in publishers]
+            channel = self.writer.add_topic(topic, type_name, offered_qos_yaml(offered),
+                                            str(publishers[0].topic_type_hash))
+        except (UnknownMessageTypeError, DefinitionNotFoundError) as error:
+            self._skip(topic, str(error))
+            return
+        qos = recording_qos(offered)
+        self._recorded[topic] = self.create_subscription(
+            msg_type, topic, lambda data, info: self.writer.write(
+                channel, data, info["received_timestamp"], info["source_timestamp"]),
+            qos, raw=True)
+        self.get_logger().info(f"recording {topic} ({type_name}, {qos.durability.short_key})")
+
+    def close_recording(self) -> None:
+        self.writer.close()
+
+
+def run(output: str, topics=(), ros_args=None) -> int:
+    """Records until SIGINT/SIGTERM, then finishes the file."""
+    rclpy.init(args=ros_args)
+    node = None
+    try:
+        node = RecorderNode(output, topics)
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.close_recording()
+            counts = node.writer.message_counts
+            print(f"wrote {sum(counts.values())} messages on {len(counts)} topics to "
+                  f"{node.output}", file=sys.stderr)
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
