@@ -1,0 +1,171 @@
+"""Object image -> left and right contours for the finger design (paper section 2.3.2).
+
+A binary side view of the object (object bright, background dark) is cleaned (specks removed, holes
+filled), its outline is traced, and the outline is split into a left and a right contour by cutting it at
+its top-most and bottom-most points (the fingers close on the object horizontally, the grasp is vertical).
+
+Object frame (used by every output here, in metres): origin at the top-centre of the object's bounding
+box (the top edge of its top-most pixel row, halfway between its left-most and right-most pixel edges),
+x to the right in the image, z up. So the object occupies z in [-height, 0] and x in [-width/2, width/2].
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import contourpy
+import numpy as np
+import yaml
+from PIL import Image
+from scipy import ndimage
+
+OBJECTS_CATALOG = Path(__file__).resolve().parent.parent / "config" / "objects" / "objects.yaml"
+DEFAULT_SPECK_FRACTION = 0.01
+
+
+def load_mask(source, threshold: float | None = None) -> np.ndarray:
+    """Boolean mask (rows, cols) of an object image; True = object.
+
+    ``source``: path of an image Pillow reads (PNG, PGM, ...) or a 2D array. A binary image (two grey
+    levels at most) needs no ``threshold``: the brighter level is the object. Any other image needs
+    ``threshold``: pixels brighter than it are the object.
+    """
+    if isinstance(source, (str, Path)):
+        try:
+            with Image.open(source) as image:
+                grey = np.asarray(image.convert("L") if image.mode not in ("1", "L", "I", "I;16", "F") else image)
+        except OSError as error:
+            raise ValueError(f"cannot read object image {source}: {error}") from None
+    else:
+        grey = np.asarray(source)
+    if grey.ndim != 2 or grey.size == 0:
+        raise ValueError(f"object image must be a non-empty 2D array, got shape {grey.shape}")
+    if grey.dtype == bool:
+        return grey.copy()
+    if threshold is not None:
+        return grey > threshold
+    levels = np.unique(grey)
+    if levels.size > 2:
+        raise ValueError(
+            f"object image is not binary ({levels.size} grey levels); pass threshold= to binarise it"
+        )
+    return grey == levels[-1] if levels[-1] != 0 else np.zeros(grey.shape, dtype=bool)
+
+
+def clean_mask(mask, speck_fraction: float = DEFAULT_SPECK_FRACTION) -> np.ndarray:
+    """The single object of ``mask`` with holes filled.
+
+    Regions smaller than ``speck_fraction`` of the largest region are specks and dropped. ValueError
+    for an empty mask, for several objects, and for an object touching the image border.
+    """
+    mask = np.asarray(mask, dtype=bool)
+    if mask.ndim != 2:
+        raise ValueError(f"mask must be 2D, got shape {mask.shape}")
+    if not 0.0 <= speck_fraction < 1.0:
+        raise ValueError(f"speck_fraction must lie in [0, 1), got {speck_fraction!r}")
+    labels, count = ndimage.label(mask)
+    if count == 0:
+        raise ValueError("object image is empty: no object pixels")
+    areas = np.bincount(labels.ravel())[1:]
+    objects = np.flatnonzero(areas >= speck_fraction * areas.max()) + 1
+    if objects.size > 1:
+        raise ValueError(
+            f"object image holds {objects.size} objects (areas {sorted(areas[objects - 1].tolist())} pixels); "
+            "crop it to one object"
+        )
+    cleaned = ndimage.binary_fill_holes(labels == objects[0])
+    if cleaned[0].any() or cleaned[-1].any() or cleaned[:, 0].any() or cleaned[:, -1].any():
+        raise ValueError("object touches the image border; pad the image so the whole outline is visible")
+    return cleaned
+
+
+@dataclass(frozen=True)
+class ObjectContours:
+    """Left and right contours of one object in the object frame (see the module docstring)."""
+
+    left: np.ndarray  # (n, 2) x, z [m], top to bottom
+    right: np.ndarray  # (m, 2) x, z [m], top to bottom
+    top: np.ndarray  # (2,) the cut point at the top [m]
+    bottom: np.ndarray  # (2,) the cut point at the bottom [m]
+    mask: np.ndarray  # cleaned mask (rows, cols), True = object
+    pixel_size: float  # [m / pixel]
+    origin_pixel: tuple[float, float]  # (column, row) of the frame origin in pixel-edge coordinates
+
+    @property
+    def height(self) -> float:
+        return float(self.top[1] - self.bottom[1])
+
+    @property
+    def width(self) -> float:
+        columns = np.flatnonzero(self.mask.any(axis=0))
+        return float((columns[-1] + 1 - columns[0]) * self.pixel_size)
+
+    def inside_object(self, points) -> np.ndarray:
+        """Boolean array (...): which points (..., 2) = (x, z) [m] fall on an object pixel."""
+        points = np.asarray(points, dtype=float)
+        if points.shape[-1] != 2:
+            raise ValueError(f"points must have a last axis of 2 (x, z), got shape {points.shape}")
+        column0, row0 = self.origin_pixel
+        with np.errstate(invalid="ignore"):
+            column = np.floor(points[..., 0] / self.pixel_size + column0)
+            row = np.floor(row0 - points[..., 1] / self.pixel_size)
+        rows, columns = self.mask.shape
+        inside = (column >= 0) & (column < columns) & (row >= 0) & (row < rows)
+        result = np.zeros(points.shape[:-1], dtype=bool)
+        result[inside] = self.mask[row[inside].astype(int), column[inside].astype(int)]
+        return result
+
+
+def _extreme_index(outline: np.ndarray, top: bool) -> int:
+    """Index of the top-most (or bottom-most) outline vertex; on a flat run, the one nearest its middle."""
+    z = outline[:, 1]
+    level = z.max() if top else z.min()
+    candidates = np.flatnonzero(np.abs(z - level) < 1e-12)
+    middle = 0.5 * (outline[candidates, 0].min() + outline[candidates, 0].max())
+    return int(candidates[np.argmin(np.abs(outline[candidates, 0] - middle))])
+
+
+def extract_contours(mask, pixel_size: float, speck_fraction: float = DEFAULT_SPECK_FRACTION) -> ObjectContours:
+    """Clean ``mask`` (see ``clean_mask``), trace its outline and split it into left and right contours.
+
+    ``pixel_size`` [m / pixel]. The outline runs along the pixel edges (iso-line 0.5 of the mask), so a
+    straight side of k pixels is exactly k * pixel_size long. The top and bottom cut points are left out
+    of both contours.
+    """
+    if not (np.isfinite(pixel_size) and pixel_size > 0):
+        raise ValueError(f"pixel_size must be a positive number of m/pixel, got {pixel_size!r}")
+    cleaned = clean_mask(mask, speck_fraction)
+    lines = contourpy.contour_generator(z=cleaned.astype(float), line_type="Separate").lines(0.5)
+    outline_pixels = max(lines, key=len)[:-1]  # closed loop; drop the repeated first vertex
+    rows = np.flatnonzero(cleaned.any(axis=1))
+    columns = np.flatnonzero(cleaned.any(axis=0))
+    # contourpy puts pixel centres at integer (column, row); pixel edges are at half-integers.
+    origin = (0.5 * (columns[0] + columns[-1] + 1), float(rows[0]))
+    outline = np.column_stack(
+        [(outline_pixels[:, 0] + 0.5 - origin[0]) * pixel_size, (origin[1] - outline_pixels[:, 1] - 0.5) * pixel_size]
+    )
+    top, bottom = _extreme_index(outline, top=True), _extreme_index(outline, top=False)
+    loop = np.roll(outline, -top, axis=0)  # start at the top
+    bottom = (bottom - top) % len(outline)
+    forward = loop[1:bottom]
+    backward = loop[:bottom:-1]
+    left, right = (forward, backward) if forward[:, 0].mean() < backward[:, 0].mean() else (backward, forward)
+    return ObjectContours(
+        left=left,
+        right=right,
+        top=outline[top],
+        bottom=loop[bottom],
+        mask=cleaned,
+        pixel_size=float(pixel_size),
+        origin_pixel=origin,
+    )
+
+
+def load_catalog_object(name: str, catalog: str | Path = OBJECTS_CATALOG, threshold: float | None = None) -> ObjectContours:
+    """Contours of an object listed in ``catalog`` (YAML: name -> {file, pixel_size_m})."""
+    catalog = Path(catalog)
+    entries = yaml.safe_load(catalog.read_text())
+    if name not in entries:
+        raise ValueError(f"object {name!r} is not in {catalog}; known: {sorted(entries)}")
+    entry = entries[name]
+    return extract_contours(load_mask(catalog.parent / entry["file"], threshold), float(entry["pixel_size_m"]))
