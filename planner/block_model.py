@@ -1,0 +1,370 @@
+"""Reduced-order physics of one building block: prestretched DEA membrane against two NiTi rods.
+
+Model (assumptions written out in docs/block_model.md):
+
+* The two rods bend with constant curvature (the paper's kinematics), so one angle theta
+  describes the block; their bending axis lies ``rod_depth`` below the top of the cap circle.
+  Each rod is a linear-elastic beam: the pair resists with M = 2 E I theta / L, I = pi D^4 / 64.
+* The active membrane covers the arc |psi| <= ``membrane_half_angle`` of the cap circle (psi from
+  the top). It is cut into N axial strips; a strip at height d above the rod axis runs between the
+  caps. Its reference length is L / lambda_1 and its hoop stretch stays lambda_2 (held by the
+  rigid caps), so bending changes only its axial stretch l / (L / lambda_1).
+* Fibre length l(theta): ``"arc"`` keeps the fibre parallel to the rods (l = L - d theta, the
+  paper's constant-curvature picture); ``"chord"`` uses the straight line between the two
+  anchor points on the rotated caps (l = (L - d theta) sin(theta/2) / (theta/2)), exact for the
+  constant-curvature rods. ``"closed_form"`` linearises the arc model about theta = 0.
+* Strip stress: plane-stress incompressible Ogden, minus the Maxwell stress eps (V/t)^2 at the
+  strip's current thickness t = t0 / (lambda_a lambda_2). A strip cannot carry compression
+  (it wrinkles), so its force is w t max(sigma, 0).
+* Equilibrium by virtual work: sum_k f_k (-dl_k/dtheta) = 2 E I theta / L.
+
+An equilibrium is only reported as valid if every strip is still in tension, the tangent
+stiffness is positive (no electromechanical pull-in) and the field stays below the material's
+dielectric strength; otherwise the angle is NaN and the status says which limit was crossed.
+"""
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import elementwise
+
+from planner.geometry import AREAL_PRESTRETCH, PAPER_GEOMETRY, BlockGeometry
+from planner.materials import ELASTOSIL_2030, OgdenMaterial
+from planner.ogden import biaxial_cauchy_stress, biaxial_cauchy_stress_slope
+
+
+@dataclass(frozen=True)
+class ModelConstants:
+    """Constants the paper does not give; fitted by planner.calibration to its published points."""
+
+    film_thickness: float  # effective unstretched film thickness t0 [m]
+    rod_modulus: float  # NiTi Young's modulus [Pa]
+    membrane_half_angle: float  # active membrane covers |psi| <= this, psi from the cap top [rad]
+
+
+# Output of `python -m planner calibrate` (planner/calibration.py); a test re-runs the fit.
+CALIBRATED_CONSTANTS = ModelConstants(
+    film_thickness=100e-6,
+    rod_modulus=50e9,
+    membrane_half_angle=PAPER_GEOMETRY.rod_half_angle,
+)
+
+
+class Status(enum.IntEnum):
+    OK = 0
+    MEMBRANE_SLACK = 1  # some strip lost its tension (wrinkling): the membrane no longer holds shape
+    PULL_IN = 2  # tangent stiffness <= 0: electromechanical instability
+    BREAKDOWN = 3  # field above the film's dielectric strength
+    NO_EQUILIBRIUM = 4  # no bending moment left to balance (membrane moment <= 0 at theta = 0)
+
+
+@dataclass(frozen=True)
+class Fidelity:
+    kind: str  # "closed_form", "arc" or "chord"
+    n_strips: int = 64
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("closed_form", "arc", "chord"):
+            raise ValueError(f"fidelity kind must be 'closed_form', 'arc' or 'chord', got {self.kind!r}")
+        if not isinstance(self.n_strips, int) or self.n_strips < 2:
+            raise ValueError(f"n_strips must be an integer >= 2, got {self.n_strips!r}")
+
+    @property
+    def label(self) -> str:
+        return "closed form" if self.kind == "closed_form" else f"{self.kind}, N={self.n_strips}"
+
+
+TABLE_FIDELITY = Fidelity("chord", 64)
+REFERENCE_FIDELITY = Fidelity("chord", 1024)
+
+# Physical ranges accepted as inputs: (low, high) inclusive, SI units.
+INPUT_RANGES = {
+    "rod_length": (1e-3, 0.1),
+    "rod_diameter": (0.05e-3, 3e-3),
+    "prestretch_axial": (1.0, 5.0),
+    "prestretch_tangential": (1.0, 5.0),
+    "film_thickness": (1e-6, 5e-3),
+    "relative_permittivity": (1.0, 20.0),
+    "rod_modulus": (1e9, 300e9),
+    "voltage": (0.0, 20e3),
+}
+
+
+def _checked(name: str, value) -> np.ndarray:
+    array = np.asarray(value, dtype=float)
+    low, high = INPUT_RANGES[name]
+    bad = ~np.isfinite(array) | (array < low) | (array > high)
+    if np.any(bad):
+        first = array[bad].flat[0] if array.ndim else float(array)
+        raise ValueError(f"{name} must lie in [{low:g}, {high:g}] (SI units), got {first!r}")
+    return array
+
+
+@dataclass(frozen=True)
+class BlockDesigns:
+    """One or many block designs as broadcast arrays (SI units).
+
+    Missing tangential prestretch defaults to 2.5 / lambda_1 (the paper's rule); missing film
+    thickness, permittivity and rod modulus come from the material and the calibrated constants.
+    """
+
+    rod_length: np.ndarray
+    rod_diameter: np.ndarray
+    prestretch_axial: np.ndarray
+    prestretch_tangential: np.ndarray
+    film_thickness: np.ndarray
+    relative_permittivity: np.ndarray
+    rod_modulus: np.ndarray
+    material: OgdenMaterial = ELASTOSIL_2030
+    membrane_half_angle: float = CALIBRATED_CONSTANTS.membrane_half_angle
+    geometry: BlockGeometry = field(default=PAPER_GEOMETRY)
+
+    @classmethod
+    def create(
+        cls,
+        rod_length,
+        rod_diameter,
+        prestretch_axial,
+        *,
+        prestretch_tangential=None,
+        material: OgdenMaterial = ELASTOSIL_2030,
+        film_thickness=None,
+        relative_permittivity=None,
+        rod_modulus=None,
+        constants: ModelConstants = CALIBRATED_CONSTANTS,
+        geometry: BlockGeometry = PAPER_GEOMETRY,
+    ) -> "BlockDesigns":
+        prestretch_axial = _checked("prestretch_axial", prestretch_axial)
+        if prestretch_tangential is None:
+            prestretch_tangential = AREAL_PRESTRETCH / prestretch_axial
+        if film_thickness is None:
+            # The calibrated t0 is ELASTOSIL's effective thickness; other films use their own scale.
+            film_thickness = constants.film_thickness * material.nominal_thickness / ELASTOSIL_2030.nominal_thickness
+        arrays = np.broadcast_arrays(
+            _checked("rod_length", rod_length),
+            _checked("rod_diameter", rod_diameter),
+            prestretch_axial,
+            _checked("prestretch_tangential", prestretch_tangential),
+            _checked("film_thickness", film_thickness),
+            _checked(
+                "relative_permittivity",
+                material.relative_permittivity if relative_permittivity is None else relative_permittivity,
+            ),
+            _checked("rod_modulus", constants.rod_modulus if rod_modulus is None else rod_modulus),
+        )
+        if not 0.0 < constants.membrane_half_angle <= math.pi:
+            raise ValueError(f"membrane_half_angle must lie in (0, pi], got {constants.membrane_half_angle!r}")
+        return cls(*(np.atleast_1d(a).astype(float) for a in arrays), material=material,
+                   membrane_half_angle=constants.membrane_half_angle, geometry=geometry)
+
+    @property
+    def size(self) -> int:
+        return self.rod_length.size
+
+    @property
+    def rod_stiffness(self) -> np.ndarray:
+        """Bending stiffness of the two rods, 2 E I / L [N m / rad]."""
+        second_moment = math.pi * self.rod_diameter**4 / 64.0
+        return 2.0 * self.rod_modulus * second_moment / self.rod_length
+
+    @property
+    def permittivity(self) -> np.ndarray:
+        return 8.8541878128e-12 * self.relative_permittivity
+
+    def strips(self, n_strips: int) -> tuple[np.ndarray, float]:
+        """Heights d of the strip mid-lines above the rod axis [m] and each strip's width [m]."""
+        radius = self.geometry.radius
+        edges = np.linspace(-self.membrane_half_angle, self.membrane_half_angle, n_strips + 1)
+        mid = 0.5 * (edges[1:] + edges[:-1])
+        return radius * np.cos(mid) - self.geometry.rod_height, radius * (edges[1] - edges[0])
+
+    def membrane_moments(self) -> tuple[float, float]:
+        """First and second moments of the membrane arc about the rod axis: int d ds, int d^2 ds."""
+        r, y, b = self.geometry.radius, self.geometry.rod_height, self.membrane_half_angle
+        first = 2.0 * r * (r * math.sin(b) - y * b)
+        second = r * (r * r * (b + math.sin(b) * math.cos(b)) - 4.0 * r * y * math.sin(b) + 2.0 * y * y * b)
+        return first, second
+
+
+@dataclass(frozen=True)
+class EquilibriumResult:
+    theta: np.ndarray  # bending angle [rad]; NaN where status != OK
+    stiffness: np.ndarray  # tangent rotational stiffness at equilibrium [N m / rad]; NaN if invalid
+    status: np.ndarray  # Status codes
+    max_field: np.ndarray  # highest field in the film [V/m]
+
+    @property
+    def valid(self) -> np.ndarray:
+        return self.status == Status.OK
+
+    @property
+    def success(self) -> bool:
+        return bool(np.all(self.valid))
+
+    @property
+    def message(self) -> str:
+        counts = {Status(s).name: int(n) for s, n in zip(*np.unique(self.status, return_counts=True))}
+        return ", ".join(f"{name}: {n}" for name, n in sorted(counts.items()))
+
+
+def _strip_tension(stretch, designs_cols, voltage, material):
+    """Axial membrane stress (Ogden minus Maxwell) and thickness for strips at axial stretch."""
+    hoop, thickness0, permittivity = designs_cols
+    thickness = thickness0 / (stretch * hoop)
+    maxwell = permittivity * (voltage / thickness) ** 2
+    return biaxial_cauchy_stress(material.mu, material.alpha, stretch, hoop) - maxwell, thickness
+
+
+def _fibre_length(theta, heights, rod_length, kind):
+    """Fibre length between the caps and its derivative d l / d theta."""
+    arc = rod_length - heights * theta
+    if kind == "arc":
+        return arc, -heights
+    half = 0.5 * theta
+    small = np.abs(half) < 1e-4
+    safe = np.where(small, 1.0, half)
+    sinc = np.where(small, 1.0 - half**2 / 6.0, np.sin(safe) / safe)
+    sinc_slope = np.where(small, -half / 3.0, (np.cos(safe) - sinc) / safe)
+    return arc * sinc, -heights * sinc + 0.5 * arc * sinc_slope
+
+
+class BlockModel:
+    """Equilibrium, stiffness and voltage limit of block designs at one fidelity."""
+
+    def __init__(self, designs: BlockDesigns, fidelity: Fidelity = TABLE_FIDELITY):
+        self.designs = designs
+        self.fidelity = fidelity
+        self._heights, self._width = designs.strips(fidelity.n_strips)
+
+    # -- membrane mechanics -------------------------------------------------------------------
+    def _columns(self, index):
+        d = self.designs
+        return (d.prestretch_tangential[index], d.film_thickness[index], d.permittivity[index])
+
+    def _strip_state(self, theta, voltage, index):
+        """Per-strip stress, thickness and (length, dl/dtheta) at theta for designs[index]."""
+        d = self.designs
+        rod_length = d.rod_length[index][..., None]
+        cols = tuple(c[..., None] for c in self._columns(index))
+        length, slope = _fibre_length(theta[..., None], self._heights, rod_length, self.fidelity.kind)
+        # Clip so fully collapsed fibres stay finite; they are slack and carry no force anyway.
+        stretch = np.maximum(d.prestretch_axial[index][..., None] * length / rod_length, 1e-3)
+        stress, thickness = _strip_tension(stretch, cols, voltage[..., None], d.material)
+        return stress, thickness, slope
+
+    def _residual(self, theta, voltage, index):
+        """Membrane moment minus rod moment [N m]; positive means the block wants to bend further."""
+        stress, thickness, slope = self._strip_state(theta, voltage, index)
+        force = self._width * thickness * np.maximum(stress, 0.0)
+        return np.sum(force * -slope, axis=-1) - self.designs.rod_stiffness[index] * theta
+
+    # -- solvers ------------------------------------------------------------------------------
+    def solve(self, voltage) -> EquilibriumResult:
+        """Equilibrium angle of every design at ``voltage`` (scalar or one value per design)."""
+        voltage = np.broadcast_to(_checked("voltage", voltage), (self.designs.size,)).astype(float)
+        if self.fidelity.kind == "closed_form":
+            return self._solve_closed_form(voltage)
+        return self._solve_strips(voltage)
+
+    def _solve_strips(self, voltage) -> EquilibriumResult:
+        n = self.designs.size
+        index = np.arange(n)
+        theta = np.full(n, np.nan)
+        status = np.full(n, Status.OK, dtype=int)
+        at_zero = self._residual(np.zeros(n), voltage, index)
+        status[at_zero <= 0.0] = Status.NO_EQUILIBRIUM
+        solvable = np.flatnonzero(status == Status.OK)
+        if solvable.size:
+            upper = np.full(solvable.size, math.pi / 2.0)  # caps collide long before 90 degrees
+            root = elementwise.find_root(
+                lambda x, i, v: self._residual(x, v, i.astype(int)),
+                (np.zeros(solvable.size), upper),
+                args=(solvable.astype(float), voltage[solvable]),
+                tolerances={"xatol": 1e-10, "xrtol": 1e-12},
+            )
+            found = root.success
+            theta[solvable[found]] = root.x[found]
+            status[solvable[~found]] = Status.NO_EQUILIBRIUM
+        return self._classify(theta, voltage, status)
+
+    def _classify(self, theta, voltage, status) -> EquilibriumResult:
+        n = self.designs.size
+        index = np.arange(n)
+        ok = status == Status.OK
+        theta_eval = np.where(ok, theta, 0.0)
+        stress, thickness, _ = self._strip_state(theta_eval, voltage, index)
+        max_field = np.max(voltage[:, None] / thickness, axis=-1)
+        step = 1e-6
+        stiffness = (
+            self._residual(theta_eval - step, voltage, index) - self._residual(theta_eval + step, voltage, index)
+        ) / (2.0 * step)
+        # Order matters: report the most fundamental failure first.
+        status = np.where(ok & (np.min(stress, axis=-1) <= 0.0), Status.MEMBRANE_SLACK, status)
+        status = np.where((status == Status.OK) & (stiffness <= 0.0), Status.PULL_IN, status)
+        breakdown = max_field >= self.designs.material.breakdown_field
+        status = np.where((status == Status.OK) & breakdown, Status.BREAKDOWN, status)
+        valid = status == Status.OK
+        return EquilibriumResult(
+            theta=np.where(valid, theta, np.nan),
+            stiffness=np.where(valid, stiffness, np.nan),
+            status=status,
+            max_field=max_field,
+        )
+
+    def _solve_closed_form(self, voltage) -> EquilibriumResult:
+        """Small-angle estimate: arc model linearised about the straight block (no strips)."""
+        d = self.designs
+        first, second = d.membrane_moments()
+        stretch = d.prestretch_axial
+        stress, thickness = _strip_tension(stretch, self._columns(slice(None)), voltage, d.material)
+        slope = biaxial_cauchy_stress_slope(d.material.mu, d.material.alpha, stretch, d.prestretch_tangential)
+        # d(sigma t)/d(lambda_a) including the Maxwell term eps V^2 / t (t ~ 1 / lambda_a).
+        force_slope = thickness * (slope - stress / stretch) - 2.0 * d.permittivity * voltage**2 / (thickness * stretch)
+        stiffness = d.rod_stiffness + stretch / d.rod_length * force_slope * second
+        theta = stress * thickness * first / stiffness
+        max_field = voltage / thickness
+        status = np.full(d.size, Status.OK, dtype=int)
+        status[stress <= 0.0] = Status.MEMBRANE_SLACK
+        status[(status == Status.OK) & (stiffness <= 0.0)] = Status.PULL_IN
+        status[(status == Status.OK) & (max_field >= d.material.breakdown_field)] = Status.BREAKDOWN
+        valid = status == Status.OK
+        return EquilibriumResult(np.where(valid, theta, np.nan), np.where(valid, stiffness, np.nan), status, max_field)
+
+    # -- voltage limit ------------------------------------------------------------------------
+    def voltage_limit(self, *, step: float = 200.0, v_max: float = 12e3, resolution: float = 1.0) -> "VoltageLimit":
+        """Highest voltage with a valid equilibrium, per design, and the limit that ends it.
+
+        Scans upward in ``step`` volts from 0 (so the first loss along the loading path is found,
+        not a later re-entry) and bisects the last bracket down to ``resolution`` volts.
+        """
+        n = self.designs.size
+        last_ok = np.zeros(n)
+        first_bad = np.full(n, np.inf)
+        limited_by = np.full(n, Status.OK, dtype=int)
+        for v in np.arange(0.0, v_max + step, step):
+            open_ = np.isinf(first_bad)
+            if not open_.any():
+                break
+            result = self.solve(np.where(open_, v, last_ok))
+            newly_bad = open_ & ~result.valid
+            first_bad[newly_bad] = v
+            limited_by[newly_bad] = result.status[newly_bad]
+            last_ok[open_ & result.valid] = v
+        bracketed = np.isfinite(first_bad)
+        low, high = last_ok.copy(), np.where(bracketed, first_bad, last_ok)
+        while np.any(high - low > resolution):
+            mid = 0.5 * (low + high)
+            result = self.solve(mid)
+            low = np.where(result.valid, mid, low)
+            high = np.where(result.valid, high, mid)
+            limited_by = np.where(result.valid, limited_by, result.status)
+        return VoltageLimit(voltage=np.floor(low / resolution) * resolution, limited_by=limited_by)
+
+
+@dataclass(frozen=True)
+class VoltageLimit:
+    voltage: np.ndarray  # highest voltage with a valid equilibrium [V]
+    limited_by: np.ndarray  # Status that ends the valid range (OK: valid up to the scan's v_max)
