@@ -388,10 +388,12 @@ class HvSupply:
             for config, voltage, current, register in zip(self.configs, voltages, currents, registers):
                 report = self.dialect.status_report(register)
                 sent = self._sent[config.name]
-                fault = report.fault
-                if fault is None and sent.output_on != report.output_on and not sent.emergency:
-                    fault = "supply output " + ("off although commanded on (reset or interlock)"
-                                                if sent.output_on else "on although commanded off")
+                fault = None
+                if not sent.emergency:  # after our own emergency off the device state is expected
+                    fault = report.fault
+                    if fault is None and sent.output_on != report.output_on:
+                        fault = "supply output " + ("off although commanded on (reset or interlock)"
+                                                    if sent.output_on else "on although commanded off")
                 self._supervisor.channel(config.name).observe(now, voltage, current, fault, report.over_current)
                 self._measured[config.name] = (voltage, current)
             self._cycles += 1
