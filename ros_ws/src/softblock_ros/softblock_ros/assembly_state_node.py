@@ -1,0 +1,115 @@
+"""Assembly-state node: holds the current assembly and publishes its predicted shape at the measured HV.
+
+Latched (transient_local): the assembly on ``assembly/current`` and the lowest safe voltage over its
+blocks on ``assembly/safe_voltage`` (the HV driver's ceiling). At ``rate``: the predicted per-block angles
+and centerlines at the channel voltages measured on ``hv/state`` (``assembly/state``) and RViz markers
+(``assembly/markers``). ``assembly/set`` replaces the assembly; an invalid one is refused, the old kept.
+"""
+from __future__ import annotations
+
+import sys
+
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
+from softblock_interfaces.msg import Assembly, AssemblyState, HvState
+from softblock_interfaces.srv import SetAssembly
+from std_msgs.msg import Float64, Header
+from visualization_msgs.msg import MarkerArray
+
+from planner.assembly import load_assembly
+from planner.kinematics import assembly_centerlines
+from planner.table import load_table
+
+from .conversions import assembly_from_msg, assembly_msg, chain_state_msg, check_assembly, safe_voltage
+from .markers import assembly_markers
+from .paths import resolve_path
+from .runner import run_node
+
+LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+class AssemblyStateNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__("assembly_state", **kwargs)
+        assembly_file = self._declare("assembly_file", "config/assemblies/gripper.yaml",
+                                      "assembly YAML loaded at start (relative: to the project root)")
+        table_path = self._declare("table_path", "", "look-up table file; empty = the planner's default table")
+        rate = self._declare("rate", 10.0, "publishing rate of assembly/state and assembly/markers [Hz]",
+                             FloatingPointRange(from_value=0.1, to_value=100.0))
+        self._frame_id = self._declare("frame_id", "gripper_base", "frame of the assembly, centerlines and markers")
+        self._table = load_table(resolve_path(table_path)) if table_path else load_table()
+
+        self._current_pub = self.create_publisher(Assembly, "assembly/current", LATCHED)
+        self._safe_voltage_pub = self.create_publisher(Float64, "assembly/safe_voltage", LATCHED)
+        self._state_pub = self.create_publisher(AssemblyState, "assembly/state", 10)
+        self._markers_pub = self.create_publisher(MarkerArray, "assembly/markers", 10)
+        self._voltages: dict[str, float] = {}  # measured channel voltages [V]; absent = not actuated
+        self._prediction = None  # (voltages, state, markers) of the last computation
+        assembly = load_assembly(resolve_path(assembly_file))
+        check_assembly(assembly, self._table)
+        self._use(assembly, calibration={})
+
+        # hv/state is read best effort: it matches a reliable or a best-effort publisher.
+        self.create_subscription(HvState, "hv/state", self._on_hv_state, qos_profile_sensor_data)
+        self.create_service(SetAssembly, "assembly/set", self._on_set)
+        self.create_timer(1.0 / rate, self._publish_state)
+        self.get_logger().info(f"assembly {assembly.name!r} from {assembly_file}, publishing at {rate} Hz")
+
+    def _declare(self, name, default, description, float_range=None):
+        descriptor = ParameterDescriptor(description=description, read_only=True,
+                                         floating_point_range=[float_range] if float_range else [])
+        return self.declare_parameter(name, default, descriptor).value
+
+    def _header(self) -> Header:
+        return Header(stamp=self.get_clock().now().to_msg(), frame_id=self._frame_id)
+
+    def _use(self, assembly, calibration: dict[str, float]) -> None:
+        self._assembly, self._calibration, self._prediction = assembly, calibration, None
+        current = assembly_msg(assembly, self._table, calibration)
+        current.header = self._header()
+        self._current_pub.publish(current)
+        self._safe_voltage_pub.publish(Float64(data=safe_voltage(assembly, self._table)))
+
+    def _on_set(self, request, response):
+        try:
+            assembly, calibration = assembly_from_msg(request.assembly, self._table)
+        except ValueError as error:
+            response.success, response.message = False, f"assembly refused: {error}"
+            self.get_logger().warning(response.message)
+            return response
+        self._use(assembly, calibration)
+        response.success, response.message = True, f"assembly {assembly.name!r} with {len(assembly.chains)} chains"
+        self.get_logger().info(response.message)
+        return response
+
+    def _on_hv_state(self, message: HvState) -> None:
+        self._voltages = {channel.name: channel.measured_voltage for channel in message.channels}
+
+    def _predict(self, voltages: dict[str, float]):
+        shapes = assembly_centerlines(self._assembly, self._table, voltages, self._calibration)
+        state = AssemblyState(assembly_name=self._assembly.name, safe_voltage=safe_voltage(self._assembly, self._table))
+        state.chains = [
+            chain_state_msg(chain, shapes[chain.name], voltages.get(chain.hv_channel, 0.0))
+            for chain in self._assembly.chains
+        ]
+        return voltages, state, assembly_markers(self._assembly, shapes, self._table, Header(frame_id=self._frame_id))
+
+    def _publish_state(self) -> None:
+        voltages = {ch: self._voltages[ch] for ch in self._assembly.hv_channels if ch in self._voltages}
+        if self._prediction is None or self._prediction[0] != voltages:  # recompute only on change
+            self._prediction = self._predict(voltages)
+        _, state, markers = self._prediction
+        state.header = self._header()
+        for marker in markers.markers:
+            marker.header = state.header
+        self._state_pub.publish(state)
+        self._markers_pub.publish(markers)
+
+
+def main(args=None):
+    sys.exit(run_node(AssemblyStateNode, "assembly_state", args=args))
+
+
+if __name__ == "__main__":
+    main()
