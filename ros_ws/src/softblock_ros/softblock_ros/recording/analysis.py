@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
+from .mcap_file import require_complete
+
 HV_STATE = "softblock_interfaces/msg/HvState"
 SEQUENCE_EVENT = "softblock_interfaces/msg/SequenceEvent"
 ASSEMBLY_STATE = "softblock_interfaces/msg/AssemblyState"
@@ -44,6 +46,7 @@ def fault_names(bits: int, names: dict) -> list[str]:
 
 def load(path: str) -> RecordingData:
     """Decodes the HvState, SequenceEvent and AssemblyState messages of `path`."""
+    require_complete(path)
     data = RecordingData()
     rows = []
     with open(path, "rb") as stream:

@@ -13,7 +13,7 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
-from mcap.writer import CompressionType, Writer
+from mcap.writer import MCAP0_MAGIC, CompressionType, Writer
 
 from .message_definitions import SCHEMA_ENCODING, full_definition
 
@@ -76,6 +76,18 @@ class RecordingWriter:
             return
         self._writer.finish()
         self._stream.close()
+
+
+def require_complete(path: str) -> None:
+    """McapError unless `path` ends with the footer magic that `RecordingWriter.close` writes."""
+    with open(path, "rb") as stream:
+        stream.seek(0, os.SEEK_END)
+        size = stream.tell()
+        stream.seek(max(size - len(MCAP0_MAGIC), 0))
+        complete = size > 2 * len(MCAP0_MAGIC) and stream.read() == MCAP0_MAGIC
+    if not complete:
+        raise McapError(f"{path} is not a finished MCAP file (its recorder was killed?); "
+                        "run the recover subcommand on it first")
 
 
 @dataclass
@@ -144,15 +156,15 @@ def recover(source: str, target: str) -> RecoveryResult:
 def describe(path: str) -> dict:
     """Profile, time span and per-topic type, count and durability of a complete file.
 
-    Raises McapError for a file without summary (writer killed): run `recover` on it.
+    Raises McapError for an unfinished file (writer killed): run `recover` on it.
     """
+    require_complete(path)
     with open(path, "rb") as stream:
         reader = make_reader(stream)
         header = reader.get_header()
         summary = reader.get_summary()
     if summary is None or summary.statistics is None:
-        raise McapError(f"{path} has no summary section (recorder did not finish it); "
-                        "run the recover subcommand on it")
+        raise McapError(f"{path} has no summary section; run the recover subcommand on it")
     stats = summary.statistics
     topics = {}
     for channel_id, channel in sorted(summary.channels.items()):

@@ -8,6 +8,8 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.records import Channel
 
+from .mcap_file import require_complete
+
 
 @dataclass
 class PlaybackOptions:
@@ -39,14 +41,14 @@ class Recording:
     """A finished MCAP file: its channels with their schema names, and a time-ordered reader."""
 
     def __init__(self, path: str):
+        require_complete(path)
         self.path = path
         self._stream = open(path, "rb")
         self._reader = make_reader(self._stream)
         summary = self._reader.get_summary()
         if summary is None or summary.statistics is None:
             self._stream.close()
-            raise McapError(f"{path} has no summary section (recorder did not finish it); "
-                            "run the recover subcommand on it first")
+            raise McapError(f"{path} has no summary section; run the recover subcommand on it")
         self.channels: list[Channel] = list(summary.channels.values())
         self.type_names = {c.id: summary.schemas[c.schema_id].name
                            for c in self.channels if c.schema_id in summary.schemas}

@@ -91,6 +91,10 @@ class RecorderNode(Node):
             qos, raw=True)
         self.get_logger().info(f"recording {topic} ({type_name}, {qos.durability.short_key})")
 
+    @property
+    def recorded_topics(self) -> list[str]:
+        return sorted(self._recorded)
+
     def close_recording(self) -> None:
         self.writer.close()
 

@@ -1,0 +1,91 @@
+"""Shared pieces of the recording tests: the stack's messages, waiting, spinning, reading back."""
+import threading
+import time
+
+import rclpy
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import DurabilityPolicy, QoSProfile
+from softblock_interfaces.msg import (Assembly, AssemblyState, Chain, ChainState, HvChannelState,
+                                      HvState, SequenceEvent)
+
+LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+TIMEOUT = 30.0  # [s] liveness deadline only: the suite shares two loaded cores
+
+
+def wait_for(predicate, what: str, timeout: float = TIMEOUT):
+    """Polls `predicate` until truthy and returns its value; TimeoutError names `what`."""
+    deadline = time.monotonic() + timeout
+    while not (value := predicate()):
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"timed out after {timeout} s waiting for {what}")
+        time.sleep(0.01)
+    return value
+
+
+class Spinner:
+    """Spins nodes in a background thread until closed."""
+
+    def __init__(self, context, *nodes):
+        self.executor = SingleThreadedExecutor(context=context)
+        for node in nodes:
+            self.executor.add_node(node)
+        self._thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self._thread.start()
+
+    def close(self):
+        self.executor.shutdown()
+        self._thread.join()
+
+
+def stamp(node_or_ns, message):
+    """Sets message.header.stamp from a node's clock or from nanoseconds; returns the message."""
+    ns = node_or_ns if isinstance(node_or_ns, int) else node_or_ns.get_clock().now().nanoseconds
+    message.header.stamp.sec, message.header.stamp.nanosec = divmod(ns, 1_000_000_000)
+    return message
+
+
+def hv_state(index: int, voltages: dict, faults: dict | None = None) -> HvState:
+    """HvState with one channel per entry of `voltages` (name -> V); current = V * 1e-8 A."""
+    faults = faults or {}
+    return HvState(device_id="sim-hv", backend="sim", channels=[
+        HvChannelState(name=name, index=number, setpoint=voltage, target=voltage,
+                       measured_voltage=voltage, measured_current=voltage * 1e-8,
+                       ceiling=4000.0, output_enabled=True, faults=faults.get(name, (0, ""))[0],
+                       fault_text=faults.get(name, (0, ""))[1])
+        for number, (name, voltage) in enumerate(voltages.items())])
+
+
+def sequence_event(step_index: int, step_name: str, phase: str, message: str = ""):
+    return SequenceEvent(sequence="grasp", step_index=step_index, step_name=step_name,
+                         phase=phase, message=message)
+
+
+def assembly_state(angles: dict) -> AssemblyState:
+    """AssemblyState with one chain per entry of `angles` (name -> block angles [rad])."""
+    return AssemblyState(assembly_name="gripper", safe_voltage=4000.0, chains=[
+        ChainState(name=name, hv_channel=name, voltage=1000.0, block_angles=list(values),
+                   block_valid=[True] * len(values))
+        for name, values in angles.items()])
+
+
+def assembly(name: str = "gripper") -> Assembly:
+    return Assembly(name=name, chains=[Chain(name="front", hv_channel="front")])
+
+
+def read_decoded(path: str) -> dict:
+    """topic -> list of (schema name, decoded message, log_time, publish_time), via mcap-ros2."""
+    topics: dict = {}
+    with open(path, "rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        for schema, channel, message, decoded in reader.iter_decoded_messages():
+            topics.setdefault(channel.topic, []).append(
+                (schema.name, decoded, message.log_time, message.publish_time))
+    return topics
+
+
+def new_context():
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    return context
