@@ -10,7 +10,7 @@ from rclpy.node import Node
 
 def run_node(make_node: Callable[[], Node], name: str, executor: Callable[[], Executor] = SingleThreadedExecutor,
              args=None) -> int:
-    """Spin the node built by ``make_node``; exit status 1 when its configuration is rejected (ValueError)."""
+    """Spin the node built by ``make_node``; exit status 1 when it cannot start (bad configuration or file)."""
     rclpy.init(args=args)
     node = None
     try:
@@ -20,7 +20,7 @@ def run_node(make_node: Callable[[], Node], name: str, executor: Callable[[], Ex
         spinner.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except ValueError as error:
+    except (ValueError, OSError) as error:
         if node is not None:
             raise
         rclpy.logging.get_logger(name).fatal(f"cannot start: {error}")

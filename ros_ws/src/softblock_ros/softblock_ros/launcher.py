@@ -1,0 +1,155 @@
+"""Start the stack's nodes as processes, prefix their output, stop them cleanly (ros2 launch stand-in).
+
+    python -m softblock_ros.launcher --nodes assembly_state,planner --params my_params.yaml
+
+Each node runs as ``python -m <module> --ros-args --params-file <params>`` in its own process group, so a
+terminal's Ctrl-C reaches only the launcher, which then stops the nodes in reverse start order: SIGINT,
+then SIGKILL after ``stop_timeout``. The launcher exits non-zero when a node dies on its own.
+As a library: ``with Stack(nodes=["planner"]) as stack: ...``.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import threading
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import TextIO
+
+NODE_MODULES = {
+    "hv_driver": "softblock_ros.hv_driver_node",
+    "assembly_state": "softblock_ros.assembly_state_node",
+    "planner": "softblock_ros.planner_node",
+    "sim_arm": "softblock_ros.sim_arm_node",
+    "sequencer": "softblock_ros.sequencer_node",
+    "recorder": "softblock_ros.recording.recorder_node",
+}
+DEFAULT_STOP_TIMEOUT = 10.0  # [s] per node, before SIGKILL
+
+
+class NodeDied(RuntimeError):
+    """A node process exited while the stack was running."""
+
+
+class Stack:
+    """The node processes of one stack; a context manager that stops them in reverse order on exit."""
+
+    def __init__(self, nodes: Iterable[str] = tuple(NODE_MODULES), params: str | Path | None = None,
+                 env: Mapping[str, str] | None = None, output: TextIO | None = None,
+                 stop_timeout: float = DEFAULT_STOP_TIMEOUT):
+        self.nodes = list(nodes)
+        unknown = [name for name in self.nodes if name not in NODE_MODULES]
+        if unknown:
+            raise ValueError(f"unknown nodes {unknown}; known: {', '.join(NODE_MODULES)}")
+        if params is not None and not Path(params).is_file():
+            raise ValueError(f"params file {params} does not exist")
+        self.params = params
+        self.env = {**os.environ, **(env or {}), "PYTHONUNBUFFERED": "1"}
+        self.output = output or sys.stdout
+        self.stop_timeout = stop_timeout
+        self.processes: dict[str, subprocess.Popen] = {}
+        self._stopping = threading.Event()
+        self._output_lock = threading.Lock()
+        self._pumps: list[threading.Thread] = []
+
+    def command(self, name: str) -> list[str]:
+        ros_args = ["--ros-args", "--params-file", str(self.params)] if self.params else []
+        return [sys.executable, "-m", NODE_MODULES[name], *ros_args]
+
+    def start(self) -> Stack:
+        for name in self.nodes:
+            process = subprocess.Popen(self.command(name), env=self.env, stdin=subprocess.DEVNULL,
+                                       stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                       process_group=0)
+            self.processes[name] = process
+            pump = threading.Thread(target=self._pump, args=(name, process), daemon=True)
+            pump.start()
+            self._pumps.append(pump)
+        return self
+
+    def _pump(self, name: str, process: subprocess.Popen) -> None:
+        for line in process.stdout:
+            with self._output_lock:
+                self.output.write(f"[{name}] {line}")
+                self.output.flush()
+
+    def dead(self) -> dict[str, int]:
+        """Exit codes of node processes that have ended."""
+        return {name: p.returncode for name, p in self.processes.items() if p.poll() is not None}
+
+    def request_stop(self) -> None:
+        """Make ``wait()`` return (safe in a signal handler); ``stop()`` then stops the nodes."""
+        self._stopping.set()
+
+    def wait(self, poll_interval: float = 0.2) -> None:
+        """Block until ``stop()`` is called (e.g. from a signal handler); NodeDied if a node ends first."""
+        while not self._stopping.wait(poll_interval):
+            dead = self.dead()
+            if dead:
+                raise NodeDied(", ".join(f"node {n} exited with code {c}" for n, c in dead.items()))
+
+    def stop(self) -> dict[str, int]:
+        """Stop the nodes in reverse start order (SIGINT, then SIGKILL after the timeout); their exit codes."""
+        self._stopping.set()
+        for name in reversed(list(self.processes)):
+            process = self.processes[name]
+            if process.poll() is None:
+                process.send_signal(signal.SIGINT)
+                try:
+                    process.wait(self.stop_timeout)
+                except subprocess.TimeoutExpired:
+                    self._say(name, f"did not stop within {self.stop_timeout} s, killing it")
+                    process.kill()
+                    process.wait()
+        for pump in self._pumps:
+            pump.join(timeout=1.0)
+        return {name: p.returncode for name, p in self.processes.items()}
+
+    def _say(self, name: str, text: str) -> None:
+        with self._output_lock:
+            self.output.write(f"[launcher] {name}: {text}\n")
+            self.output.flush()
+
+    def __enter__(self) -> Stack:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="python -m softblock_ros.launcher", description=__doc__.split("\n")[0])
+    parser.add_argument("--nodes", default=",".join(NODE_MODULES),
+                        help=f"comma-separated nodes to start, in order (default: all: {','.join(NODE_MODULES)})")
+    parser.add_argument("--params", help="ROS parameter YAML passed to every node (--params-file)")
+    parser.add_argument("--stop-timeout", type=float, default=DEFAULT_STOP_TIMEOUT,
+                        help="seconds each node gets to stop after SIGINT before SIGKILL")
+    return parser.parse_args(argv)
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    try:
+        stack = Stack([n for n in args.nodes.split(",") if n], args.params, stop_timeout=args.stop_timeout)
+    except ValueError as error:
+        print(f"launcher: {error}", file=sys.stderr)
+        return 2
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, lambda *_: stack.request_stop())
+    stack.start()
+    try:
+        stack.wait()
+        status = 0
+    except NodeDied as error:
+        print(f"launcher: {error}; stopping the others", file=sys.stderr)
+        status = 1
+    codes = stack.stop()
+    print(f"launcher: stopped ({', '.join(f'{n}={c}' for n, c in codes.items())})", file=sys.stderr)
+    return status
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,91 @@
+"""Stack launcher: nodes as processes reachable over ROS, prefixed output, clean stop on SIGTERM,
+non-zero exit when a node dies, SIGKILL for a node that ignores SIGINT."""
+import io
+import signal
+import subprocess
+import sys
+
+import pytest
+import rclpy
+from rclpy.qos import DurabilityPolicy, QoSProfile
+from ros_testing import Inbox, wait_for
+from softblock_interfaces.msg import Assembly
+
+from softblock_ros.launcher import NodeDied, Stack, main
+
+LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+@pytest.fixture
+def params(tmp_path):
+    path = tmp_path / "params.yaml"
+    path.write_text("assembly_state:\n  ros__parameters:\n    frame_id: launcher_test_frame\n")
+    return path
+
+
+def test_stack_runs_nodes_with_the_params_file_and_stops_them_cleanly(ros_context, spin, params):
+    output = io.StringIO()
+    with Stack(nodes=["assembly_state"], params=params, output=output) as stack:
+        client = rclpy.create_node("launcher_test_client", context=ros_context)
+        inbox = Inbox(client, Assembly, "assembly/current", LATCHED)
+        spin(client)
+        assert inbox.wait().header.frame_id == "launcher_test_frame"
+        assert stack.dead() == {}
+    assert stack.stop() == {"assembly_state": 0}
+    lines = output.getvalue().splitlines()
+    assert lines and all(line.startswith("[assembly_state] ") for line in lines)
+    assert any("publishing at" in line for line in lines)
+
+
+def test_a_node_that_dies_ends_the_wait(params):
+    with Stack(nodes=["assembly_state"], params=params, output=io.StringIO()) as stack:
+        stack.processes["assembly_state"].kill()
+        with pytest.raises(NodeDied, match="node assembly_state exited with code -9"):
+            stack.wait()
+
+
+class SigintIgnoringStack(Stack):
+    """Runs a stand-in process that ignores SIGINT instead of the node."""
+
+    def command(self, name):
+        code = "import signal, time; signal.signal(signal.SIGINT, signal.SIG_IGN); print('up', flush=True); time.sleep(60)"
+        return [sys.executable, "-c", code]
+
+
+def test_a_node_that_ignores_sigint_is_killed_after_the_timeout():
+    output = io.StringIO()
+    with SigintIgnoringStack(nodes=["planner"], output=output, stop_timeout=0.5) as stack:
+        wait_for(lambda: "[planner] up" in output.getvalue(), what="the stand-in process to start")
+    assert stack.processes["planner"].returncode == -signal.SIGKILL
+    assert "[launcher] planner: did not stop within 0.5 s, killing it" in output.getvalue()
+
+
+def launch(*args):
+    return subprocess.Popen([sys.executable, "-m", "softblock_ros.launcher", *args],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def test_cli_forwards_sigterm_and_exits_zero(params):
+    launcher = launch("--nodes", "assembly_state", "--params", str(params))
+    for line in launcher.stdout:  # until the node is up
+        if line.startswith("[assembly_state]") and "publishing at" in line:
+            break
+    launcher.send_signal(signal.SIGTERM)
+    rest = launcher.stdout.read()
+    assert launcher.wait() == 0
+    assert "launcher: stopped (assembly_state=0)" in rest
+
+
+def test_cli_exits_non_zero_when_a_node_fails(tmp_path):
+    params = tmp_path / "bad.yaml"
+    params.write_text("assembly_state:\n  ros__parameters:\n    assembly_file: /nonexistent/assembly.yaml\n")
+    launcher = launch("--nodes", "assembly_state", "--params", str(params))
+    output, _ = launcher.communicate()
+    assert launcher.returncode == 1
+    assert "cannot read assembly file /nonexistent/assembly.yaml" in output
+    assert "launcher: node assembly_state exited with code 1" in output
+
+
+def test_cli_refuses_unknown_nodes(capsys):
+    assert main(["--nodes", "assembly_state,teleporter"]) == 2
+    assert "unknown nodes ['teleporter']" in capsys.readouterr().err
