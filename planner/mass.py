@@ -24,7 +24,7 @@ class MassConstants:
 
 
 # Output of `python -m planner calibrate` (planner/calibration.py).
-CALIBRATED_MASS = MassConstants(fixed=0.5e-3, per_length=0.04)
+CALIBRATED_MASS = MassConstants(fixed=4.8409e-04, per_length=3.5090e-02)
 
 
 def component_mass(designs: BlockDesigns) -> np.ndarray:
