@@ -19,6 +19,8 @@ setup(
     entry_points={
         "console_scripts": [
             "assembly_state = softblock_ros.assembly_state_node:main",
+            "planner = softblock_ros.planner_node:main",
+            "launcher = softblock_ros.launcher:main",
             "recorder = softblock_ros.recording.cli:record_main",
             "player = softblock_ros.recording.cli:play_main",
             "analyze_recording = softblock_ros.recording.cli:analyze_main",

@@ -19,13 +19,14 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import TextIO
 
-NODE_MODULES = {
-    "hv_driver": "softblock_ros.hv_driver_node",
-    "assembly_state": "softblock_ros.assembly_state_node",
-    "planner": "softblock_ros.planner_node",
-    "sim_arm": "softblock_ros.sim_arm_node",
-    "sequencer": "softblock_ros.sequencer_node",
-    "recorder": "softblock_ros.recording.recorder_node",
+# Node name -> what follows ``python -m`` (module and its own arguments), in default start order.
+NODE_COMMANDS = {
+    "hv_driver": ("softblock_ros.hv_driver_node",),
+    "assembly_state": ("softblock_ros.assembly_state_node",),
+    "planner": ("softblock_ros.planner_node",),
+    "sim_arm": ("softblock_ros.sim_arm_node",),
+    "sequencer": ("softblock_ros.sequencer_node",),
+    "recorder": ("softblock_ros.recording", "record"),
 }
 DEFAULT_STOP_TIMEOUT = 10.0  # [s] per node, before SIGKILL
 
@@ -37,13 +38,13 @@ class NodeDied(RuntimeError):
 class Stack:
     """The node processes of one stack; a context manager that stops them in reverse order on exit."""
 
-    def __init__(self, nodes: Iterable[str] = tuple(NODE_MODULES), params: str | Path | None = None,
+    def __init__(self, nodes: Iterable[str] = tuple(NODE_COMMANDS), params: str | Path | None = None,
                  env: Mapping[str, str] | None = None, output: TextIO | None = None,
                  stop_timeout: float = DEFAULT_STOP_TIMEOUT):
         self.nodes = list(nodes)
-        unknown = [name for name in self.nodes if name not in NODE_MODULES]
+        unknown = [name for name in self.nodes if name not in NODE_COMMANDS]
         if unknown:
-            raise ValueError(f"unknown nodes {unknown}; known: {', '.join(NODE_MODULES)}")
+            raise ValueError(f"unknown nodes {unknown}; known: {', '.join(NODE_COMMANDS)}")
         if params is not None and not Path(params).is_file():
             raise ValueError(f"params file {params} does not exist")
         self.params = params
@@ -57,7 +58,7 @@ class Stack:
 
     def command(self, name: str) -> list[str]:
         ros_args = ["--ros-args", "--params-file", str(self.params)] if self.params else []
-        return [sys.executable, "-m", NODE_MODULES[name], *ros_args]
+        return [sys.executable, "-m", *NODE_COMMANDS[name], *ros_args]
 
     def start(self) -> Stack:
         for name in self.nodes:
@@ -122,8 +123,8 @@ class Stack:
 
 def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="python -m softblock_ros.launcher", description=__doc__.split("\n")[0])
-    parser.add_argument("--nodes", default=",".join(NODE_MODULES),
-                        help=f"comma-separated nodes to start, in order (default: all: {','.join(NODE_MODULES)})")
+    parser.add_argument("--nodes", default=",".join(NODE_COMMANDS),
+                        help=f"comma-separated nodes to start, in order (default: all: {','.join(NODE_COMMANDS)})")
     parser.add_argument("--params", help="ROS parameter YAML passed to every node (--params-file)")
     parser.add_argument("--stop-timeout", type=float, default=DEFAULT_STOP_TIMEOUT,
                         help="seconds each node gets to stop after SIGINT before SIGKILL")
