@@ -20,8 +20,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-CAP_LENGTH = 2.5e-3  # length of one linking cap [m]
-BLOCK_RADIUS = 12.5e-3  # outer radius of a block (25 mm diameter) [m]
+from planner.geometry import PAPER_GEOMETRY
+
+CAP_LENGTH = PAPER_GEOMETRY.cap_length  # length of one linking cap [m]
+BLOCK_RADIUS = PAPER_GEOMETRY.radius  # outer radius of a block [m]
 DEFAULT_SAMPLES_PER_BLOCK = 10
 
 
@@ -316,8 +318,8 @@ def design_parameters(table, ids, voltage: float | None = None):
     length = np.asarray(table.rod_length)[index]
     if voltage is None:
         return np.asarray(table.theta0)[index], length, np.ones(ids.shape, dtype=bool)
-    theta, valid = table.angle_at(ids, voltage)
-    return np.asarray(theta, dtype=float), length, np.asarray(valid, dtype=bool)
+    theta, valid = table.angle_at(ids.ravel(), voltage)
+    return np.reshape(theta, ids.shape).astype(float), length, np.reshape(valid, ids.shape).astype(bool)
 
 
 def chain_blocks(chain, table, voltage: float | None = None, calibration=None):

@@ -1,18 +1,24 @@
 """Piecewise-constant-curvature kinematics against hand-computed cases."""
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from planner.assembly import Chain, PlacedBlock, load_assembly
 from planner.kinematics import (
     BLOCK_RADIUS,
     CAP_LENGTH,
+    assembly_centerlines,
     block_end_offsets,
     block_transforms,
+    chain_blocks,
     chain_shape,
+    design_parameters,
     planar_chain,
 )
+from planner.table import load_table
 
 C = CAP_LENGTH
 
@@ -183,3 +189,76 @@ def test_transformed_shape_moves_points_and_frames():
 def test_bad_input_is_named(call, message):
     with pytest.raises(ValueError, match=message):
         call()
+
+
+# ----------------------------------------------------------------------- look-up table and assemblies
+ASSEMBLIES = Path(__file__).resolve().parents[2] / "config" / "assemblies"
+
+
+@pytest.fixture(scope="module")
+def table():
+    return load_table()
+
+
+def test_design_parameters_batch_matches_the_table(table):
+    ids = np.array([[15, 57, 36], [1, 84, 15]])
+    theta, length, valid = design_parameters(table, ids)
+    assert theta.shape == length.shape == valid.shape == (2, 3) and valid.all()
+    assert theta[0, 0] == table.theta0[table.index_of([15])[0]]
+    actuated, _, actuated_valid = design_parameters(table, ids, voltage=1200.0)
+    expected, expected_valid = table.angle_at(ids.ravel(), 1200.0)
+    np.testing.assert_array_equal(actuated.ravel(), expected)
+    np.testing.assert_array_equal(actuated_valid.ravel(), expected_valid)
+
+
+def test_figure2_arc_bends_by_four_theta0_in_the_assembly_frame(table):
+    assembly = load_assembly(ASSEMBLIES / "figure2_arc.yaml")
+    shape = assembly_centerlines(assembly, table, {})["arc"]
+    theta0 = table.theta0[table.index_of([15])[0]]
+    np.testing.assert_allclose(shape.theta, theta0)
+    tangent = shape.rotations[-1][:, 2]
+    assert math.atan2(tangent[0], tangent[2]) == pytest.approx(4 * theta0)
+    assert shape.valid.all()
+    np.testing.assert_allclose(shape.points[:, 1], 0.0, atol=1e-15)
+
+
+def test_actuation_lowers_the_angles_and_flags_voltages_beyond_safe(table):
+    assembly = load_assembly(ASSEMBLIES / "figure2_arc.yaml")
+    rest = assembly_centerlines(assembly, table, {"main": 0.0})["arc"]
+    safe = float(table.safe_voltage[table.index_of([15])[0]])
+    actuated = assembly_centerlines(assembly, table, {"main": 0.9 * safe})["arc"]
+    beyond = assembly_centerlines(assembly, table, {"main": safe + 100.0})["arc"]
+    assert np.all(actuated.theta < rest.theta) and actuated.valid.all()
+    assert not beyond.valid.any()
+
+
+def test_calibration_offsets_apply_by_serial(table):
+    chain = Chain("finger", "main", (PlacedBlock(15, serial="A7"), PlacedBlock(15, serial="B2"), PlacedBlock(15)))
+    theta, _, _, _ = chain_blocks(chain, table)
+    calibrated, _, _, _ = chain_blocks(chain, table, calibration={"A7": 0.05, "C9": 1.0})
+    np.testing.assert_allclose(calibrated - theta, [0.05, 0.0, 0.0])
+
+
+def test_base_pose_places_and_turns_the_chain(table):
+    gripper = load_assembly(ASSEMBLIES / "gripper.yaml")
+    shapes = assembly_centerlines(gripper, table, {"front": 500.0}, samples_per_block=5)
+    assert set(shapes) == {"front_left", "front_right", "back_left", "back_right"}
+    right = shapes["front_right"]  # turned 180 deg about y: grows down (-z), bends toward -x
+    np.testing.assert_allclose(right.points[0], [0.03, 0.015, 0.0])
+    assert right.points.shape == (1 + 4 * 5, 3)
+    assert right.positions[-1][2] < -0.04 and right.positions[-1][0] < 0.03
+    left = shapes["front_left"]  # mirror image about the x = 0 plane
+    np.testing.assert_allclose(left.points * [-1, 1, 1], right.points, atol=1e-15)
+
+
+def test_paper_assemblies_load_as_described():
+    trunk = load_assembly(ASSEMBLIES / "trunk.yaml").chains
+    assert len(trunk) == 1 and trunk[0].design_ids == (57,) * 4 + (36,) * 2 + (15,) * 11
+    legged = load_assembly(ASSEMBLIES / "legged.yaml")
+    assert [c.name for c in legged.chains] == ["leg_front_left", "leg_front_right", "leg_rear_left", "leg_rear_right"]
+    assert legged.hv_channels == tuple(c.name for c in legged.chains)
+    assert all(c.design_ids == (57, 57) for c in legged.chains)
+    helix = load_assembly(ASSEMBLIES / "figure2_helix.yaml").chains[0]
+    worm = load_assembly(ASSEMBLIES / "figure2_worm.yaml").chains[0]
+    assert [b.rotation_steps for b in helix.blocks] == [0, 1, 1, 1]
+    assert [b.rotation_steps for b in worm.blocks] == [0, 6, 6, 6]
