@@ -39,8 +39,8 @@ class PlacedBlock:
     def steps_from_rotation(rotation: float) -> int:
         """Snap-fit index for a rotation in rad; ValueError unless it is a multiple of 30 degrees."""
         steps = rotation / ROTATION_STEP
-        nearest = round(steps)
-        if not math.isfinite(rotation) or abs(steps - nearest) > 1e-6:
+        nearest = round(steps) if math.isfinite(steps) else None  # round(nan) would raise its own error
+        if nearest is None or abs(steps - nearest) > 1e-6:
             raise ValueError(f"rotation {rotation!r} rad is not a multiple of 30 degrees")
         return nearest % SNAP_FITS
 
