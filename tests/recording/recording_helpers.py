@@ -7,8 +7,12 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile
+from rclpy.serialization import serialize_message
 from softblock_interfaces.msg import (Assembly, AssemblyState, Chain, ChainState, HvChannelState,
                                       HvState, SequenceEvent)
+
+from softblock_ros.recording.mcap_file import RecordingWriter
+from softblock_ros.recording.qos_metadata import offered_qos_yaml
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 TIMEOUT = 30.0  # [s] liveness deadline only: the suite shares two loaded cores
@@ -46,12 +50,12 @@ def stamp(node_or_ns, message):
     return message
 
 
-def hv_state(index: int, voltages: dict, faults: dict | None = None) -> HvState:
+def hv_state(voltages: dict, faults: dict | None = None) -> HvState:
     """HvState with one channel per entry of `voltages` (name -> V); current = V * 1e-8 A."""
     faults = faults or {}
     return HvState(device_id="sim-hv", backend="sim", channels=[
-        HvChannelState(name=name, index=number, setpoint=voltage, target=voltage,
-                       measured_voltage=voltage, measured_current=voltage * 1e-8,
+        HvChannelState(name=name, index=number, setpoint=float(voltage), target=float(voltage),
+                       measured_voltage=float(voltage), measured_current=voltage * 1e-8,
                        ceiling=4000.0, output_enabled=True, faults=faults.get(name, (0, ""))[0],
                        fault_text=faults.get(name, (0, ""))[1])
         for number, (name, voltage) in enumerate(voltages.items())])
@@ -89,3 +93,25 @@ def new_context():
     context = rclpy.Context()
     rclpy.init(context=context)
     return context
+
+
+def type_name_of(message) -> str:
+    """'pkg/msg/Type' of a message instance."""
+    return f"{type(message).__module__.split('.')[0]}/msg/{type(message).__name__}"
+
+
+def write_recording(path: str, entries, qos_by_topic: dict | None = None) -> str:
+    """Writes (topic, message, time_ns) entries with the recorder's writer, as if recorded live.
+
+    Log and publish time are `time_ns`; QoS defaults to reliable/volatile depth 10.
+    """
+    qos_by_topic = qos_by_topic or {}
+    writer = RecordingWriter(path)
+    channels = {}
+    for topic, message, time_ns in entries:
+        if topic not in channels:
+            offered = offered_qos_yaml([qos_by_topic.get(topic, QoSProfile(depth=10))])
+            channels[topic] = writer.add_topic(topic, type_name_of(message), offered)
+        writer.write(channels[topic], serialize_message(message), time_ns, time_ns)
+    writer.close()
+    return path

@@ -23,7 +23,7 @@ LATCHED_TOPICS = {"/assembly/current": "softblock_interfaces/msg/Assembly",
 
 
 def streamed_message(topic: str, index: int):
-    return {"/hv/state": lambda: hv_state(index, {"front": 10.0 * index, "back": 5.0 * index}),
+    return {"/hv/state": lambda: hv_state({"front": 10.0 * index, "back": 5.0 * index}),
             "/sequencer/events": lambda: sequence_event(index, f"step{index}", "started"),
             "/assembly/state": lambda: assembly_state({"front": [0.01 * index, -0.01 * index]}),
             "/notes": lambda: String(data=f"note {index}")}[topic]()

@@ -65,7 +65,7 @@ class Recording:
         """(channel, message) in log-time order from `start_offset` seconds in."""
         start = self.start_time + round(start_offset * 1e9)
         topics = [c.topic for c in channels]
-        for _, channel, message in self._reader.iter_messages(topics=topics, start_time=start):
+        for _, channel, message in self._reader.iter_messages(topics=topics, starting_at=start):
             yield channel, message
 
     def close(self) -> None:

@@ -1,0 +1,115 @@
+"""A recorder process killed with SIGKILL leaves a readable prefix that `recover` makes valid;
+SIGINT and SIGTERM finish the file cleanly."""
+import signal
+import struct
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import pytest
+import rclpy
+from mcap.exceptions import McapError
+from mcap.reader import NonSeekingReader
+from recording_helpers import hv_state, read_decoded, stamp, wait_for
+from rosbags.highlevel import AnyReader
+from softblock_interfaces.msg import HvState
+
+from softblock_ros.recording.mcap_file import describe, recover
+
+
+def start_recorder(path: Path) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "softblock_ros.recording", "record", "-o", str(path),
+         "--flush-period", "0.2", "--discovery-period", "0.2", "/hv/state"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+
+
+def readable_prefix(path: Path) -> int:
+    """Messages a plain streaming reader gets out of a file that may be unfinished."""
+    count = 0
+    try:
+        with open(path, "rb") as stream:
+            for _ in NonSeekingReader(stream).iter_messages(log_time_order=False):
+                count += 1
+    except (McapError, struct.error, ValueError):
+        pass  # the unfinished tail
+    return count
+
+
+class HvPublisher:
+    """Publishes HvState with measured_voltage = 0, 1, 2, ... from its own rclpy context."""
+
+    def __init__(self, ros_context):
+        self.node = rclpy.create_node("hv_driver", context=ros_context)
+        self.publisher = self.node.create_publisher(HvState, "hv/state", 100)
+        self.sent = 0
+
+    def wait_for_recorder(self):
+        wait_for(lambda: self.publisher.get_subscription_count() >= 1, "recorder subscription")
+
+    def publish(self, count: int):
+        for _ in range(count):
+            self.publisher.publish(stamp(self.node, hv_state({"front": self.sent})))
+            self.sent += 1
+
+    def publish_until(self, stop: threading.Event):
+        while not stop.wait(0.005):
+            self.publish(5)
+
+
+def test_sigkill_leaves_readable_prefix_and_recover_makes_it_valid(ros_context, tmp_path):
+    path = tmp_path / "killed.mcap"
+    recorder = start_recorder(path)
+    hv = HvPublisher(ros_context)
+    stop = threading.Event()
+    try:
+        hv.wait_for_recorder()
+        feeder = threading.Thread(target=hv.publish_until, args=(stop,))
+        feeder.start()
+        wait_for(lambda: readable_prefix(path) >= 100, "flushed chunks on disk")
+        recorder.send_signal(signal.SIGKILL)
+        recorder.wait()
+    finally:
+        stop.set()
+        recorder.kill()
+    feeder.join()
+    prefix = readable_prefix(path)
+    with pytest.raises(McapError, match="recover"):
+        describe(str(path))
+
+    result = recover(str(path), str(tmp_path / "recovered.mcap"))
+
+    assert result.success and result.messages == prefix and result.topics == {"/hv/state": prefix}
+    info = describe(str(tmp_path / "recovered.mcap"))
+    assert info["topics"]["/hv/state"]["count"] == prefix
+    voltages = [m.channels[0].measured_voltage
+                for _, m, _, _ in read_decoded(str(tmp_path / "recovered.mcap"))["/hv/state"]]
+    assert voltages == [float(i) for i in range(prefix)]  # a gap-free prefix of what was sent
+    with AnyReader([tmp_path / "recovered.mcap"]) as reader:
+        assert sum(1 for _ in reader.messages()) == prefix
+
+
+@pytest.mark.parametrize("stop_signal", [signal.SIGINT, signal.SIGTERM])
+def test_sigint_and_sigterm_finish_the_file(ros_context, tmp_path, stop_signal):
+    path = tmp_path / "stopped.mcap"
+    recorder = start_recorder(path)
+    hv = HvPublisher(ros_context)
+    try:
+        hv.wait_for_recorder()
+        hv.publish(50)
+        wait_for(lambda: readable_prefix(path) == 50, "all messages flushed")
+        recorder.send_signal(stop_signal)
+        _, errors = recorder.communicate(timeout=30)
+    finally:
+        recorder.kill()
+    assert recorder.returncode == 0, errors
+    assert "wrote 50 messages on 1 topics" in errors
+    assert describe(str(path))["topics"]["/hv/state"]["count"] == 50
+
+
+def test_recover_refuses_a_file_that_is_not_mcap(tmp_path):
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"not an mcap file at all")
+    result = recover(str(junk), str(tmp_path / "out.mcap"))
+    assert not result.success and "MCAP header" in result.message
