@@ -26,6 +26,7 @@ class ChannelDefaults:
 
     voltage_limit: float = 5000.0   # [V] hardware limit (:READ:VOLT:LIM?)
     ramp_speed: float = 100.0       # [V/s]
+    max_ramp_speed: float = 20000.0 # [V/s] faster ramp settings are clamped to this
     current_limit: float = 2e-3     # [A]
     trip_time_ms: float = 0.0       # [ms]
     trip_action: int = 0            # 0 = flag only

@@ -287,9 +287,9 @@ class SimulatedSupply:
         elif header == ":CURR":
             ch.current_limit = _number(value)
         elif header == ":CONF:RAMP:VOLT:UP":
-            ch.ramp_up = _number(value)
+            ch.ramp_up = min(_number(value), ch.defaults.max_ramp_speed)
         elif header == ":CONF:RAMP:VOLT:DOWN":
-            ch.ramp_down = _number(value)
+            ch.ramp_down = min(_number(value), ch.defaults.max_ramp_speed)
         elif header == ":CONF:TRIP:TIME":
             ch.trip_time_ms = _number(value)
         elif header == ":CONF:TRIP:ACTION":

@@ -1,0 +1,105 @@
+"""Fixtures for the HV driver tests: a scripted serial port and a simulated supply on a pty."""
+import threading
+import time
+
+import pytest
+
+from hv_driver import ChannelConfig, HvSupply
+from sim_fallback.hv_supply import SimulatedSupply
+
+
+class ScriptedPort:
+    """pyserial stand-in that plays (sent, reply) pairs; fails on unexpected writes and leftovers."""
+
+    def __init__(self, exchanges):
+        self.exchanges = list(exchanges)
+        self.buffer = bytearray()
+        self.flushed = 0
+
+    def write(self, data: bytes) -> int:
+        assert self.exchanges, f"unexpected write {data!r}"
+        sent, reply = self.exchanges.pop(0)
+        assert data == sent, f"wrote {data!r}, script expects {sent!r}"
+        if isinstance(reply, Exception):
+            raise reply
+        self.buffer += reply
+        return len(data)
+
+    @property
+    def in_waiting(self) -> int:
+        return len(self.buffer)
+
+    def read(self, size: int = 1) -> bytes:
+        if not self.buffer:
+            time.sleep(0.001)  # a real port waits for its timeout; keep the loop from spinning
+        chunk = bytes(self.buffer[:size])
+        del self.buffer[:size]
+        return chunk
+
+    def reset_input_buffer(self) -> None:
+        self.flushed += 1
+        self.buffer.clear()
+
+    def assert_done(self) -> None:
+        assert not self.exchanges, f"exchanges never sent: {self.exchanges}"
+        assert not self.buffer, f"reply bytes never read: {bytes(self.buffer)!r}"
+
+
+@pytest.fixture
+def scripted_port():
+    ports = []
+
+    def make(exchanges):
+        ports.append(ScriptedPort(exchanges))
+        return ports[-1]
+    yield make
+    for port in ports:
+        port.assert_done()
+
+
+# Fast limits so ramps in tests take a fraction of a second.
+FAST = dict(max_voltage=3000.0, slew_rate=8000.0, mismatch_tolerance=150.0, mismatch_time=0.2)
+CHANNELS = [ChannelConfig("front", 0, **FAST), ChannelConfig("back", 1, **FAST)]
+
+
+@pytest.fixture
+def sim():
+    supply = SimulatedSupply(channels=2, watchdog_s=0.5).start()
+    yield supply
+    supply.stop()
+
+
+@pytest.fixture
+def supply(sim):
+    hv = HvSupply(sim.port, channels=CHANNELS, link_timeout_s=0.2, reply_timeout_s=0.05,
+                  handle_signals=False).open()
+    yield hv
+    hv.abort()
+
+
+def _wait_until(predicate, deadline_s: float = 3.0, poll_s: float = 0.005):
+    """Poll ``predicate`` until it holds or the deadline passes; returns its last value."""
+    end = time.monotonic() + deadline_s
+    while not (result := predicate()) and time.monotonic() < end:
+        time.sleep(poll_s)
+    return result
+
+
+@pytest.fixture
+def wait_until():
+    return _wait_until
+
+
+@pytest.fixture
+def background():
+    """``background(fn)`` runs fn in a thread that is joined at teardown."""
+    threads = []
+
+    def start(function):
+        thread = threading.Thread(target=function, daemon=True)
+        thread.start()
+        threads.append(thread)
+        return thread
+    yield start
+    for thread in threads:
+        thread.join(timeout=5.0)

@@ -1,0 +1,148 @@
+"""iseg EDCP dialect and line framing against scripted exchanges, garbage, partial lines, wrong echoes."""
+import pytest
+import serial
+
+from hv_driver import IsegEdcp, LinkError, ProtocolError
+from hv_driver.dialects import Command, Dialect
+from hv_driver.dialects.iseg_edcp import ChannelStatus
+from hv_driver.link import Link
+
+EDCP = IsegEdcp()
+
+
+def link_for(port, reply_timeout=0.02):
+    return Link(port, EDCP, reply_timeout)
+
+
+def echoed(line: str, *answers: str) -> bytes:
+    return (line + "\r\n" + "".join(a + "\r\n" for a in answers)).encode()
+
+
+def test_settings_are_formatted_in_exponent_notation_and_acknowledged():
+    assert EDCP.encode("set_voltage", [0], 1200.0) == ":VOLT 1.200000E+03,(@0);*OPC?"
+    assert EDCP.encode("output_on", [1]) == ":VOLT ON,(@1);*OPC?"
+    assert EDCP.encode("emergency_off", [0, 1]) == ":VOLT EMCY OFF,(@0,1);*OPC?"
+    assert EDCP.encode("measure_current", [0, 1]) == ":MEAS:CURR? (@0,1)"
+    with pytest.raises(ValueError, match="needs a value"):
+        EDCP.encode("set_voltage", [0])
+
+
+@pytest.mark.parametrize("reply, expected", [
+    ("1.20000E+03V", [1200.0]), ("1.2E3V", [1200.0]), ("-5.00000E-09V", [-5e-9]), ("0V", [0.0]),
+])
+def test_numbers_with_unit_are_parsed(reply, expected):
+    assert EDCP.decode("measure_voltage", reply) == expected
+
+
+def test_several_channels_answer_comma_separated():
+    assert EDCP.decode("measure_current", "1.0E-6A,2.5E-9A", 2) == [1e-6, 2.5e-9]
+    assert EDCP.decode("read_status", "137,1", 2) == [137, 1]
+
+
+@pytest.mark.parametrize("operation, reply, count, problem", [
+    ("measure_voltage", "1.2E3", 1, "number in V"),           # unit missing
+    ("measure_voltage", "1.2E3A", 1, "number in V"),          # wrong unit
+    ("measure_voltage", "V", 1, "number in V"),
+    ("measure_voltage", "1.2E3V", 2, "expected 2 value"),     # one channel missing
+    ("measure_current", "1e-6A,,2e-6A", 2, "expected 2 value"),
+    ("read_status", "13x", 1, "register"),
+    ("read_status", "-1", 1, "register"),
+    ("set_voltage", "?", 1, "acknowledgement"),
+    ("set_voltage", "", 1, "acknowledgement"),
+    ("identify", "", 1, "unreadable"),
+    ("identify", "iseg\x07", 1, "unreadable"),
+])
+def test_garbage_replies_are_rejected_naming_the_operation(operation, reply, count, problem):
+    with pytest.raises(ProtocolError, match=problem) as error:
+        EDCP.decode(operation, reply, count)
+    assert operation in str(error.value)
+
+
+def test_status_register_maps_to_output_and_fault_flags():
+    on = EDCP.status_report(int(ChannelStatus.IS_POSITIVE | ChannelStatus.IS_ON | ChannelStatus.IS_VOLTAGE_RAMP))
+    assert on.output_on and on.ramping and not on.over_current and on.fault is None
+    tripped = EDCP.status_report(int(ChannelStatus.IS_CURRENT_TRIP))
+    assert tripped.over_current and not tripped.output_on
+    inhibited = EDCP.status_report(int(ChannelStatus.IS_EXTERNAL_INHIBIT | ChannelStatus.IS_EMERGENCY_OFF))
+    assert "is_external_inhibit" in inhibited.fault and "is_emergency_off" in inhibited.fault
+
+
+def test_a_dialect_must_define_every_operation():
+    with pytest.raises(TypeError, match="lacks operations"):
+        class Incomplete(Dialect):  # noqa: F841
+            commands = {"identify": Command("*IDN?", "text")}
+
+
+def test_scripted_exchanges_with_echo(scripted_port):
+    port = scripted_port([
+        (b"*IDN?\r\n", echoed("*IDN?", "iseg Spezialelektronik GmbH,NHR 42 50r,1,1.0")),
+        (b":VOLT 2.400000E+03,(@1);*OPC?\r\n", echoed(":VOLT 2.400000E+03,(@1);*OPC?", "1")),
+        (b":MEAS:VOLT? (@0,1)\r\n", echoed(":MEAS:VOLT? (@0,1)", "0.00000E+00V,2.39990E+03V")),
+    ])
+    link = link_for(port)
+    assert link.query("identify").startswith("iseg")
+    assert link.query("set_voltage", [1], 2400.0) is None
+    assert link.query("measure_voltage", [0, 1]) == [0.0, 2399.9]
+
+
+def test_reply_split_over_reads_is_reassembled(scripted_port):
+    class Trickle:  # delivers one byte per read
+        def __init__(self, port):
+            self.port = port
+            self.write, self.reset_input_buffer = port.write, port.reset_input_buffer
+        in_waiting = 0
+
+        def read(self, size):
+            return self.port.read(1)
+    port = scripted_port([(b"*IDN?\r\n", echoed("*IDN?", "iseg,NHR,1,1.0"))])
+    assert Link(Trickle(port), EDCP, 0.5).query("identify") == "iseg,NHR,1,1.0"
+
+
+def test_wrong_echo_is_a_protocol_error_and_the_stale_input_is_discarded(scripted_port):
+    port = scripted_port([
+        (b":MEAS:CURR? (@0)\r\n", echoed(":MEAS:VOLT? (@0)", "1.0E-6A") + b"late garbage\r\n"),
+        (b":MEAS:CURR? (@0)\r\n", echoed(":MEAS:CURR? (@0)", "2.0E-6A")),
+    ])
+    link = link_for(port)
+    with pytest.raises(ProtocolError, match="wrong echo"):
+        link.query("measure_current", [0])
+    assert link.query("measure_current", [0]) == [2e-6]
+    assert port.flushed == 1
+
+
+def test_partial_reply_times_out_as_a_link_error(scripted_port):
+    port = scripted_port([(b":MEAS:VOLT? (@0)\r\n", b":MEAS:VOLT? (@0)\r\n1.2E")])
+    with pytest.raises(LinkError, match=r"partial reply b'1.2E'"):
+        link_for(port).query("measure_voltage", [0])
+    port.buffer.clear()
+
+
+def test_missing_reply_is_a_link_error(scripted_port):
+    port = scripted_port([(b"*IDN?\r\n", b"")])
+    with pytest.raises(LinkError, match="no reply"):
+        link_for(port).query("identify")
+
+
+def test_missing_answer_after_echo_is_a_link_error(scripted_port):
+    port = scripted_port([(b"*IDN?\r\n", b"*IDN?\r\n")])
+    with pytest.raises(LinkError, match="no reply"):
+        link_for(port).query("identify")
+
+
+def test_non_ascii_and_endless_lines_are_protocol_errors(scripted_port):
+    port = scripted_port([
+        (b"*IDN?\r\n", b"*IDN?\r\n\xff\xfe\r\n"),
+        (b"*IDN?\r\n", b"x" * 400),
+    ])
+    link = link_for(port)
+    with pytest.raises(ProtocolError, match="non-ASCII"):
+        link.query("identify")
+    with pytest.raises(ProtocolError, match="without terminator"):
+        link.query("identify")
+    port.buffer.clear()
+
+
+def test_port_failure_is_a_link_error(scripted_port):
+    port = scripted_port([(b"*IDN?\r\n", serial.SerialException("device disconnected"))])
+    with pytest.raises(LinkError, match="device disconnected"):
+        link_for(port).query("identify")

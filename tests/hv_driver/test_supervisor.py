@@ -1,0 +1,309 @@
+"""Safety supervisor: unit tests of each rule and a hypothesis state machine over absurd inputs."""
+import math
+
+import pytest
+from hypothesis import HealthCheck, settings
+from hypothesis import strategies as st
+from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, precondition, rule
+
+from hv_driver import ChannelConfig, Fault, FaultLatchedError, LimitError, Supervisor
+from hv_driver.ramp import MinimumJerkRamp
+from hv_driver.supervisor import IMMEDIATE_FAULTS, MAX_SLEW_STEP_S, ChannelCommand, ChannelSupervisor
+
+CONFIG = ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=1000.0, current_trip=50e-6,
+                       mismatch_tolerance=100.0, mismatch_time=0.5, creep_voltage=2000.0, max_time_at_voltage=60.0)
+
+
+def run(channel: ChannelSupervisor, t0: float, t1: float, dt: float = 0.01):
+    """Step from t0 to t1 with readbacks equal to the command; returns the last command."""
+    t, command = t0, None
+    while t < t1 - 1e-12:
+        t = min(t + dt, t1)
+        command = channel.step(t)
+        channel.observe(t, command.setpoint, 1e-7)
+    return command
+
+
+def enabled(config=CONFIG) -> ChannelSupervisor:
+    channel = ChannelSupervisor(config)
+    channel.enable()
+    return channel
+
+
+def test_config_errors_name_the_parameter():
+    with pytest.raises(ValueError, match="max_voltage"):
+        ChannelConfig("front", 0, max_voltage=-1.0)
+    with pytest.raises(ValueError, match="slew_rate"):
+        ChannelConfig("front", 0, max_voltage=1.0, slew_rate=math.nan)
+    with pytest.raises(ValueError, match="creep_voltage"):
+        ChannelConfig("front", 0, max_voltage=1.0, creep_voltage=100.0)
+    with pytest.raises(ValueError, match="channel names must be unique"):
+        Supervisor([CONFIG, CONFIG], link_timeout=1.0)
+
+
+def test_minimum_jerk_ramp_peaks_at_the_slew_rate_and_is_symmetric():
+    ramp = MinimumJerkRamp(0.0, 2400.0, 0.0, 1000.0)
+    assert ramp.duration == pytest.approx(4.5)
+    assert ramp.value(2.25) == pytest.approx(1200.0)
+    h = 1e-6
+    assert (ramp.value(2.25 + h) - ramp.value(2.25 - h)) / (2 * h) == pytest.approx(1000.0, rel=1e-6)
+    assert ramp.value(-1.0) == 0.0 and ramp.value(10.0) == 2400.0
+
+
+def test_ramp_reaches_the_target_smoothly_and_back():
+    channel = enabled()
+    channel.ramp_to(0.0, 2400.0)
+    assert run(channel, 0.0, 4.6).setpoint == 2400.0 and not channel.ramping
+    channel.ramp_to(4.6, 0.0)
+    assert run(channel, 4.6, 9.2).setpoint == 0.0
+
+
+def test_the_ceiling_is_the_lowest_limit_and_a_request_above_it_is_refused_naming_it():
+    channel = enabled()
+    channel.set_device_limit(2800.0)
+    channel.set_safe_voltage(1500.0)
+    assert channel.ceiling == 1500.0
+    with pytest.raises(LimitError, match="assembly safe voltage of 1500 V"):
+        channel.ramp_to(0.0, 1600.0)
+    channel.set_safe_voltage(None)
+    with pytest.raises(LimitError, match="supply limit of 2800 V"):
+        channel.ramp_to(0.0, 2900.0)
+    with pytest.raises(LimitError, match="hard maximum of 3000 V"):
+        channel.ramp_to(0.0, 1e9)
+    assert channel.target == 0.0  # refused, not clipped
+
+
+@pytest.mark.parametrize("target", [math.nan, math.inf, -1.0, "2400"])
+def test_absurd_targets_are_refused(target):
+    with pytest.raises(ValueError, match="target"):
+        enabled().ramp_to(0.0, target)
+
+
+def test_slew_rate_above_the_limit_is_refused():
+    with pytest.raises(ValueError, match="exceeds the configured slew limit 1000"):
+        enabled().ramp_to(0.0, 100.0, slew_rate=5000.0)
+
+
+def test_lowering_the_ceiling_mid_ramp_clamps_the_setpoint_at_once():
+    channel = enabled()
+    channel.ramp_to(0.0, 2400.0)
+    run(channel, 0.0, 3.0)
+    assert channel.setpoint > 1500.0
+    channel.set_safe_voltage(1000.0)
+    assert channel.step(3.01).setpoint == 1000.0
+    assert run(channel, 3.01, 5.0).setpoint == 1000.0 and not channel.ramping
+
+
+def test_over_current_cuts_the_output_at_once_and_latches_until_reset():
+    channel = enabled()
+    channel.ramp_to(0.0, 2000.0)
+    run(channel, 0.0, 2.0)
+    channel.observe(2.0, channel.setpoint, 2e-3)
+    assert channel.faults == Fault.OVER_CURRENT and "measured 0.002 A" in channel.fault_text
+    assert channel.step(2.01) == ChannelCommand(0.0, False, True)
+    with pytest.raises(FaultLatchedError, match="over_current"):
+        channel.ramp_to(2.01, 100.0)
+    with pytest.raises(FaultLatchedError):
+        channel.enable()
+    channel.reset()
+    assert channel.step(2.02) == ChannelCommand(0.0, False, False)
+
+
+def test_readback_mismatch_trips_only_after_the_tolerance_time():
+    channel = enabled()
+    channel.observe(0.0, 500.0, 0.0)
+    channel.observe(0.4, 500.0, 0.0)
+    assert not channel.faults
+    channel.observe(0.6, 500.0, 0.0)
+    assert channel.faults == Fault.READBACK_MISMATCH
+
+
+def test_a_brief_mismatch_does_not_accumulate():
+    channel = enabled()
+    for t in (0.0, 0.3, 0.6, 0.9):
+        channel.observe(t, 500.0, 0.0)
+        channel.observe(t + 0.1, 0.0, 0.0)
+    assert not channel.faults
+
+
+def test_time_at_voltage_trips_after_the_creep_limit():
+    channel = enabled()
+    channel.ramp_to(0.0, 2400.0)
+    run(channel, 0.0, 60.0, dt=0.1)
+    assert not channel.faults
+    run(channel, 60.0, 70.0, dt=0.1)
+    assert channel.faults == Fault.TIME_AT_VOLTAGE and not channel.output_enabled
+
+
+def test_link_timeout_trips_every_channel():
+    back = ChannelConfig("back", 1, max_voltage=3000.0)
+    supervisor = Supervisor([CONFIG, back], link_timeout=0.2)
+    supervisor.link_ok(0.0)
+    supervisor.step(0.2)
+    assert not supervisor.channel("back").faults
+    supervisor.step(0.21)
+    assert all(c.faults == Fault.LINK for c in supervisor.channels.values())
+
+
+def test_lost_heartbeat_ramps_down_then_switches_off():
+    supervisor = Supervisor([CONFIG], link_timeout=100.0, heartbeat_timeout=0.5)
+    supervisor.enable("front", 0.0)
+    front = supervisor.channel("front")
+    front.ramp_to(0.0, 1000.0)
+    for t in [0.05 * k for k in range(1, 39)]:
+        supervisor.heartbeat(t)
+        supervisor.step(t)
+    assert front.setpoint == 1000.0
+    previous = front.setpoint
+    commands = [supervisor.step(1.9 + 0.01 * k)["front"] for k in range(1, 400)]
+    assert front.faults == Fault.HEARTBEAT
+    setpoints = [c.setpoint for c in commands]
+    assert all(b <= a for a, b in zip([previous] + setpoints, setpoints))  # only down
+    assert commands[1].output_on and 0 < commands[1].setpoint < 1000.0    # smoothly, not cut
+    assert commands[-1] == ChannelCommand(0.0, False, False)
+
+
+def test_unknown_channel_names_the_choices():
+    with pytest.raises(ValueError, match=r"channel='left': unknown, configured are \['front'\]"):
+        Supervisor([CONFIG], link_timeout=1.0).channel("left")
+
+
+def test_time_running_backwards_moves_nothing():
+    channel = enabled()
+    channel.ramp_to(0.0, 2000.0)
+    run(channel, 0.0, 1.0)
+    held = channel.setpoint
+    assert channel.step(0.5).setpoint == held
+    assert channel.step(math.nan).setpoint == held
+
+
+# --- property-based: random command sequences with absurd values --------------------------------
+absurd_floats = st.one_of(st.floats(allow_nan=True, allow_infinity=True),
+                          st.floats(min_value=-10.0, max_value=6000.0),
+                          st.sampled_from([0.0, -0.0, 1e-300, 2400.0, 3000.0, 3000.0000001, 1e308]))
+time_steps = st.one_of(st.floats(min_value=-5.0, max_value=5.0), st.sampled_from([0.0, 0.01, 1e-9, 1e6, -1e6]),
+                       st.floats(allow_nan=True, allow_infinity=True))
+NAMES = ["front", "back"]
+
+
+class SupervisorMachine(RuleBasedStateMachine):
+    """Invariants: 0 <= setpoint <= ceiling, rises (and ordinary falls) within the slew limit,
+    immediate faults hold 0 V / off, faults latch until reset, off stays off until enabled."""
+
+    @initialize(hb=st.one_of(st.none(), st.floats(min_value=0.05, max_value=2.0)))
+    def setup(self, hb):
+        configs = [ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=1000.0, mismatch_time=0.3),
+                   ChannelConfig("back", 1, max_voltage=2500.0, slew_rate=300.0,
+                                 creep_voltage=1000.0, max_time_at_voltage=2.0)]
+        self.sup = Supervisor(configs, link_timeout=0.5, heartbeat_timeout=hb, now=0.0)
+        self.now = 0.0
+        self.clock = 0.0  # the supervisor's monotonic view of time
+        self.last = {n: (0.0, False) for n in NAMES}
+        self.faults_seen = {n: Fault(0) for n in NAMES}
+        self.allowed_on = {n: False for n in NAMES}
+        self.exempt_fall = {n: False for n in NAMES}
+
+    def _try(self, action):
+        try:
+            action()
+        except (ValueError, LimitError, FaultLatchedError, RuntimeError):
+            pass
+
+    @rule(name=st.sampled_from(NAMES))
+    def enable(self, name):
+        self._try(lambda: self.sup.enable(name, self.now))
+        if self.sup.channel(name).output_enabled:
+            self.allowed_on[name] = True
+
+    @rule(name=st.sampled_from(NAMES), volts=absurd_floats, slew=st.one_of(st.none(), absurd_floats))
+    def ramp(self, name, volts, slew):
+        self._try(lambda: self.sup.channel(name).ramp_to(self.now, volts, slew))
+
+    @rule(name=st.sampled_from(NAMES))
+    def disable(self, name):
+        self.sup.channel(name).disable(self.now)
+
+    @rule(voltage=st.one_of(st.none(), absurd_floats))
+    def safe_voltage(self, voltage):
+        self._try(lambda: self.sup.set_safe_voltage(voltage))
+        for n in NAMES:
+            self.exempt_fall[n] = True
+
+    @rule(name=st.sampled_from(NAMES), voltage=absurd_floats)
+    def device_limit(self, name, voltage):
+        self._try(lambda: self.sup.channel(name).set_device_limit(voltage))
+        self.exempt_fall[name] = True
+
+    @rule(name=st.sampled_from(NAMES), voltage=absurd_floats, current=absurd_floats,
+          device=st.sampled_from([None, "", "supply reports is_external_inhibit"]), oc=st.booleans())
+    def observe(self, name, voltage, current, device, oc):
+        self.sup.channel(name).observe(self.now, voltage, current, device, oc)
+
+    @rule()
+    def heartbeat(self):
+        self.sup.heartbeat(self.now)
+
+    @rule()
+    def link_ok(self):
+        self.sup.link_ok(self.now)
+
+    @rule(name=st.sampled_from(NAMES), fault=st.sampled_from(list(Fault)))
+    def trip(self, name, fault):
+        self.sup.channel(name).trip(fault, "injected")
+
+    @rule()
+    def estop(self):
+        self.sup.estop()
+
+    @rule()
+    def reset(self):
+        self.sup.reset(self.now)
+        for n in NAMES:
+            self.faults_seen[n] = Fault(0)
+            self.allowed_on[n] = False
+            self.exempt_fall[n] = True
+
+    @rule(dt=time_steps, burst=st.integers(min_value=1, max_value=20))
+    def step(self, dt, burst):
+        self.now = self.now + dt if math.isfinite(self.now + dt) else self.now
+        for _ in range(burst):
+            self._step_and_check()
+
+    def _step_and_check(self):
+        previous_clock = self.clock
+        if self.now > self.clock:
+            self.clock = self.now
+        allowance_dt = min(self.clock - previous_clock, MAX_SLEW_STEP_S)
+        commands = self.sup.step(self.now)
+        for name, command in commands.items():
+            channel = self.sup.channel(name)
+            last_setpoint, _ = self.last[name]
+            slew = channel.config.slew_rate
+            assert 0.0 <= command.setpoint <= channel.ceiling
+            assert command.setpoint - last_setpoint <= slew * allowance_dt + 1e-9
+            fault_free = not channel.faults and not self.exempt_fall[name]
+            if fault_free and channel.ceiling >= last_setpoint and command.output_on:
+                assert last_setpoint - command.setpoint <= slew * allowance_dt + 1e-9
+            assert channel.faults >= self.faults_seen[name]  # latched: never cleared without reset
+            self.faults_seen[name] = channel.faults
+            if channel.faults & IMMEDIATE_FAULTS:
+                assert (command.setpoint, command.output_on, command.emergency_off) == (0.0, False, True)
+                self.allowed_on[name] = False
+            if command.output_on:
+                assert self.allowed_on[name]
+            else:
+                self.allowed_on[name] = False
+            self.exempt_fall[name] = False
+            self.last[name] = (command.setpoint, command.output_on)
+
+    @precondition(lambda self: hasattr(self, "sup"))
+    @invariant()
+    def snapshot_is_consistent(self):
+        for channel in self.sup.channels.values():
+            assert channel.ceiling <= channel.config.max_voltage
+            assert bool(channel.fault_text) == bool(channel.faults)
+
+
+TestSupervisorMachine = SupervisorMachine.TestCase
+TestSupervisorMachine.settings = settings(max_examples=150, stateful_step_count=40, deadline=None,
+                                          suppress_health_check=[HealthCheck.too_slow])
