@@ -159,7 +159,7 @@ def test_lost_heartbeat_ramps_down_then_switches_off():
     assert front.faults == Fault.HEARTBEAT
     setpoints = [c.setpoint for c in commands]
     assert all(b <= a for a, b in zip([previous] + setpoints, setpoints))  # only down
-    assert commands[1].output_on and 0 < commands[1].setpoint < 1000.0    # smoothly, not cut
+    assert any(c.output_on and 0 < c.setpoint < 1000.0 for c in commands)  # smoothly, not cut
     assert commands[-1] == ChannelCommand(0.0, False, False)
 
 
