@@ -52,7 +52,7 @@ def design_id(i_lambda: int, i_length: int, i_diameter: int) -> int:
         ("i_length", i_length, len(ROD_LENGTH_VALUES)),
         ("i_diameter", i_diameter, len(ROD_DIAMETER_VALUES)),
     ):
-        if not isinstance(value, (int, np.integer)) or not 0 <= value < count:
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= value < count:
             raise ValueError(f"{name} must be an integer in 0..{count - 1}, got {value!r}")
     n_lambda, n_length = len(PRESTRETCH_AXIAL_VALUES), len(ROD_LENGTH_VALUES)
     return int(1 + i_lambda + n_lambda * i_length + n_lambda * n_length * i_diameter)
@@ -60,7 +60,7 @@ def design_id(i_lambda: int, i_length: int, i_diameter: int) -> int:
 
 def design_indices(design_id: int) -> tuple[int, int, int]:
     """Inverse of :func:`design_id`: (i_lambda, i_length, i_diameter)."""
-    if not isinstance(design_id, (int, np.integer)) or not 1 <= design_id <= DESIGN_COUNT:
+    if isinstance(design_id, bool) or not isinstance(design_id, (int, np.integer)) or not 1 <= design_id <= DESIGN_COUNT:
         raise ValueError(f"design_id must be an integer in 1..{DESIGN_COUNT}, got {design_id!r}")
     n_lambda, n_length = len(PRESTRETCH_AXIAL_VALUES), len(ROD_LENGTH_VALUES)
     rest, i_lambda = divmod(int(design_id) - 1, n_lambda)
