@@ -42,7 +42,7 @@ def plot(data: RecordingData, png_path: str, title: str = "") -> None:
     angles.set_xlabel("time [s]")
     for axis in (voltage, current, angles):
         if axis.get_legend_handles_labels()[0]:
-            axis.legend(fontsize=7, loc="upper right", ncols=2)
+            axis.legend(fontsize=7, loc="best", ncols=2)
         axis.grid(alpha=0.3)
     figure.suptitle(title or "recording")
     figure.tight_layout()

@@ -1,0 +1,95 @@
+"""Analysis of a synthetic grasp recording, without ROS: peaks, step durations, faults, angles."""
+import json
+import subprocess
+import sys
+
+import pytest
+from mcap.exceptions import McapError
+from recording_helpers import (assembly_state, hv_state, sequence_event, stamp,
+                               write_recording)
+from softblock_interfaces.msg import HvChannelState
+
+from softblock_ros.recording.analysis import analyze, fault_names
+
+START = 1_700_000_000_000_000_000
+TENTH = 100_000_000
+FRONT = [0, 500, 1000, 2000, 3000, 2500, 1000, 0, 0, 0, 0]  # [V], one sample per 0.1 s
+OVER_CURRENT, LINK = HvChannelState.FAULT_OVER_CURRENT, HvChannelState.FAULT_LINK
+BACK_FAULTS = {6: (OVER_CURRENT, "over_current"), 7: (OVER_CURRENT | LINK, "over_current link")}
+EVENTS = [(1.0, 0, "approach", "started", ""), (3.5, 0, "approach", "succeeded", ""),
+          (3.5, 1, "close", "started", ""), (7.0, 1, "close", "failed", "over current"),
+          (8.0, 2, "lift", "started", "")]  # (time in tenths, step, name, phase, message)
+
+
+def at(tenths: float) -> int:
+    return START + round(tenths * TENTH)
+
+
+@pytest.fixture(scope="module")
+def grasp(tmp_path_factory):
+    entries = []
+    for i, front in enumerate(FRONT):
+        faults = {"back": BACK_FAULTS[i]} if i in BACK_FAULTS else {}
+        entries.append(("/hv/state", stamp(at(i), hv_state({"front": front, "back": 100.0 * i},
+                                                          faults)), at(i) + 1_000_000))
+    for tenths, index, name, phase, message in EVENTS:
+        entries.append(("/sequencer/events",
+                        stamp(at(tenths), sequence_event(index, name, phase, message)),
+                        at(tenths) + 2_000_000))
+    for i in range(10):
+        entries.append(("/assembly/state",
+                        stamp(at(i + 0.5), assembly_state({"front": [0.1 * i, -0.2 * i]})),
+                        at(i + 0.5)))
+    path = str(tmp_path_factory.mktemp("analysis") / "grasp.mcap")
+    return write_recording(path, sorted(entries, key=lambda entry: entry[2]))
+
+
+def test_summary_of_voltages_steps_faults_and_angles(grasp):
+    summary = analyze(grasp)
+
+    assert summary["duration"] == pytest.approx(1.0)
+    assert summary["message_counts"] == {"/assembly/state": 10, "/hv/state": 11,
+                                         "/sequencer/events": 5}
+    front, back = summary["channels"]["front"], summary["channels"]["back"]
+    assert (front["peak_voltage"], front["peak_voltage_time"]) == (3000.0, pytest.approx(0.4))
+    assert front["peak_current"] == pytest.approx(3000.0e-8)
+    assert (back["peak_voltage"], back["samples"]) == (1000.0, 11)
+    steps = [(s["step_name"], s["outcome"], s["duration"], s["message"])
+             for s in summary["steps"]]
+    assert steps == [("approach", "succeeded", pytest.approx(0.25), ""),
+                     ("close", "failed", pytest.approx(0.35), "over current"),
+                     ("lift", "unfinished", None, "")]
+    faults = [(f["event"], f["channel"], pytest.approx(f["time"]), f["faults"])
+              for f in summary["faults"]]
+    assert faults == [("raised", "back", 0.6, ["over_current"]),
+                      ("raised", "back", 0.7, ["link"]),
+                      ("cleared", "back", 0.8, ["over_current", "link"])]
+    chain = summary["chains"]["front"]
+    assert chain["final_angles"] == pytest.approx([0.9, -1.8])
+    assert chain["min_angles"] == pytest.approx([0.0, -1.8])
+    assert chain["max_angles"] == pytest.approx([0.9, 0.0])
+
+
+def test_fault_names_follow_the_bit_table():
+    names = {1: "over_current", 4: "link"}
+    assert fault_names(OVER_CURRENT | LINK | 128, names) == ["over_current", "link", "bit7"]
+
+
+def test_cli_writes_png_and_json_without_importing_rclpy(grasp, tmp_path):
+    script = ("import sys; from softblock_ros.recording.cli import main; "
+              f"code = main(['analyze', {grasp!r}, '--out-dir', {str(tmp_path)!r}]); "
+              "assert 'rclpy' not in sys.modules, 'analysis imported rclpy'; sys.exit(code)")
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                            timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert "channel front: peak 3.000 kV" in result.stdout
+    assert (tmp_path / "grasp.png").read_bytes().startswith(b"\x89PNG")
+    assert json.loads((tmp_path / "grasp.json").read_text()) == \
+        json.loads(json.dumps(analyze(grasp)))
+
+
+def test_unfinished_file_is_refused_with_a_hint_to_recover(tmp_path):
+    truncated = tmp_path / "cut.mcap"
+    truncated.write_bytes(b"\x89MCAP0\r\n" + b"\x00" * 40)
+    with pytest.raises(McapError, match="recover"):
+        analyze(str(truncated))
