@@ -368,8 +368,11 @@ class HvSupply:
         try:
             if reconfigure:
                 self._configure_device()
+            self._emergency_off([c for c in self.configs
+                                 if commands[c.name].emergency_off and not self._sent[c.name].emergency])
             for config in self.configs:
-                self._apply(config, commands[config.name])
+                if not commands[config.name].emergency_off:
+                    self._apply(config, commands[config.name])
             indices = [c.index for c in self.configs]
             voltages = self._link.query("measure_voltage", indices)
             currents = self._link.query("measure_current", indices)
@@ -400,15 +403,18 @@ class HvSupply:
             self._cycle_done.notify_all()
             return any(c.faults != faults_before[n] for n, c in self._supervisor.channels.items())
 
+    def _emergency_off(self, configs: list[ChannelConfig]) -> None:
+        """Cut the outputs of every newly faulted channel in one line (retried each cycle until acknowledged)."""
+        if configs:
+            indices = [c.index for c in configs]
+            self._link.query("emergency_off", indices)
+            for config in configs:
+                self._sent[config.name] = _Sent(0.0, False, True)
+            self._link.query("set_voltage", indices, 0.0)
+
     def _apply(self, config: ChannelConfig, command: ChannelCommand) -> None:
         """Send what changed on one channel since the last cycle."""
         sent, ch = self._sent[config.name], [config.index]
-        if command.emergency_off:
-            if not sent.emergency:
-                self._link.query("emergency_off", ch)
-                self._link.query("set_voltage", ch, 0.0)
-                sent.setpoint, sent.output_on, sent.emergency = 0.0, False, True
-            return
         if sent.emergency:  # faults were reset: release the device's latched emergency off
             self._link.query("emergency_clear", ch)
             self._link.query("clear_events", ch)

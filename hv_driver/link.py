@@ -1,4 +1,5 @@
 """Line framing over a serial port: write a command, check its echo, read the one answer line."""
+import termios
 import time
 
 import serial
@@ -70,5 +71,5 @@ class Link:
     def _call(function, *args):
         try:
             return function(*args)
-        except (serial.SerialException, OSError) as error:
+        except (serial.SerialException, OSError, termios.error) as error:
             raise LinkError(f"serial port failed: {error}") from error

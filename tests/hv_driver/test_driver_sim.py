@@ -1,0 +1,204 @@
+"""HvSupply against the simulated supply over a real pty: ramps, every injected fault, e-stop, exit paths."""
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from hv_driver import ChannelConfig, ConfigurationError, Fault, FaultLatchedError, HvSupply, LimitError
+from sim_fallback.hv_plant import ChannelDefaults
+from sim_fallback.hv_supply import SimulatedSupply
+
+REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def all_off(sim) -> bool:
+    return not any(ch.output_on for ch in sim.plant)
+
+
+def ramp_both(supply, volts):
+    for name in ("front", "back"):
+        supply.enable(name)
+    handles = [supply.ramp_to(name, volts) for name in ("front", "back")]
+    assert all(h.wait(5.0) for h in handles)
+    assert all(h.succeeded for h in handles), [h.message for h in handles]
+
+
+def test_open_identifies_and_configures_the_device_side_limits(sim, supply):
+    assert supply.snapshot().device_id.startswith("iseg Spezialelektronik GmbH")
+    for ch in sim.plant:  # second line of defence set and read back
+        assert ch.ramp_up == ch.ramp_down == pytest.approx(8000.0 * 1.2)
+        assert ch.current_limit == pytest.approx(75e-6) and ch.trip_action == 2
+    assert supply.snapshot().channel("front").ceiling == 3000.0
+
+
+def test_ramp_to_2400_and_back_follows_on_both_channels(sim, supply):
+    ramp_both(supply, 2400.0)
+    for ch, snap in zip(sim.plant, supply.snapshot().channels):
+        assert ch.output_on and ch.voltage_set == 2400.0 and ch.voltage == pytest.approx(2400.0, abs=1.0)
+        assert snap.measured_voltage == pytest.approx(2400.0, abs=1.0) and not snap.faults
+    handles = [supply.ramp_to(name, 0.0) for name in ("front", "back")]
+    assert all(h.wait(5.0) and h.succeeded for h in handles)
+    assert all(ch.voltage_set == 0.0 for ch in sim.plant)
+
+
+def test_request_above_the_ceiling_is_refused_naming_the_limit(supply):
+    supply.enable("front")
+    supply.set_safe_voltage(2000.0)
+    with pytest.raises(LimitError, match="assembly safe voltage of 2000 V"):
+        supply.ramp_to("front", 2400.0)
+    assert supply.snapshot().channel("front").target == 0.0
+
+
+def test_cancel_ramps_back_to_zero(sim, supply):
+    supply.enable("front")
+    handle = supply.ramp_to("front", 2400.0, slew_rate=2000.0)
+    supply.wait_cycles(20)
+    handle.cancel()
+    assert handle.wait(5.0) and handle.message == "superseded by a later request"
+    assert supply.wait_cycles(200, timeout=5.0)
+    assert supply.snapshot().channel("front").setpoint == 0.0 and sim.plant[0].voltage_set == 0.0
+
+
+# fault name -> (channel injected, expected fault, channels expected to trip)
+FAULT_CASES = {
+    "over_current": (0, Fault.OVER_CURRENT, ["front"]),
+    "no_reply": (None, Fault.LINK, ["front", "back"]),
+    "garbled": (None, Fault.LINK, ["front", "back"]),
+    "partial": (None, Fault.LINK, ["front", "back"]),
+    "disconnect": (None, Fault.LINK, ["front", "back"]),
+    "device_reset": (None, Fault.DEVICE, ["front", "back"]),
+    "readback_drift": (1, Fault.READBACK_MISMATCH, ["back"]),
+}
+
+
+@pytest.mark.parametrize("fault", list(FAULT_CASES))
+def test_every_injected_fault_ends_with_outputs_off_and_the_named_fault(fault, sim, supply, wait_until):
+    channel, expected, tripped = FAULT_CASES[fault]
+    ramp_both(supply, 1500.0)
+    sim.inject(fault, channel)
+
+    def tripped_and_off():
+        snap = supply.snapshot()
+        return all(expected in snap.channel(n).faults for n in tripped) and all(
+            not sim.plant[snap.channel(n).index].output_on for n in tripped)
+    assert wait_until(tripped_and_off), supply.snapshot()
+    snap = supply.snapshot()
+    for name in tripped:
+        c = snap.channel(name)
+        assert (c.setpoint, c.output_enabled) == (0.0, False)
+        assert expected.name.lower() in c.fault_text
+    with pytest.raises(FaultLatchedError):
+        supply.enable(tripped[0])
+
+
+def test_faults_stay_latched_until_reset_then_outputs_stay_off_until_enabled(sim, supply, wait_until):
+    ramp_both(supply, 1000.0)
+    sim.inject("device_reset")
+    assert wait_until(lambda: supply.snapshot().channel("front").faults == Fault.DEVICE)
+    supply.wait_cycles(10)
+    assert supply.snapshot().channel("front").faults == Fault.DEVICE
+    supply.reset_faults()
+    supply.wait_cycles(3)
+    assert not any(c.faults for c in supply.snapshot().channels) and all_off(sim)
+    assert sim.plant[0].ramp_up == pytest.approx(8000.0 * 1.2)  # device limits restored after the reset
+    supply.enable("front")
+    assert supply.ramp_to("front", 500.0).wait(5.0) and sim.plant[0].output_on
+
+
+def test_estop_while_another_thread_streams_ramps(sim, supply, background, wait_until):
+    ramp_both(supply, 800.0)
+    refused = []
+
+    def stream():  # keeps requesting new ramps until 20 requests after the e-stop were refused
+        k = 0
+        while len(refused) <= 20:
+            k += 1
+            try:
+                supply.heartbeat()
+                supply.ramp_to("front" if k % 2 else "back", 200.0 + (k * 37) % 1500)
+            except FaultLatchedError as error:
+                refused.append(error)
+            supply.wait_cycles(1, timeout=1.0)
+    background(stream)
+    supply.wait_cycles(5)
+    supply.estop()
+    assert wait_until(lambda: all_off(sim) and len(refused) > 20)
+    snap = supply.snapshot()
+    assert snap.estop and all(c.faults == Fault.ESTOP and not c.output_enabled for c in snap.channels)
+    assert all(ch.emergency for ch in sim.plant)  # device-side emergency off, latched
+    assert "estop" in str(refused[-1])
+
+
+def test_lost_heartbeat_ramps_outputs_down(sim, wait_until):
+    configs = [ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=8000.0)]
+    with HvSupply(sim.port, channels=configs, heartbeat_timeout_s=0.3, handle_signals=False) as hv:
+        hv.enable("front")
+        hv.ramp_to("front", 1000.0)
+        assert wait_until(lambda: Fault.HEARTBEAT in hv.snapshot().channel("front").faults)
+        assert wait_until(lambda: not sim.plant[0].output_on)
+        assert not sim.plant[0].emergency  # ramped down and switched off, not cut
+
+
+def test_close_ramps_down_and_switches_off(sim):
+    hv = HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=8000.0)],
+                  handle_signals=False).open()
+    hv.enable("front")
+    assert hv.ramp_to("front", 1200.0).wait(5.0)
+    hv.close()
+    assert all_off(sim) and sim.plant[0].voltage_set == 0.0 and not sim.plant[0].emergency
+
+
+def test_exception_in_the_with_block_cuts_the_outputs(sim):
+    with pytest.raises(RuntimeError, match="operator code failed"):
+        with HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage=3000.0)],
+                      handle_signals=False) as hv:
+            hv.enable("front")
+            hv.ramp_to("front", 300.0).wait(5.0)
+            raise RuntimeError("operator code failed")
+    assert all_off(sim) and sim.plant[0].emergency
+
+
+def test_a_latched_device_emergency_survives_reconnect_until_reset(sim):
+    sim.plant[0].emergency = True
+    with HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage=3000.0)], handle_signals=False) as hv:
+        assert hv.snapshot().channel("front").faults == Fault.DEVICE
+        with pytest.raises(FaultLatchedError, match="is_emergency_off"):
+            hv.enable("front")
+        hv.reset_faults()
+        hv.wait_cycles(3)
+        hv.enable("front")
+        hv.wait_cycles(3)
+        assert sim.plant[0].output_on and not sim.plant[0].emergency
+
+
+def test_device_that_cannot_take_the_ramp_speed_is_refused_at_open():
+    with SimulatedSupply(channels=1, defaults=ChannelDefaults(max_ramp_speed=500.0)) as slow:
+        hv = HvSupply(slow.port, channels=[ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=1000.0)],
+                      handle_signals=False)
+        with pytest.raises(ConfigurationError, match="read_ramp reads 500, configured 1200"):
+            hv.open()
+
+
+def test_sigterm_switches_the_outputs_off(sim, wait_until):
+    script = textwrap.dedent(f"""
+        import sys, time
+        from hv_driver import ChannelConfig, HvSupply
+        hv = HvSupply({sim.port!r}, channels=[ChannelConfig("front", 0, max_voltage=3000.0)]).open()
+        hv.enable("front")
+        hv.ramp_to("front", 400.0).wait(5.0)
+        print("ramped", flush=True)
+        time.sleep(30)
+    """)
+    child = subprocess.Popen([sys.executable, "-c", script], cwd=REPO, stdout=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout.readline().strip() == "ramped"
+        assert sim.plant[0].output_on
+        child.send_signal(signal.SIGTERM)
+        assert child.wait(timeout=10) == 128 + signal.SIGTERM
+    finally:
+        child.kill()
+        child.stdout.close()
+    assert all_off(sim) and sim.plant[0].emergency
