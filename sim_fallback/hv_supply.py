@@ -323,13 +323,14 @@ def main(argv=None) -> int:
             try:
                 if words[0] == "quit":
                     break
+                reply = "ok"
                 if words[0] == "clear":
                     sim.clear_faults()
                 elif words[0] == "status":
-                    print(sim.status_text(), flush=True)
+                    reply = sim.status_text()
                 else:
                     sim.inject(words[0], int(words[1]) if len(words) > 1 else None)
-                print("ok", flush=True)
+                print(reply, flush=True)
             except ValueError as error:
                 print(f"error: {error}", flush=True)
     except KeyboardInterrupt:
