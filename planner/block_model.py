@@ -24,6 +24,7 @@ dielectric strength; otherwise the angle is NaN and the status says which limit 
 """
 from __future__ import annotations
 
+import dataclasses
 import enum
 import math
 from dataclasses import dataclass, field
@@ -47,9 +48,9 @@ class ModelConstants:
 
 # Output of `python -m planner calibrate` (planner/calibration.py); a test re-runs the fit.
 CALIBRATED_CONSTANTS = ModelConstants(
-    film_thickness=8.9388e-05,
-    rod_modulus=2.2878e10,
-    membrane_half_angle=1.757015,  # 100.67 deg: the arc over the top and ~32 deg below the rods
+    film_thickness=8.9346e-05,
+    rod_modulus=2.2630e10,
+    membrane_half_angle=1.758679,  # 100.76 deg: the arc over the top and ~32 deg below the rods
 )
 
 
@@ -58,7 +59,7 @@ class Status(enum.IntEnum):
     MEMBRANE_SLACK = 1  # some strip lost its tension (wrinkling): the membrane no longer holds shape
     PULL_IN = 2  # tangent stiffness <= 0: electromechanical instability
     BREAKDOWN = 3  # field above the film's dielectric strength
-    NO_EQUILIBRIUM = 4  # no bending moment left to balance (membrane moment <= 0 at theta = 0)
+    NO_EQUILIBRIUM = 4  # no root in 0 < theta < 90 deg (e.g. membrane moment <= 0 while straight)
 
 
 @dataclass(frozen=True)
@@ -163,6 +164,12 @@ class BlockDesigns:
     @property
     def size(self) -> int:
         return self.rod_length.size
+
+    def select(self, index) -> "BlockDesigns":
+        """The designs at ``index`` (an index array or slice), as a new batch."""
+        arrays = ("rod_length", "rod_diameter", "prestretch_axial", "prestretch_tangential",
+                  "film_thickness", "relative_permittivity", "rod_modulus")
+        return dataclasses.replace(self, **{name: np.atleast_1d(getattr(self, name)[index]) for name in arrays})
 
     @property
     def rod_stiffness(self) -> np.ndarray:
@@ -274,8 +281,11 @@ class BlockModel:
         index = np.arange(n)
         theta = np.full(n, np.nan)
         status = np.full(n, Status.OK, dtype=int)
-        at_zero = self._residual(np.zeros(n), voltage, index)
-        status[at_zero <= 0.0] = Status.NO_EQUILIBRIUM
+        straight = np.zeros(n)
+        no_moment = self._residual(straight, voltage, index) <= 0.0
+        # Straight, every strip has the same stretch: no moment left means no tension left.
+        slack = np.min(self._strip_state(straight, voltage, index)[0], axis=-1) <= 0.0
+        status[no_moment] = np.where(slack[no_moment], Status.MEMBRANE_SLACK, Status.NO_EQUILIBRIUM)
         solvable = np.flatnonzero(status == Status.OK)
         if solvable.size:
             upper = np.full(solvable.size, math.pi / 2.0)  # caps collide long before 90 degrees

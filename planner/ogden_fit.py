@@ -194,9 +194,11 @@ def _particle_swarm(objective: _Objective, low, high, rng, options: dict):
 
 def _multistart_least_squares(objective: _Objective, low, high, rng, options: dict):
     starts = int(options.get("starts", 4))
+    max_nfev = int(options.get("max_nfev", 150))  # per start: a start that wanders is cut short
     best = None
     for start in rng.uniform(low, high, (starts, low.size)):
-        fit = least_squares(objective.residuals, start, jac=objective.jacobian, bounds=(low, high), x_scale="jac")
+        fit = least_squares(objective.residuals, start, jac=objective.jacobian, bounds=(low, high),
+                            x_scale="jac", max_nfev=max_nfev)
         if np.all(np.isfinite(fit.fun)) and (best is None or fit.cost < best.cost):
             best = fit
     if best is None:
@@ -217,7 +219,8 @@ def fit_ogden(
     """Fit an ``n_terms`` Ogden model to both test modes.
 
     options: ``bounds`` {"mu": (lo, hi) MPa, "alpha": (lo, hi)}; PSO: ``particles``, ``iterations``;
-    least squares: ``starts``. ``rng`` seeds the swarm / the starting points (default seed 0).
+    least squares: ``starts``, ``max_nfev`` (per start). ``rng`` seeds the swarm or the starting
+    points (default: seed 0).
     """
     if not isinstance(n_terms, int) or not 1 <= n_terms <= 6:
         raise ValueError(f"n_terms must be an integer 1..6, got {n_terms!r}")

@@ -1,0 +1,29 @@
+"""`python -m planner` CLI: subcommand registry and the table / ogden-fit commands."""
+import numpy as np
+
+from planner.cli import build_parser, main
+from planner.table import REPO_ROOT, load_table
+
+
+def test_registry_collects_command_modules():
+    commands = build_parser()._subparsers._group_actions[0].choices
+    assert {"table", "calibrate", "ogden-fit"} <= set(commands)
+
+
+def test_table_command_regenerates_the_shipped_table(tmp_path, capsys):
+    out = tmp_path / "table.csv"
+    assert main(["table", "--out", str(out)]) == 0
+    assert "84 designs" in capsys.readouterr().out
+    fresh, shipped = load_table(out), load_table()
+    np.testing.assert_allclose(fresh.theta, shipped.theta, rtol=1e-6, equal_nan=True)
+    np.testing.assert_allclose(fresh.safe_voltage, shipped.safe_voltage)
+
+
+def test_ogden_fit_command(capsys):
+    assert main(["ogden-fit", str(REPO_ROOT / "config" / "ogden_test_data_example.csv")]) == 0
+    assert '"mu_Pa"' in capsys.readouterr().out
+
+
+def test_errors_are_reported_not_raised(tmp_path, capsys):
+    assert main(["ogden-fit", str(tmp_path / "missing.csv")]) == 2
+    assert "not found" in capsys.readouterr().err
