@@ -7,11 +7,14 @@ base frame's +z and, at phi = 0 and theta > 0, bends toward +x; the planar model
 
 All functions are vectorised: ``theta``, ``length`` and ``phi`` broadcast to a common shape ``(..., N)``
 (N blocks, base first, any batch dimensions in front), so thousands of candidate designs are evaluated at
-once. theta -> 0 is exact (sinc form, no division by theta).
+once. theta -> 0 is exact (chord = L sin(theta/2) / (theta/2), no division by zero).
 
-Two paths:
+Three paths:
 - ``planar_chain`` for phi in {0, pi}: headings add up with ``cumsum``; no loop over blocks.
-- ``chain_shape`` for any phi: rotation/translation composed block by block, vectorised over the batch.
+- ``chain_frames`` for any phi: base and block end frames only, composed block by block.
+- ``chain_shape`` for any phi: frames plus centerline samples (and tube, frames per sample on demand).
+Internally the batch is flattened and put last in memory so every array operation runs over one long
+contiguous axis; results are returned batch-first.
 """
 from __future__ import annotations
 
@@ -52,30 +55,65 @@ def _check_samples(samples_per_block: int) -> int:
     return int(samples_per_block)
 
 
-def _local_samples(theta: np.ndarray, length: np.ndarray, samples_per_block: int, cap_length: float):
-    """Centerline samples of each block in its own start frame (after the phi turn).
+def _batch_last(array: np.ndarray) -> np.ndarray:
+    """(..., N) -> contiguous (N, M) with the batch flattened to M."""
+    return np.ascontiguousarray(np.moveaxis(array, -1, 0).reshape(array.shape[-1], -1))
 
-    Per block: end of the first cap, ``samples_per_block - 2`` equal steps along the arc (last = arc end),
-    end of the second cap. Returns x, z of shape (..., N, S) and the bend angle reached at each sample.
+
+def _batch_first(array: np.ndarray, batch: tuple[int, ...]) -> np.ndarray:
+    """(..., M) -> contiguous (*batch, ...): the inverse of the internal layout."""
+    return np.ascontiguousarray(np.moveaxis(array, -1, 0)).reshape(batch + array.shape[:-1])
+
+
+def _sin_over(half_angle: np.ndarray, sin_half: np.ndarray) -> np.ndarray:
+    """sin(a) / a, exactly 1 at a = 0 (no division by zero)."""
+    return np.divide(sin_half, half_angle, out=np.ones_like(half_angle), where=half_angle != 0.0)
+
+
+def _sample_fractions(samples_per_block: int) -> np.ndarray:
+    """Arc fraction of each sample of a block: first cap end (0), equal arc steps, second cap end (1)."""
+    steps = samples_per_block - 2
+    return np.concatenate(([0.0], np.arange(1, steps + 1) / steps, [1.0]))
+
+
+def _local_samples(theta: np.ndarray, length: np.ndarray, samples_per_block: int, cap_length: float):
+    """Centerline samples of each block in its own start frame (after the phi turn), internal layout.
+
+    theta, length: (N, M). Per block: end of the first cap, ``samples_per_block - 2`` equal steps along
+    the arc (last = arc end), end of the second cap. Returns x, z and the bend angle reached, (N, S, M).
     """
     steps = samples_per_block - 2
-    fraction = np.concatenate(([0.0], np.arange(1, steps + 1) / steps, [1.0]))
-    angle = theta[..., None] * fraction  # bend angle reached at each sample
-    arc = length[..., None] * fraction
-    # Arc from the tangent +z bending toward +x: x = s (1 - cos a) / a, z = s sin(a) / a, in sinc form.
-    x = arc * (angle / 2.0) * np.sinc(angle / (2.0 * np.pi)) ** 2
-    z = cap_length + arc * np.sinc(angle / np.pi)
-    x[..., -1] += cap_length * np.sin(theta)  # the second cap continues along the end tangent
-    z[..., -1] += cap_length * np.cos(theta)
+    n, m = theta.shape
+    half_step = theta * (0.5 / steps)  # half the bend angle of one arc step
+    # e^(i j a) for j = 1..steps by repeated multiplication: one complex exponential per block, not per sample.
+    turns = np.empty((n, steps, m), dtype=complex)
+    turns[:] = np.exp(1j * half_step)[:, None, :]
+    np.cumprod(turns, axis=1, out=turns)
+    cos_half, sin_half = turns.real, turns.imag
+    j = np.arange(1, steps + 1)[:, None]
+    half = half_step[:, None, :] * j  # half the bend angle reached at each arc sample
+    # The chord of an arc of length s and angle 2a has length s sin(a)/a and points along angle a.
+    chord = length[:, None, :] * (j / steps) * _sin_over(half, sin_half)
+    x = np.empty((n, samples_per_block, m))
+    z = np.empty((n, samples_per_block, m))
+    x[:, 0], z[:, 0] = 0.0, cap_length
+    np.multiply(chord, sin_half, out=x[:, 1:-1])
+    np.multiply(chord, cos_half, out=z[:, 1:-1])
+    z[:, 1:-1] += cap_length
+    end_sin, end_cos = sin_half[:, -1], cos_half[:, -1]  # the second cap continues along the end tangent
+    x[:, -1] = x[:, -2] + cap_length * 2.0 * end_sin * end_cos
+    z[:, -1] = z[:, -2] + cap_length * (1.0 - 2.0 * end_sin**2)
+    angle = np.concatenate([np.zeros((n, 1, m)), 2.0 * half, theta[:, None, :]], axis=1)
     return x, z, angle
 
 
 def block_end_offsets(theta, length, cap_length: float = CAP_LENGTH) -> tuple[np.ndarray, np.ndarray]:
     """End point (x, z) of single blocks in their start frame: cap + arc + cap, any shape."""
-    theta = np.asarray(theta, dtype=float)
-    length = np.asarray(length, dtype=float)
-    x = length * (theta / 2.0) * np.sinc(theta / (2.0 * np.pi)) ** 2 + cap_length * np.sin(theta)
-    z = cap_length + length * np.sinc(theta / np.pi) + cap_length * np.cos(theta)
+    half = 0.5 * np.asarray(theta, dtype=float)
+    sin_half, cos_half = np.sin(half), np.cos(half)
+    chord = np.asarray(length, dtype=float) * _sin_over(half, sin_half)
+    x = chord * sin_half + cap_length * 2.0 * sin_half * cos_half
+    z = cap_length + chord * cos_half + cap_length * (1.0 - 2.0 * sin_half**2)
     return x, z
 
 
@@ -135,29 +173,26 @@ def planar_chain(
     turns = phi / np.pi
     if np.any(np.abs(turns - np.round(turns)) > 1e-9):
         raise ValueError("phi must be 0 or pi (mod 2 pi) for the planar model; use chain_shape for 3D")
-    side = np.cumprod(np.where(np.round(turns) % 2 == 0, 1.0, -1.0), axis=-1)
-    signed = side * theta
+    batch = theta.shape[:-1]
+    side = np.cumprod(np.where(np.round(_batch_last(turns)) % 2 == 0, 1.0, -1.0), axis=0)
+    signed = side * _batch_last(theta)  # (N, M)
 
-    end_headings = np.concatenate([np.zeros_like(signed[..., :1]), np.cumsum(signed, axis=-1)], axis=-1)
-    start = end_headings[..., :-1, None]  # heading at each block start, (..., N, 1)
-    x, z, angle = _local_samples(signed, length, samples_per_block, cap_length)
+    end_headings = np.zeros((signed.shape[0] + 1, signed.shape[1]))
+    np.cumsum(signed, axis=0, out=end_headings[1:])
+    start = end_headings[:-1, None, :]  # heading at each block start, (N, 1, M)
+    x, z, angle = _local_samples(signed, _batch_last(length), samples_per_block, cap_length)
     cos, sin = np.cos(start), np.sin(start)
-    dx = x * cos + z * sin  # rotate the local samples by the start heading about +y
-    dz = -x * sin + z * cos
-    block_start = np.cumsum(np.stack([dx[..., -1], dz[..., -1]], axis=-1), axis=-2)
-    origin = np.zeros_like(block_start[..., :1, :])
-    ends = np.concatenate([origin, block_start], axis=-2)
-    samples = ends[..., :-1, None, :] + np.stack([dx, dz], axis=-1)  # (..., N, S, 2)
-
-    batch = samples.shape[:-3]
-    points = np.concatenate([origin, samples.reshape(*batch, -1, 2)], axis=-2)
-    sample_headings = (start + angle).reshape(*batch, -1)
-    headings = np.concatenate([np.zeros_like(sample_headings[..., :1]), sample_headings], axis=-1)
+    offsets = np.stack([x * cos + z * sin, z * cos - x * sin], axis=2)  # turned by the start heading, (N, S, 2, M)
+    ends = np.zeros((signed.shape[0] + 1, 2, signed.shape[1]))
+    np.cumsum(offsets[:, -1], axis=0, out=ends[1:])
+    samples = ends[:-1, None] + offsets
+    points = np.concatenate([ends[:1], samples.reshape(-1, 2, signed.shape[1])])
+    headings = np.concatenate([end_headings[:1], (start + angle).reshape(-1, signed.shape[1])])
     return PlanarShape(
-        points=points,
-        headings=headings,
-        ends=ends,
-        end_headings=end_headings,
+        points=_batch_first(points, batch),
+        headings=_batch_first(headings, batch),
+        ends=_batch_first(ends, batch),
+        end_headings=_batch_first(end_headings, batch),
         theta=theta,
         length=length,
         phi=phi,
@@ -166,16 +201,21 @@ def planar_chain(
 
 
 # ------------------------------------------------------------------------------------------------- 3D
-def _rot_z(phi: np.ndarray) -> np.ndarray:
-    c, s = np.cos(phi), np.sin(phi)
-    zero, one = np.zeros_like(phi), np.ones_like(phi)
-    return np.stack([np.stack([c, -s, zero], -1), np.stack([s, c, zero], -1), np.stack([zero, zero, one], -1)], -2)
-
-
-def _rot_y(angle: np.ndarray) -> np.ndarray:
-    c, s = np.cos(angle), np.sin(angle)
-    zero, one = np.zeros_like(angle), np.ones_like(angle)
-    return np.stack([np.stack([c, zero, s], -1), np.stack([zero, one, zero], -1), np.stack([-s, zero, c], -1)], -2)
+def _turn_then_bend(phi: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """Rz(phi) @ Ry(theta), shape (..., 3, 3): turn about the local z axis, then bend toward the new +x."""
+    phi, theta = np.broadcast_arrays(phi, theta)
+    cos_phi, sin_phi, cos_theta, sin_theta = np.cos(phi), np.sin(phi), np.cos(theta), np.sin(theta)
+    rotation = np.empty(theta.shape + (3, 3))
+    rotation[..., 0, 0] = cos_phi * cos_theta
+    rotation[..., 0, 1] = -sin_phi
+    rotation[..., 0, 2] = cos_phi * sin_theta
+    rotation[..., 1, 0] = sin_phi * cos_theta
+    rotation[..., 1, 1] = cos_phi
+    rotation[..., 1, 2] = sin_phi * sin_theta
+    rotation[..., 2, 0] = -sin_theta
+    rotation[..., 2, 1] = 0.0
+    rotation[..., 2, 2] = cos_theta
+    return rotation
 
 
 def block_transforms(theta, length, phi, cap_length: float = CAP_LENGTH) -> np.ndarray:
@@ -186,25 +226,50 @@ def block_transforms(theta, length, phi, cap_length: float = CAP_LENGTH) -> np.n
     theta, length, phi = _broadcast_blocks(theta, length, phi)
     x, z = block_end_offsets(theta, length, cap_length)
     transform = np.zeros(theta.shape + (4, 4))
-    turn = _rot_z(phi)
-    transform[..., :3, :3] = turn @ _rot_y(theta)
-    transform[..., :3, 3] = turn[..., :, 0] * x[..., None] + turn[..., :, 2] * z[..., None]
+    transform[..., :3, :3] = _turn_then_bend(phi, theta)
+    transform[..., :3, 3] = np.stack([np.cos(phi) * x, np.sin(phi) * x, z], axis=-1)
     transform[..., 3, 3] = 1.0
     return transform
 
 
-def _compose(local_rotation: np.ndarray, local_position: np.ndarray):
-    """Chain local (R, p) of shape (..., N, 3, 3)/(..., N, 3) into base-frame frames (..., N + 1, ...)."""
-    n = local_rotation.shape[-3]
-    rotations = np.empty(local_rotation.shape[:-3] + (n + 1, 3, 3))
-    positions = np.empty(local_position.shape[:-2] + (n + 1, 3))
-    rotations[..., 0, :, :] = np.eye(3)
-    positions[..., 0, :] = 0.0
+@dataclass(frozen=True)
+class _Frames:
+    """Base and block end frames in the internal layout: rotations (N+1, 3, 3, M), positions (N+1, 3, M)."""
+
+    rotations: np.ndarray
+    positions: np.ndarray
+    cos_phi: np.ndarray  # (N, M)
+    sin_phi: np.ndarray
+
+
+def _compose(theta: np.ndarray, length: np.ndarray, phi: np.ndarray, cap_length: float) -> _Frames:
+    """Chain the block transforms of (N, M) inputs: frame_i = frame_(i-1) . T_i."""
+    x, z = block_end_offsets(theta, length, cap_length)
+    cos_phi, sin_phi = np.cos(phi), np.sin(phi)
+    local = np.moveaxis(_turn_then_bend(phi, theta), (-2, -1), (1, 2))  # (N, 3, 3, M)
+    translation = np.stack([cos_phi * x, sin_phi * x, z], axis=1)  # (N, 3, M)
+    n, m = theta.shape
+    rotations = np.empty((n + 1, 3, 3, m))
+    positions = np.empty((n + 1, 3, m))
+    rotations[0] = np.eye(3)[:, :, None]
+    positions[0] = 0.0
     for i in range(n):
-        previous = rotations[..., i, :, :]
-        rotations[..., i + 1, :, :] = previous @ local_rotation[..., i, :, :]
-        positions[..., i + 1, :] = positions[..., i, :] + (previous @ local_position[..., i, :, None])[..., 0]
-    return rotations, positions
+        np.einsum("rjm,jcm->rcm", rotations[i], local[i], out=rotations[i + 1])
+        np.einsum("rjm,jm->rm", rotations[i], translation[i], out=positions[i + 1])
+        positions[i + 1] += positions[i]
+    return _Frames(rotations, positions, cos_phi, sin_phi)
+
+
+def chain_frames(theta, length, phi=0.0, *, cap_length: float = CAP_LENGTH) -> tuple[np.ndarray, np.ndarray]:
+    """Frames only (no centerline samples): the fast path for tips and poses.
+
+    theta [rad], length [m], phi [rad] broadcast to (..., N). Returns rotations (..., N + 1, 3, 3) and
+    positions (..., N + 1, 3) [m] of the base (index 0) and of each block end, in the chain base frame.
+    """
+    theta, length, phi = _broadcast_blocks(theta, length, phi)
+    batch = theta.shape[:-1]
+    frames = _compose(_batch_last(theta), _batch_last(length), _batch_last(phi), cap_length)
+    return _batch_first(frames.rotations, batch), _batch_first(frames.positions, batch)
 
 
 @dataclass(frozen=True)
@@ -236,14 +301,12 @@ class ChainShape:
 
     def sample_rotations(self) -> np.ndarray:
         """(..., P, 3, 3) frame orientation at each centerline sample (z = tangent)."""
-        steps = self.samples_per_block - 2
-        fraction = np.concatenate(([0.0], np.arange(1, steps + 1) / steps, [1.0]))
-        start = self.rotations[..., :-1, :, :] @ _rot_z(self.phi)  # block start frames (..., N, 3, 3)
-        local = _rot_y(self.theta[..., None] * fraction)  # (..., N, S, 3, 3)
-        per_sample = start[..., None, :, :] @ local
+        fraction = _sample_fractions(self.samples_per_block)
+        local = _turn_then_bend(self.phi[..., None], self.theta[..., None] * fraction)  # (..., N, S, 3, 3)
+        per_sample = self.rotations[..., :-1, None, :, :] @ local
         batch = per_sample.shape[:-4]
-        flat = per_sample.reshape(*batch, -1, 3, 3)
-        return np.concatenate([start[..., :1, :, :], flat], axis=-3)
+        # the base sample has the orientation of the first block's start (fraction 0)
+        return np.concatenate([per_sample[..., :1, 0, :, :], per_sample.reshape(*batch, -1, 3, 3)], axis=-3)
 
     def tube(self, radius: float = BLOCK_RADIUS, around: int = 16) -> np.ndarray:
         """(..., P, around, 3) points on the body surface: a circle of ``radius`` around each sample."""
@@ -278,25 +341,26 @@ def chain_shape(
     samples_per_block: int = DEFAULT_SAMPLES_PER_BLOCK,
     cap_length: float = CAP_LENGTH,
 ) -> ChainShape:
-    """3D shape of chains in their base frame; theta [rad], length [m], phi [rad] broadcast to (..., N)."""
+    """3D shape of chains in their base frame; theta [rad], length [m], phi [rad] broadcast to (..., N).
+
+    ``valid`` (broadcast to (..., N)) is carried through for the caller (see ``assembly_centerlines``).
+    """
     theta, length, phi = _broadcast_blocks(theta, length, phi)
     samples_per_block = _check_samples(samples_per_block)
-    turn = _rot_z(phi)
-    x, z = block_end_offsets(theta, length, cap_length)
-    local_rotation = turn @ _rot_y(theta)
-    local_position = turn[..., :, 0] * x[..., None] + turn[..., :, 2] * z[..., None]
-    rotations, positions = _compose(local_rotation, local_position)
-
-    sx, sz, _ = _local_samples(theta, length, samples_per_block, cap_length)
-    start = rotations[..., :-1, :, :] @ turn  # block start frames
-    local = start[..., :, None, :, 0] * sx[..., None] + start[..., :, None, :, 2] * sz[..., None]
-    samples = positions[..., :-1, None, :] + local  # (..., N, S, 3)
-    batch = samples.shape[:-3]
-    points = np.concatenate([positions[..., :1, :], samples.reshape(*batch, -1, 3)], axis=-2)
+    batch = theta.shape[:-1]
+    inner_theta, inner_length = _batch_last(theta), _batch_last(length)
+    frames = _compose(inner_theta, inner_length, _batch_last(phi), cap_length)
+    x, z, _ = _local_samples(inner_theta, inner_length, samples_per_block, cap_length)  # (N, S, M)
+    start = frames.rotations[:-1]  # (N, 3, 3, M)
+    # Block start frame = previous end frame turned by phi: its x axis, and its z axis (unchanged).
+    start_x = frames.cos_phi[:, None] * start[:, :, 0] + frames.sin_phi[:, None] * start[:, :, 1]  # (N, 3, M)
+    start_z = start[:, :, 2]
+    samples = frames.positions[:-1, None] + x[:, :, None] * start_x[:, None] + z[:, :, None] * start_z[:, None]
+    points = np.concatenate([frames.positions[:1], samples.reshape(-1, 3, samples.shape[-1])])
     return ChainShape(
-        points=points,
-        rotations=rotations,
-        positions=positions,
+        points=_batch_first(points, batch),
+        rotations=_batch_first(frames.rotations, batch),
+        positions=_batch_first(frames.positions, batch),
         theta=theta,
         length=length,
         phi=phi,

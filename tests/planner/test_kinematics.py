@@ -14,6 +14,7 @@ from planner.kinematics import (
     block_end_offsets,
     block_transforms,
     chain_blocks,
+    chain_frames,
     chain_shape,
     design_parameters,
     planar_chain,
@@ -140,6 +141,18 @@ def test_composed_block_transforms_give_the_end_frames():
     for transform in block_transforms(theta, length, phi):
         frame = frame @ transform
     np.testing.assert_allclose(chain_shape(theta, length, phi).frames[-1], frame, atol=1e-15)
+
+
+def test_frames_only_path_matches_the_full_shape():
+    rng = np.random.default_rng(4)
+    theta = rng.uniform(-0.5, 1.0, (6, 9))
+    phi = rng.integers(0, 12, (6, 9)) * math.radians(30)
+    rotations, positions = chain_frames(theta, 0.0125, phi)
+    full = chain_shape(theta, 0.0125, phi, samples_per_block=3)
+    np.testing.assert_allclose(rotations, full.rotations, atol=1e-15)
+    np.testing.assert_allclose(positions, full.positions, atol=1e-15)
+    assert full.points.shape == (6, 1 + 9 * 3, 3)
+    np.testing.assert_allclose(full.points[:, 3::3], positions[:, 1:], atol=1e-15)  # each block's last sample is its end
 
 
 def test_periphery_points_are_radial_and_collinear():
