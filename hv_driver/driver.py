@@ -54,6 +54,7 @@ class SupplySnapshot:
     port: str
     estop: bool
     link_error: str            # last failed exchange, "" when the last one succeeded
+    stamp: float               # clock time [s] of the last control cycle's setpoints
     channels: tuple[ChannelSnapshot, ...]
 
     def channel(self, name: str) -> ChannelSnapshot:
@@ -158,6 +159,7 @@ class HvSupply:
         self._reconfigure = False
         self._link_error = ""
         self._cycles = 0
+        self._stamp = clock()
         self.device_id = ""
 
     # --- lifecycle -----------------------------------------------------------------------------
@@ -326,7 +328,7 @@ class HvSupply:
                                 faults=c.faults, fault_text=c.fault_text)
                 for name, c in self._supervisor.channels.items())
             return SupplySnapshot(self.device_id, self.port_name, self._supervisor.estop_latched,
-                                  self._link_error, channels)
+                                  self._link_error, self._stamp, channels)
 
     def wait_cycles(self, count: int = 1, timeout: float | None = None) -> bool:
         """Block until ``count`` more control cycles have finished."""
@@ -362,7 +364,8 @@ class HvSupply:
     def _cycle(self) -> bool:
         """One control cycle; True when a new fault latched (the next cycle then runs at once)."""
         with self._lock:
-            commands = self._supervisor.step(self._clock())
+            self._stamp = self._clock()
+            commands = self._supervisor.step(self._stamp)
             reconfigure, self._reconfigure = self._reconfigure, False
             faults_before = {n: c.faults for n, c in self._supervisor.channels.items()}
         try:

@@ -18,6 +18,7 @@ class DeaLoad:
     discharge_resistance: float = 10e6      # [Ohm] supply bleeder: tau = 20 ms with 2 nF
     arc_current: float = 2e-3               # [A] breakdown current
     arc_collapse_time: float = 2e-3         # [s] voltage collapse time constant during an arc
+    current_averaging: float = 0.02         # [s] time constant of the current readback filter
 
 
 @dataclass(frozen=True)
@@ -37,7 +38,8 @@ class PlantChannel:
     defaults: ChannelDefaults = field(default_factory=ChannelDefaults)
     load: DeaLoad = field(default_factory=DeaLoad)
     voltage: float = 0.0            # true output voltage [V]
-    current: float = 0.0            # [A]
+    current: float = 0.0            # true supply current [A]
+    measured_current: float = 0.0   # averaged current readback [A]
     drift: float = 0.0              # readback error [V] (readback_drift fault)
     drift_rate: float = 0.0         # [V/s]
     arcing: bool = False
@@ -95,6 +97,7 @@ class PlantChannel:
         self.current = load.capacitance * (self.voltage - before) / dt + self.voltage / load.leakage_resistance
         if self.arcing and self.output_on:
             self.current += load.arc_current
+        self.measured_current += (self.current - self.measured_current) * -math.expm1(-dt / load.current_averaging)
         self.drift += self.drift_rate * dt
         self._device_trip(now)
 

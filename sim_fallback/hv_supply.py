@@ -260,7 +260,7 @@ class SimulatedSupply:
             return f"{value:.5E}{unit}"
         return {
             ":MEAS:VOLT?": lambda ch: number(ch.measured_voltage, "V"),
-            ":MEAS:CURR?": lambda ch: number(ch.current, "A"),
+            ":MEAS:CURR?": lambda ch: number(ch.measured_current, "A"),
             ":READ:CHAN:STATUS?": lambda ch: str(int(ch.status)),
             ":READ:CHAN:EVENT:STATUS?": lambda ch: str(int(ch.events)),
             ":READ:VOLT:LIM?": lambda ch: number(ch.defaults.voltage_limit, "V"),
@@ -303,7 +303,7 @@ class SimulatedSupply:
     def status_text(self) -> str:
         with self._lock:
             return "; ".join(f"ch{i}: {'ON' if ch.output_on else 'off'} {ch.voltage:.1f} V set {ch.voltage_set:.1f} V "
-                             f"{ch.current * 1e6:.2f} uA status {int(ch.status)}" for i, ch in enumerate(self.plant))
+                             f"{ch.measured_current * 1e6:.2f} uA status {int(ch.status)}" for i, ch in enumerate(self.plant))
 
 
 def main(argv=None) -> int:

@@ -1,0 +1,124 @@
+"""HV control loop over a pty against the simulated supply: loop rate, jitter, fault-to-off latency.
+
+Writes docs/figures/hv_loop.json and docs/figures/hv_loop.png.
+    scripts/with_env.sh python benchmarks/hv_loop.py [--seconds 10] [--trials 40]
+Loop timing is taken where the device sees it: arrival times of each cycle's ``:MEAS:VOLT?`` at
+the simulated supply. Latency = time from the fault (injection, or the estop() call) to the
+simulated output switching off.
+"""
+import argparse
+import json
+import os
+import sys
+import time
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from hv_driver import ChannelConfig, HvSupply  # noqa: E402
+from sim_fallback.hv_supply import SimulatedSupply  # noqa: E402
+
+FIGURES = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "docs", "figures")
+LOOP_RATE_HZ = 100.0
+CHANNELS = [ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=8000.0),
+            ChannelConfig("back", 1, max_voltage=3000.0, slew_rate=8000.0)]
+
+
+def measure_loop(sim, hv, seconds: float) -> np.ndarray:
+    """Stream ramps on both channels for ``seconds``; return the cycle intervals seen by the device [s]."""
+    for name in ("front", "back"):
+        hv.enable(name)
+    start, targets = time.monotonic(), [2400.0, 0.0]
+    k = 0
+    while time.monotonic() - start < seconds:
+        handles = [hv.ramp_to(name, targets[k % 2]) for name in ("front", "back")]
+        for handle in handles:
+            handle.wait(5.0)
+        k += 1
+        print(f"loop: {time.monotonic() - start:5.1f} / {seconds:g} s", flush=True)
+    for name in ("front", "back"):
+        hv.ramp_to(name, 0.0).wait(5.0)
+    arrivals = np.array([t for t, line in sim.command_log if t >= start and line.startswith(":MEAS:VOLT?")])
+    return np.diff(arrivals)
+
+
+def fault_latency(sim, hv, trials: int, cause: str, rng: np.random.Generator) -> np.ndarray:
+    """Fault-to-output-off latencies [s] over ``trials`` runs of ``cause`` ("over_current" / "estop")."""
+    latencies = []
+    for trial in range(trials):
+        hv.reset_faults()
+        hv.wait_cycles(3)
+        hv.enable("front")
+        hv.ramp_to("front", 500.0).wait(5.0)
+        hv.wait_cycles(1)
+        time.sleep(rng.uniform(0.0, 1.0 / LOOP_RATE_HZ))  # spread the fault over the loop phase
+        if cause == "estop":
+            t0 = time.monotonic()
+            hv.estop()
+        else:
+            t0 = sim.inject("over_current", 0)
+        while sim.plant[0].output_on:
+            time.sleep(0.0005)
+        latencies.append(sim.plant[0].off_at - t0)
+        sim.clear_faults()
+        if (trial + 1) % 10 == 0:
+            print(f"{cause}: trial {trial + 1}/{trials}", flush=True)
+    return np.array(latencies)
+
+
+def summary(values: np.ndarray, scale: float = 1e3) -> dict:
+    return {"median": float(np.median(values) * scale), "p99": float(np.percentile(values, 99) * scale),
+            "max": float(values.max() * scale), "n": int(values.size)}
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=10.0, help="loop timing run length [s]")
+    parser.add_argument("--trials", type=int, default=40, help="fault injections per cause")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+    os.makedirs(FIGURES, exist_ok=True)
+    rng = np.random.default_rng(args.seed)
+    with SimulatedSupply(channels=2) as sim:
+        with HvSupply(sim.port, channels=CHANNELS, loop_rate_hz=LOOP_RATE_HZ, handle_signals=False) as hv:
+            intervals = measure_loop(sim, hv, args.seconds)
+            latencies = {cause: fault_latency(sim, hv, args.trials, cause, rng) for cause in ("over_current", "estop")}
+    period_ms = 1e3 / LOOP_RATE_HZ
+    result = {
+        "command": "scripts/with_env.sh python benchmarks/hv_loop.py " + " ".join(argv or sys.argv[1:]),
+        "loop_rate_hz_setting": LOOP_RATE_HZ,
+        "loop_rate_hz_median": float(1.0 / np.median(intervals)),
+        "loop_rate_hz_mean": float(1.0 / intervals.mean()),
+        "cycle_interval_ms": summary(intervals),
+        "jitter_ms": summary(np.abs(intervals * 1e3 - period_ms), scale=1.0),
+        "fault_to_off_ms": {cause: summary(values) for cause, values in latencies.items()},
+        "cpu_count": os.cpu_count(),
+        "load_average_1min": os.getloadavg()[0],
+    }
+    with open(os.path.join(FIGURES, "hv_loop.json"), "w") as stream:
+        json.dump(result, stream, indent=2)
+    fig, (ax_loop, ax_lat) = plt.subplots(1, 2, figsize=(10, 4))
+    ax_loop.hist(intervals * 1e3, bins=60, color="tab:blue")
+    ax_loop.axvline(period_ms, color="k", ls="--", lw=1, label=f"{period_ms:g} ms period")
+    ax_loop.set(xlabel="cycle interval at the device [ms]", ylabel="cycles", yscale="log",
+                title=f"loop: median {result['loop_rate_hz_median']:.1f} Hz")
+    ax_loop.legend()
+    for cause, values in latencies.items():
+        ordered = np.sort(values) * 1e3
+        ax_lat.step(ordered, np.arange(1, ordered.size + 1) / ordered.size, where="post",
+                    label=f"{cause}: median {np.median(ordered):.1f} ms, p99 {np.percentile(ordered, 99):.1f} ms")
+    ax_lat.axvline(20.0, color="k", ls="--", lw=1, label="20 ms target")
+    ax_lat.set(xlabel="fault to output off [ms]", ylabel="fraction of trials", title="fault-to-off latency")
+    ax_lat.legend(fontsize=8, loc="lower right")
+    fig.tight_layout()
+    fig.savefig(os.path.join(FIGURES, "hv_loop.png"), dpi=120)
+    print(json.dumps(result, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
