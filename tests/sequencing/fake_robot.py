@@ -1,0 +1,86 @@
+"""A fake `Robot` for engine tests: motions finish at once unless told to hang; faults injected on cue."""
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+
+from softblock_ros.sequencing.engine import ChannelReading, Outcome, RobotError
+
+OVER_CURRENT = 1
+
+
+class FakeMotion:
+    def __init__(self, outcome: Outcome | None = None):
+        self._done = threading.Event()
+        self._outcome = outcome
+        self.canceled = False
+        if outcome is not None:
+            self._done.set()
+
+    def wait(self, timeout: float) -> bool:
+        return self._done.wait(timeout)
+
+    def outcome(self) -> Outcome:
+        return self._outcome
+
+    def cancel(self) -> None:
+        self.canceled = True
+        self._outcome = Outcome(False, "canceled")
+        self._done.set()
+
+
+class FakeRobot:
+    """Records every call in ``calls``. ``hook(robot, call)`` may return a motion to use instead of the
+    default immediate success (e.g. a hanging FakeMotion) and may inject faults."""
+
+    def __init__(self, channels, hook: Callable | None = None):
+        self.states = {channel: ChannelReading(0.0) for channel in channels}
+        self.calls: list[tuple] = []
+        self.hanging: list[FakeMotion] = []
+        self.hook = hook
+        self.refuse_ramps = False
+        self.unreachable = False
+        self._lock = threading.Lock()
+
+    def _record(self, call: tuple):
+        with self._lock:
+            self.calls.append(call)
+        return self.hook(self, call) if self.hook else None
+
+    def hang(self) -> FakeMotion:
+        motion = FakeMotion()
+        self.hanging.append(motion)
+        return motion
+
+    def inject_fault(self, channel: str) -> None:
+        # Like the driver: a latched fault cuts the output at once.
+        self.states[channel] = ChannelReading(0.0, OVER_CURRENT, "OVER_CURRENT", False)
+
+    def move_arm(self, position, orientation, frame_id, speed):
+        if self.unreachable:
+            raise RobotError("arm/move: action server not available")
+        return self._record(("move_arm", tuple(position), frame_id, speed)) or FakeMotion(Outcome(True, "reached"))
+
+    def ramp(self, channel, target, slew_rate):
+        motion = self._record(("ramp", channel, target, slew_rate))
+        if motion is not None:
+            return motion
+        if channel not in self.states:
+            return FakeMotion(Outcome(False, f"unknown channel {channel!r}"))
+        if self.refuse_ramps or self.states[channel].faults:
+            return FakeMotion(Outcome(False, "refused: faults latched"))
+        self.states[channel] = ChannelReading(target, 0, "", target > 0)
+        return FakeMotion(Outcome(True, "", target))
+
+    def channel_states(self):
+        return dict(self.states)
+
+    def stop_arm(self):
+        self._record(("stop_arm",))
+
+    def estop(self):
+        self._record(("estop",))
+        return Outcome(True, "e-stop latched")
+
+    def ramps(self, channel: str | None = None) -> list[tuple]:
+        return [call for call in self.calls if call[0] == "ramp" and (channel is None or call[1] == channel)]

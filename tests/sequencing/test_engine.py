@@ -1,0 +1,211 @@
+"""Sequence engine against a fake robot: order, preconditions, timeouts, faults, cancel, safe reactions."""
+import threading
+from pathlib import Path
+
+import pytest
+from fake_robot import FakeMotion, FakeRobot
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from softblock_ros.sequencing.engine import Outcome, RobotError, RunOptions, SequenceEngine
+from softblock_ros.sequencing.schema import load_sequence, parse_sequence
+
+SEQUENCES = Path(__file__).resolve().parents[2] / "config" / "sequences"
+FAST = RunOptions(poll_period=0.002, settle_time=0.02, safe_stop_timeout=0.5)
+FINGER_GRASP = load_sequence("finger_grasp", SEQUENCES)
+
+
+def run(sequence, robot, cancel=None, options=FAST):
+    events = []
+    result = SequenceEngine(robot, options, events.append).run(sequence, cancel)
+    return result, events
+
+
+def channels_safe(robot) -> bool:
+    return all(reading.voltage == 0.0 and not reading.output_enabled for reading in robot.states.values())
+
+
+def test_finger_grasp_runs_every_step_in_order():
+    robot = FakeRobot(FINGER_GRASP.channels)
+    result, events = run(FINGER_GRASP, robot)
+    assert result.success, result.message
+    assert result.step_names == [step.name for step in FINGER_GRASP.steps]
+    assert len(result.step_durations) == 12 and min(result.step_durations) >= 0
+    assert [(call[1], call[2]) for call in robot.ramps()] == [
+        ("back", 2400.0), ("back", 0.0), ("front", 2400.0), ("front", 0.0), ("back", 2400.0), ("back", 0.0)]
+    assert [phase for event in events[:3] for phase in [event.phase]] == ["precondition", "running", "succeeded"]
+    assert [event.index for event in events if event.phase == "succeeded"] == list(range(12))
+    assert all(event.count == 12 for event in events)
+    assert channels_safe(robot)
+    assert ("stop_arm",) not in robot.calls
+
+
+def test_precondition_mismatch_fails_before_the_step_and_ramps_down():
+    robot = FakeRobot(FINGER_GRASP.channels)
+    robot.states["front"] = robot.states["front"].__class__(1500.0, 0, "", True)  # left energised
+    result, events = run(FINGER_GRASP, robot)
+    assert not result.success and not result.canceled
+    assert result.failed_step == "above_object"
+    assert "precondition: channel 'front' at 1500 V, expected 0 +- 50 V" in result.message
+    assert not [call for call in robot.calls if call[0] == "move_arm"]
+    assert ("stop_arm",) in robot.calls and channels_safe(robot)
+    assert events[-1].phase == "failed"
+
+
+def test_missing_channel_and_latched_fault_block_the_start():
+    robot = FakeRobot(["front"])
+    result, _ = run(FINGER_GRASP, robot)
+    assert "channel 'back' not reported by the HV driver" in result.message
+    robot = FakeRobot(FINGER_GRASP.channels)
+    robot.inject_fault("back")
+    result, _ = run(FINGER_GRASP, robot)
+    assert "precondition: HV fault latched (back: OVER_CURRENT); reset faults first" in result.message
+
+
+def test_fault_during_a_ramp_cancels_it_and_reaches_the_safe_state():
+    def fault_on_front_ramp(robot, call):
+        if call[:3] == ("ramp", "front", 2400.0):
+            robot.inject_fault("front")
+            return robot.hang()
+
+    robot = FakeRobot(FINGER_GRASP.channels, fault_on_front_ramp)
+    result, events = run(FINGER_GRASP, robot)
+    assert result.failed_step == "grip_front"
+    assert "HV fault (front: OVER_CURRENT)" in result.message
+    assert robot.hanging[0].canceled
+    assert channels_safe(robot)
+    assert ("estop",) not in robot.calls  # the faulted channel is already off, the other ramped down
+    assert robot.ramps()[-1][1:3] == ("back", 0.0) or robot.states["back"].voltage == 0.0
+    assert "safe state" in events[-1].message
+
+
+def test_timeout_cancels_the_motion():
+    robot = FakeRobot(FINGER_GRASP.channels, lambda robot, call: robot.hang() if call[0] == "move_arm" else None)
+    sequence = parse_sequence({"name": "t", "channels": ["front"], "steps": [
+        {"name": "go", "timeout": 0.05, "move_arm": {"position": [0, 0, 0.1], "orientation": [0, 0, 0, 1]}}]})
+    result, _ = run(sequence, robot)
+    assert "step 'go' failed: timed out after 0.05 s" in result.message
+    assert robot.hanging[0].canceled and ("stop_arm",) in robot.calls
+
+
+def test_cancel_mid_step_gives_a_canceled_result_in_the_safe_state():
+    cancel = threading.Event()
+
+    def cancel_while_surrounding(robot, call):
+        if call[0] == "move_arm" and call[1][2] == 0.12:
+            cancel.set()
+            return robot.hang()
+
+    robot = FakeRobot(FINGER_GRASP.channels, cancel_while_surrounding)
+    result, events = run(FINGER_GRASP, robot, cancel)
+    assert result.canceled and not result.success
+    assert result.failed_step == "surround_object"
+    assert result.message.startswith("canceled during step 'surround_object'")
+    assert robot.hanging[0].canceled
+    assert robot.ramps()[-1][1:3] == ("back", 0.0) and channels_safe(robot)
+    assert events[-1].phase == "canceled"
+
+
+def test_failed_ramp_down_falls_back_to_estop():
+    def refuse_from_release_on(robot, call):
+        if call[:3] == ("ramp", "front", 0.0):
+            robot.refuse_ramps = True
+
+    robot = FakeRobot(FINGER_GRASP.channels, refuse_from_release_on)
+    result, _ = run(FINGER_GRASP, robot)
+    assert result.failed_step == "release_front"
+    assert "ramp of 'front' to 0 V failed: refused: faults latched" in result.message
+    assert "ramp-down failed (front: refused: faults latched)" in result.message
+    assert robot.calls[-1] == ("estop",) and "e-stop sent" in result.message
+
+
+def test_on_failure_estop_skips_the_ramp_down():
+    sequence = parse_sequence({"name": "t", "channels": ["front"], "steps": [
+        {"name": "up", "ramp": {"channel": "front", "target": 1000.0}},
+        {"name": "check", "on_failure": "estop", "precondition": {"voltages": {"front": 0.0}},
+         "wait": {"duration": 0.0}}]})
+    robot = FakeRobot(["front"])
+    result, _ = run(sequence, robot)
+    assert result.failed_step == "check" and "on_failure: estop; e-stop sent" in result.message
+    assert len(robot.ramps()) == 1 and robot.calls[-2:] == [("stop_arm",), ("estop",)]
+
+
+def test_unreachable_backend_fails_the_step_with_its_message():
+    robot = FakeRobot(FINGER_GRASP.channels)
+    robot.unreachable = True
+    result, _ = run(FINGER_GRASP, robot)
+    assert result.failed_step == "above_object" and "arm/move: action server not available" in result.message
+
+
+def test_ramp_duration_sets_the_slew_rate_of_the_minimum_jerk_ramp():
+    sequence = parse_sequence({"name": "t", "channels": ["front"], "steps": [
+        {"name": "up", "ramp": {"channel": "front", "target": 2000.0, "duration": 2.0}}]})
+    robot = FakeRobot(["front"])
+    assert run(sequence, robot)[0].success
+    assert robot.ramps() == [("ramp", "front", 2000.0, pytest.approx(1.875 * 2000.0 / 2.0))]
+
+
+def test_ramp_ending_off_target_fails():
+    robot = FakeRobot(["front"], lambda robot, call: FakeMotion(Outcome(True, "", 1200.0))
+                      if call[:3] == ("ramp", "front", 2000.0) else None)
+    sequence = parse_sequence({"name": "t", "channels": ["front"], "steps": [
+        {"name": "up", "ramp": {"channel": "front", "target": 2000.0}}]})
+    result, _ = run(sequence, robot)
+    assert "channel 'front' ended at 1200 V, expected 2000 +- 50 V" in result.message
+
+
+def test_parallel_failure_cancels_the_sibling_and_names_the_branch():
+    def branch_behaviour(robot, call):
+        if call[0] == "move_arm":
+            return robot.hang()
+        if call[:3] == ("ramp", "front", 2000.0):
+            raise RobotError("hv/ramp: goal rejected")
+
+    sequence = parse_sequence({"name": "t", "channels": ["front"], "steps": [{"name": "both", "parallel": [
+        {"name": "go", "move_arm": {"position": [0, 0, 0.1], "orientation": [0, 0, 0, 1]}},
+        {"name": "grip", "ramp": {"channel": "front", "target": 2000.0}}]}]})
+    robot = FakeRobot(["front"], branch_behaviour)
+    result, _ = run(sequence, robot)
+    assert result.failed_step == "both"
+    assert "step 'both' failed: grip: hv/ramp: goal rejected" in result.message
+    assert robot.hanging[0].canceled
+
+
+def test_pulse_train_alternates_on_and_off_and_ends_off():
+    gait = load_sequence("legged_gait", SEQUENCES)
+    robot = FakeRobot(gait.channels)
+    sequence = parse_sequence({"name": "t", "channels": list(gait.channels), "steps": [{
+        "name": "trot", "pulse_train": {"channels": ["leg_front_left", "leg_rear_right"], "voltage": 2000.0,
+                                        "frequency": 5.0, "duty": 0.5, "cycles": 3, "slew_rate": 50000.0}}]},
+        source="inline")
+    result, events = run(sequence, robot)
+    assert result.success, result.message
+    for channel in ("leg_front_left", "leg_rear_right"):
+        assert [call[2] for call in robot.ramps(channel)] == [2000.0, 0.0] * 3
+    assert robot.ramps("leg_rear_left") == []
+    assert "3 cycles on ['leg_front_left', 'leg_rear_right']" in events[-1].message
+    assert channels_safe(robot)
+
+
+@settings(max_examples=25, deadline=None)
+@given(fault_at=st.integers(0, 5), channel=st.sampled_from(["front", "back"]), hang=st.booleans())
+def test_property_any_fault_during_any_ramp_ends_failed_and_safe(fault_at, channel, hang):
+    """Whichever ramp a fault hits, the run fails at that step and every channel ends at 0 V, off."""
+    count = {"ramps": 0}
+
+    def fault_on_nth_ramp(robot, call):
+        if call[0] != "ramp":
+            return None
+        count["ramps"] += 1
+        if count["ramps"] == fault_at + 1:
+            robot.inject_fault(channel)
+            # The fault hits while the ramp runs, or right after it finished.
+            return robot.hang() if hang else FakeMotion(Outcome(True, "", call[2]))
+
+    robot = FakeRobot(FINGER_GRASP.channels, fault_on_nth_ramp)
+    result, _ = run(FINGER_GRASP, robot)
+    ramp_steps = [step.name for step in FINGER_GRASP.steps if hasattr(step, "channel")]
+    assert not result.success
+    assert result.failed_step == ramp_steps[fault_at]
+    assert "HV fault" in result.message
+    assert channels_safe(robot) or ("estop",) in robot.calls

@@ -1,0 +1,134 @@
+"""Sequence files: the shipped strategies load; every kind of mistake is rejected naming step and field."""
+from pathlib import Path
+
+import pytest
+import yaml
+
+from softblock_ros.sequencing.schema import (
+    Limits, MoveArmStep, ParallelStep, PulseTrainStep, RampStep, SequenceError, WaitStep, load_sequence,
+    parse_sequence)
+
+SEQUENCES = Path(__file__).resolve().parents[2] / "config" / "sequences"
+
+
+def sequence_with(*steps, channels=("front", "back"), **extra):
+    return {"name": "test", "channels": list(channels), "steps": list(steps), **extra}
+
+
+def ramp(name="open", **fields):
+    return {"name": name, "ramp": {"channel": "back", "target": 2400.0, **fields}}
+
+
+def test_finger_grasp_follows_the_six_steps():
+    sequence = load_sequence("finger_grasp", SEQUENCES)
+    assert sequence.channels == ("front", "back")
+    kinds = [type(step) for step in sequence.steps]
+    assert kinds[:6] == [MoveArmStep, RampStep, MoveArmStep, RampStep, RampStep, MoveArmStep]
+    open_back = sequence.steps[1]
+    assert (open_back.channel, open_back.target, open_back.slew_rate) == ("back", 2400.0, 1000.0)
+    assert sequence.steps[-1].target == 0.0  # ends de-energised
+    assert sequence.steps[2].precondition.voltages == {"back": 2400.0}
+
+
+def test_trunk_and_gait_load():
+    trunk = load_sequence("trunk_flower", SEQUENCES)
+    assert [step.target for step in trunk.steps if isinstance(step, RampStep)] == [2400.0, 0.0, 2400.0, 0.0]
+    gait = load_sequence("legged_gait", SEQUENCES)
+    walk = gait.steps[0]
+    assert isinstance(walk, ParallelStep)
+    trains = walk.steps
+    assert all(isinstance(train, PulseTrainStep) and train.frequency == 5.0 for train in trains)
+    assert [train.phase for train in trains] == [0.0, 0.5]
+    assert set(trains[0].channels) | set(trains[1].channels) == set(gait.channels)
+    assert walk.timeout >= trains[1].length  # default timeouts cover the whole train
+
+
+def test_defaults_fill_missing_fields_and_timeouts_cover_waits():
+    sequence = parse_sequence(sequence_with(
+        {"name": "pause", "wait": {"duration": 2.0}},
+        {"name": "go", "move_arm": {"position": [0, 0, 0.1], "orientation": [0, 0, 0, 1]}},
+        defaults={"speed": 0.2, "frame_id": "world", "timeout": 5.0}))
+    wait, move = sequence.steps
+    assert isinstance(wait, WaitStep) and wait.timeout == 7.0
+    assert (move.speed, move.frame_id, move.timeout, move.on_failure) == (0.2, "world", 5.0, "safe_stop")
+
+
+@pytest.mark.parametrize("document, message", [
+    (sequence_with({"name": "grab", "squeeze": {"channel": "back"}}),
+     r"step 'grab' \(steps\[0\]\): kind='squeeze': unknown step kind"),
+    (sequence_with(ramp(target=3000.0)),
+     r"step 'open' \(steps\[0\]\): ramp.target=3000.0: above the voltage ceiling 2500 V"),
+    (sequence_with({"name": "open", "ramp": {"target": 100.0}}),
+     r"step 'open' \(steps\[0\]\): ramp.channel=\(missing\): a channel declared"),
+    (sequence_with({"name": "open", "ramp": {"channel": "middle", "target": 100.0}}),
+     r"ramp.channel='middle': a channel declared in `channels` \['front', 'back'\]"),
+    (sequence_with({"name": "pause", "wait": {"duration": -1.0}}),
+     r"step 'pause' \(steps\[0\]\): wait.duration=-1.0: must be >= 0"),
+    (sequence_with(ramp(target=-5.0)), r"ramp.target=-5.0: must be >= 0"),
+    (sequence_with(ramp(duration=2.0, slew_rate=100.0)), r"ramp.duration=2.0: give either slew_rate or duration"),
+    (sequence_with(ramp(), ramp()), r"step 'open' \(steps\): name='open': used twice"),
+    (sequence_with(ramp(), {"name": "both", "wait": {"duration": 1}, "ramp": {}}),
+     r"step 'both' \(steps\[1\]\): kind=\['wait', 'ramp'\]: exactly one step kind"),
+    (sequence_with({**ramp(), "on_failure": "ignore"}), r"on_failure='ignore': one of \['safe_stop', 'estop'\]"),
+    (sequence_with({"name": "pause", "wait": {"duration": 5.0}, "timeout": 1.0}),
+     r"timeout=1.0: shorter than the step itself"),
+    (sequence_with({**ramp(), "precondition": {"voltages": {"back": 9000}}}),
+     r"precondition.voltages.back=9000: above the voltage ceiling"),
+    (sequence_with({"name": "go", "move_arm": {"position": [0, 0], "orientation": [0, 0, 0, 1]}}),
+     r"step 'go' \(steps\[0\]\): move_arm.position=\[0, 0\]: a list of 3 finite numbers"),
+    (sequence_with({"name": "go", "move_arm": {"position": [0, 0, 0], "orientation": [0, 0, 0, 2]}}),
+     r"move_arm.orientation=\[0.0, 0.0, 0.0, 2.0\]: a unit quaternion"),
+    (sequence_with({"name": "outer", "parallel": [ramp("inner", target=1e4)]}),
+     r"step 'inner' \(steps\[0\].parallel\[0\]\): ramp.target=10000.0: above the voltage ceiling"),
+    (sequence_with(ramp(), channels=[]), r"channels=\[\]: a non-empty list"),
+    (sequence_with(), r"steps=\[\]: a non-empty list of steps"),
+    ({"name": "test", "channels": ["a"], "steps": [], "extra": 1}, r"unknown key\(s\) \['extra'\]"),
+])
+def test_invalid_sequences_name_the_step_and_field(document, message):
+    with pytest.raises(SequenceError, match=message):
+        parse_sequence(document)
+
+
+def pulse(**fields):
+    spec = {"channels": ["front"], "voltage": 2000.0, "frequency": 5.0, "duty": 0.5, "cycles": 3,
+            "slew_rate": 50000.0, **fields}
+    return sequence_with({"name": "gait", "pulse_train": spec})
+
+
+@pytest.mark.parametrize("fields, message", [
+    ({"frequency": 8.0}, r"pulse_train.frequency=8.0: must be <= 5"),
+    ({"slew_rate": 20000.0}, r"pulse_train.slew_rate=20000.0: too slow: an edge takes 188 ms .* is 100 ms"),
+    ({"duty": 0.9}, r"pulse_train.slew_rate=50000.0: too slow: an edge takes 75 ms .* is 20 ms"),
+    ({"cycles": 0}, r"pulse_train.cycles=0: an integer >= 1"),
+    ({"cycles": 2.5}, r"pulse_train.cycles=2.5: an integer >= 1"),
+    ({"channels": []}, r"pulse_train.channels=\[\]: a non-empty list"),
+    ({"slew_rate": 0.0}, r"pulse_train.slew_rate=0: must be > 0"),
+])
+def test_pulse_trains_must_fit_the_frequency_and_slew_limit(fields, message):
+    with pytest.raises(SequenceError, match=message):
+        parse_sequence(pulse(**fields))
+
+
+def test_limits_are_options():
+    relaxed = Limits(voltage_ceiling=5000.0, max_pulse_frequency=10.0)
+    parse_sequence(sequence_with(ramp(target=3000.0)), relaxed)
+    with pytest.raises(SequenceError, match=r"ramp.slew_rate=2000.0: above the HV driver's slew limit 1000"):
+        parse_sequence(sequence_with(ramp(slew_rate=2000.0)), Limits(max_slew_rate=1000.0))
+
+
+def test_unknown_name_lists_the_known_sequences(tmp_path):
+    with pytest.raises(SequenceError, match=r"sequence='grasp_all': no such file .*\['finger_grasp', 'legged_gait'"):
+        load_sequence("grasp_all", SEQUENCES)
+    with pytest.raises(SequenceError, match=r"sequence='': give a sequence name"):
+        load_sequence("", SEQUENCES)
+
+
+def test_invalid_yaml_and_paths(tmp_path):
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("name: x\nsteps: [\n  - {name: a\n")
+    with pytest.raises(SequenceError, match=r"broken.yaml: invalid YAML"):
+        load_sequence(str(broken), tmp_path)
+    valid = tmp_path / "custom.yaml"
+    valid.write_text(yaml.safe_dump(sequence_with(ramp())))
+    assert load_sequence(str(valid), SEQUENCES).source == str(valid)
+    assert load_sequence("custom", tmp_path).name == "test"
