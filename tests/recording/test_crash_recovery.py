@@ -1,5 +1,6 @@
 """A recorder process killed with SIGKILL leaves a readable prefix that `recover` makes valid;
 SIGINT and SIGTERM finish the file cleanly."""
+import json
 import signal
 import struct
 import subprocess
@@ -11,10 +12,11 @@ import pytest
 import rclpy
 from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader
-from recording_helpers import hv_state, read_decoded, stamp, wait_for
+from recording_helpers import hv_state, read_decoded, stamp, wait_for, write_recording
 from rosbags.highlevel import AnyReader
 from softblock_interfaces.msg import HvState
 
+from softblock_ros.recording.cli import main
 from softblock_ros.recording.mcap_file import describe, recover
 
 
@@ -88,6 +90,21 @@ def test_sigkill_leaves_readable_prefix_and_recover_makes_it_valid(ros_context, 
     assert voltages == [float(i) for i in range(prefix)]  # a gap-free prefix of what was sent
     with AnyReader([tmp_path / "recovered.mcap"]) as reader:
         assert sum(1 for _ in reader.messages()) == prefix
+
+
+def test_info_describes_a_finished_file_and_points_unfinished_ones_to_recover(tmp_path, capsys):
+    finished = write_recording(str(tmp_path / "ok.mcap"), [
+        ("/hv/state", hv_state({"front": 1.0}), 1), ("/hv/state", hv_state({"front": 2.0}), 2)])
+    assert main(["info", finished]) == 0
+    assert "/hv/state  softblock_interfaces/msg/HvState  2 messages  volatile" in \
+        capsys.readouterr().out
+    assert main(["info", finished, "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["topics"]["/hv/state"] == {
+        "type": "softblock_interfaces/msg/HvState", "count": 2, "durability": ["volatile"]}
+    unfinished = tmp_path / "cut.mcap"
+    unfinished.write_bytes(Path(finished).read_bytes()[:-200])
+    assert main(["info", str(unfinished)]) == 1
+    assert "recover" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("stop_signal", [signal.SIGINT, signal.SIGTERM])

@@ -17,6 +17,7 @@ from .mcap_file import require_complete
 HV_STATE = "softblock_interfaces/msg/HvState"
 SEQUENCE_EVENT = "softblock_interfaces/msg/SequenceEvent"
 ASSEMBLY_STATE = "softblock_interfaces/msg/AssemblyState"
+ANALYSED_TYPES = (HV_STATE, SEQUENCE_EVENT, ASSEMBLY_STATE)
 TERMINAL_PHASES = ("succeeded", "failed", "canceled")
 _FAULT_CONSTANT = re.compile(r"^\s*uint32\s+FAULT_([A-Z0-9_]+)\s*=\s*(\d+)", re.MULTILINE)
 
@@ -56,9 +57,8 @@ def load(path: str) -> RecordingData:
             if schema.name == HV_STATE:
                 data.fault_names = {int(value): name.lower() for name, value
                                     in _FAULT_CONSTANT.findall(schema.data.decode())}
-        wanted = [c.topic for c in summary.channels.values()
-                  if summary.schemas[c.schema_id].name in (HV_STATE, SEQUENCE_EVENT,
-                                                           ASSEMBLY_STATE)]
+        wanted = [c.topic for c in summary.channels.values() if c.schema_id in summary.schemas
+                  and summary.schemas[c.schema_id].name in ANALYSED_TYPES]
         for schema, channel, message, decoded in reader.iter_decoded_messages(topics=wanted):
             rows.append((_stamp_ns(decoded, message.log_time), schema.name, decoded))
             data.message_counts[channel.topic] = data.message_counts.get(channel.topic, 0) + 1

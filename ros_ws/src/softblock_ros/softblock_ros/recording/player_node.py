@@ -5,6 +5,7 @@ recorded bytes as they are. A type that cannot be imported stops the player befo
 published (UnknownMessageTypeError names type and topic), unless `skip_unknown` is set: then
 that topic is left out with a warning and the rest plays.
 """
+import sys
 import threading
 
 import rclpy
@@ -91,7 +92,7 @@ def run(path: str, options: PlaybackOptions, keep_alive: bool = False, ros_args=
         node.start()
         while rclpy.ok() and (keep_alive or not node.finished.is_set()):
             rclpy.spin_once(node, timeout_sec=0.1)
-        node.get_logger().info(f"published {node.published} messages")
+        print(f"published {node.published} messages", file=sys.stderr)
         return 0
     except UnknownMessageTypeError as error:
         rclpy.logging.get_logger("player").error(f"{error} (use --skip-unknown to play the rest)")
