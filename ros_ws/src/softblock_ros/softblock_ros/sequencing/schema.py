@@ -325,8 +325,11 @@ DEFAULTS = {"timeout": 30.0, "tolerance": 50.0, "speed": 0.0, "slew_rate": 0.0, 
             "on_failure": "safe_stop"}
 
 
-def parse_sequence(document, limits: Limits = Limits(), source: str = "") -> Sequence:
-    """Validate a sequence given as parsed YAML (a mapping) and return it; SequenceError otherwise."""
+def parse_sequence(document, limits: Limits = Limits(), source: str = "", defaults: Mapping | None = None) -> Sequence:
+    """Validate a sequence given as parsed YAML (a mapping) and return it; SequenceError otherwise.
+
+    defaults: site-wide step defaults (keys of DEFAULTS) under the file's own ``defaults``.
+    """
     top = _Where(source or "sequence")
     document = _mapping(top, document, "sequence", {"name", "description", "channels", "defaults", "steps"})
     name = document.get("name", _MISSING)
@@ -336,8 +339,8 @@ def parse_sequence(document, limits: Limits = Limits(), source: str = "") -> Seq
     if (not isinstance(channels, list) or not channels or not all(isinstance(c, str) and c for c in channels)
             or len(set(channels)) != len(channels)):
         top.fail("channels", channels, "a non-empty list of distinct HV channel names")
-    defaults = _mapping(top, document.get("defaults", {}), "defaults", set(DEFAULTS))
-    merged = {**DEFAULTS, **defaults}
+    file_defaults = _mapping(top, document.get("defaults", {}), "defaults", set(DEFAULTS))
+    merged = {**DEFAULTS, **(defaults or {}), **file_defaults}
     for key in ("timeout", "tolerance", "speed", "slew_rate"):
         _number(top, merged, key, f"defaults.{key}", minimum=0.0)
     parser = _Parser(tuple(channels), merged, limits)
@@ -359,11 +362,12 @@ def resolve_sequence_path(sequence: str, sequences_dir: str | Path) -> Path:
     return path
 
 
-def load_sequence(sequence: str, sequences_dir: str | Path, limits: Limits = Limits()) -> Sequence:
+def load_sequence(sequence: str, sequences_dir: str | Path, limits: Limits = Limits(),
+                  defaults: Mapping | None = None) -> Sequence:
     """Load and validate a sequence by name or path; SequenceError names the file, step and field."""
     path = resolve_sequence_path(sequence, sequences_dir)
     try:
         document = yaml.safe_load(path.read_text())
     except yaml.YAMLError as error:
         raise SequenceError(f"{path}: invalid YAML: {error}") from error
-    return parse_sequence(document, limits, source=str(path))
+    return parse_sequence(document, limits, source=str(path), defaults=defaults)

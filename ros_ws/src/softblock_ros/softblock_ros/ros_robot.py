@@ -1,0 +1,140 @@
+"""The sequencing engine's `Robot` on ROS: `arm/move` and `hv/ramp` action clients, `hv/state`, `hv/estop`.
+
+Nothing here blocks on the executor: goals are sent with futures whose callbacks set a
+threading.Event, so the engine can wait in an action-execute thread of a MultiThreadedExecutor.
+"""
+from __future__ import annotations
+
+import threading
+import time
+
+from action_msgs.msg import GoalStatus
+from geometry_msgs.msg import PoseStamped
+from rclpy.action import ActionClient
+from rclpy.node import Node
+from softblock_interfaces.action import MoveArm, RampChannel
+from softblock_interfaces.msg import HvChannelState, HvState
+from std_srvs.srv import Trigger
+
+from .conversions import pose_msg
+from .sequencing.engine import ChannelReading, Outcome, RobotError
+
+
+class ActionMotion:
+    """One action goal seen as an engine `Motion`; ``to_outcome(status, result)`` reads its result."""
+
+    def __init__(self, client: ActionClient, goal, to_outcome):
+        self._to_outcome = to_outcome
+        self._done = threading.Event()
+        self._lock = threading.Lock()
+        self._outcome: Outcome | None = None
+        self._handle = None
+        self._cancel_requested = False
+        client.send_goal_async(goal).add_done_callback(self._on_goal_response)
+
+    def _finish(self, outcome: Outcome) -> None:
+        self._outcome = outcome
+        self._done.set()
+
+    def _on_goal_response(self, future) -> None:
+        handle = future.result()
+        if not handle.accepted:
+            self._finish(Outcome(False, "goal rejected by the server"))
+            return
+        with self._lock:
+            self._handle = handle
+            cancel = self._cancel_requested
+        if cancel:
+            handle.cancel_goal_async()
+        handle.get_result_async().add_done_callback(
+            lambda result: self._finish(self._to_outcome(result.result().status, result.result().result)))
+
+    def wait(self, timeout: float) -> bool:
+        return self._done.wait(timeout)
+
+    def outcome(self) -> Outcome:
+        return self._outcome
+
+    def cancel(self) -> None:
+        with self._lock:
+            self._cancel_requested = True
+            handle = self._handle
+        if handle is not None and not self._done.is_set():
+            handle.cancel_goal_async()
+
+
+def _ramp_outcome(status: int, result: RampChannel.Result) -> Outcome:
+    return Outcome(status == GoalStatus.STATUS_SUCCEEDED and result.success, result.message, result.final_voltage)
+
+
+def _move_outcome(status: int, result: MoveArm.Result) -> Outcome:
+    return Outcome(status == GoalStatus.STATUS_SUCCEEDED and result.success, result.message)
+
+
+class RosRobot:
+    """Adapts ROS clients of the arm and the HV driver to the engine's `Robot` interface."""
+
+    def __init__(self, node: Node, callback_group, server_timeout: float, state_timeout: float):
+        self._server_timeout, self._state_timeout = server_timeout, state_timeout
+        self._ramp = ActionClient(node, RampChannel, "hv/ramp", callback_group=callback_group)
+        self._move = ActionClient(node, MoveArm, "arm/move", callback_group=callback_group)
+        self._estop = node.create_client(Trigger, "hv/estop", callback_group=callback_group)
+        self._lock = threading.Lock()
+        self._state: HvState | None = None
+        self._state_time = 0.0
+        self._arm_motion: ActionMotion | None = None
+        node.create_subscription(HvState, "hv/state", self._on_state, 10, callback_group=callback_group)
+
+    def _on_state(self, msg: HvState) -> None:
+        with self._lock:
+            self._state, self._state_time = msg, time.monotonic()
+
+    def _ready(self, client: ActionClient, name: str) -> None:
+        if not client.wait_for_server(timeout_sec=self._server_timeout):
+            raise RobotError(f"{name}: action server not available after {self._server_timeout:g} s")
+
+    def move_arm(self, position, orientation, frame_id: str, speed: float) -> ActionMotion:
+        self._ready(self._move, "arm/move")
+        goal = MoveArm.Goal(target=PoseStamped(pose=pose_msg(position, orientation)), max_speed=float(speed))
+        goal.target.header.frame_id = frame_id
+        motion = ActionMotion(self._move, goal, _move_outcome)
+        self._arm_motion = motion
+        return motion
+
+    def ramp(self, channel: str, target: float, slew_rate: float) -> ActionMotion:
+        self._ready(self._ramp, "hv/ramp")
+        goal = RampChannel.Goal(channel=channel, target=float(target), slew_rate=float(slew_rate))
+        return ActionMotion(self._ramp, goal, _ramp_outcome)
+
+    def channel_states(self) -> dict[str, ChannelReading]:
+        """Latest hv/state; a silent driver shows as a link fault on every channel it reported."""
+        with self._lock:
+            state, age = self._state, time.monotonic() - self._state_time
+        if state is None:
+            return {}
+        silent = age > self._state_timeout
+        readings = {}
+        for channel in state.channels:
+            faults, text = channel.faults, channel.fault_text
+            if state.estop:
+                faults, text = faults | HvChannelState.FAULT_ESTOP, text or "ESTOP"
+            if silent:
+                faults, text = faults | HvChannelState.FAULT_LINK, f"hv/state silent for {age:.1f} s"
+            readings[channel.name] = ChannelReading(channel.measured_voltage, faults, text, channel.output_enabled)
+        return readings
+
+    def stop_arm(self) -> None:
+        """Cancel the running arm goal: the arm brakes and holds."""
+        if self._arm_motion is not None:
+            self._arm_motion.cancel()
+
+    def estop(self) -> Outcome:
+        if not self._estop.wait_for_service(timeout_sec=self._server_timeout):
+            return Outcome(False, "hv/estop: service not available")
+        done = threading.Event()
+        future = self._estop.call_async(Trigger.Request())
+        future.add_done_callback(lambda _: done.set())
+        if not done.wait(self._server_timeout):
+            return Outcome(False, "hv/estop: no reply")
+        reply = future.result()
+        return Outcome(reply.success, reply.message)

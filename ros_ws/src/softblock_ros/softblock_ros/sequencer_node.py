@@ -1,0 +1,140 @@
+"""Sequencer node: action `sequencer/run` executes a YAML manipulation sequence step by step.
+
+Loads config/sequences/<name>.yaml (or a path), runs it with the sequencing engine against the arm
+(`arm/move`) and the HV driver (`hv/ramp`, `hv/state`, `hv/estop`), publishes feedback and a
+`sequencer/events` message per step transition, and `hv/heartbeat` at `heartbeat_rate` while it runs.
+One goal at a time: a second goal is rejected while one runs. See docs/sequences.md.
+"""
+import threading
+
+import rclpy
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from softblock_interfaces.action import RunSequence
+from softblock_interfaces.msg import SequenceEvent
+from std_msgs.msg import Empty
+
+from .paths import resolve_path
+from .ros_robot import RosRobot
+from .sequencing.engine import RunOptions, SequenceEngine, StepEvent
+from .sequencing.schema import Limits, SequenceError, load_sequence
+
+FEEDBACK_PHASES = {"precondition", "running", "succeeded"}
+EVENT_PHASES = {"running": "started", "succeeded": "succeeded", "failed": "failed", "canceled": "canceled"}
+
+PARAMETERS = {  # name: (default, description, (min, max) or None)
+    "sequences_dir": ("config/sequences", "directory of <name>.yaml files (relative: to the project root)", None),
+    "heartbeat_rate": (10.0, "hv/heartbeat rate while a sequence runs [Hz]", (1.0, 100.0)),
+    "voltage_ceiling": (2500.0, "highest voltage a sequence may command [V]", (0.0, 10000.0)),
+    "max_pulse_frequency": (5.0, "highest pulse-train frequency [Hz]", (0.1, 50.0)),
+    "max_slew_rate": (0.0, "HV driver slew limit checked at load [V/s]; 0 = left to the driver", (0.0, 1e6)),
+    "default_tolerance": (50.0, "voltage tolerance of steps that give none [V]", (1.0, 1000.0)),
+    "default_timeout": (30.0, "timeout of steps that give none [s]", (0.1, 3600.0)),
+    "settle_time": (1.0, "how long a precondition may take to become true [s]", (0.0, 60.0)),
+    "poll_period": (0.02, "fault / cancel / timeout check period [s]", (0.001, 1.0)),
+    "safe_stop_timeout": (15.0, "time allowed for ramping every channel to 0 V [s]", (0.1, 600.0)),
+    "server_timeout": (2.0, "wait for arm/move, hv/ramp, hv/estop servers [s]", (0.1, 60.0)),
+    "state_timeout": (0.5, "hv/state older than this counts as a link fault [s]", (0.05, 10.0)),
+}
+
+
+class SequencerNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__("sequencer", **kwargs)
+        for name, (default, description, bounds) in PARAMETERS.items():
+            ranges = [] if bounds is None else [FloatingPointRange(from_value=bounds[0], to_value=bounds[1])]
+            self.declare_parameter(name, default, ParameterDescriptor(description=description,
+                                                                      floating_point_range=ranges))
+        value = lambda name: self.get_parameter(name).value  # noqa: E731
+        self._sequences_dir = resolve_path(value("sequences_dir"))
+        self._limits = Limits(value("voltage_ceiling"), value("max_pulse_frequency"),
+                              value("max_slew_rate") or None)
+        self._defaults = {"tolerance": value("default_tolerance"), "timeout": value("default_timeout")}
+        self._options = RunOptions(value("poll_period"), value("settle_time"), value("safe_stop_timeout"))
+        group = ReentrantCallbackGroup()
+        self._robot = RosRobot(self, group, value("server_timeout"), value("state_timeout"))
+        self._events = self.create_publisher(SequenceEvent, "sequencer/events", 10)
+        self._heartbeat = self.create_publisher(Empty, "hv/heartbeat", 10)
+        self.create_timer(1.0 / value("heartbeat_rate"), self._beat, callback_group=group)
+        self._busy = threading.Lock()
+        self._running = False
+        self._cancel = threading.Event()
+        self._running_name = ""
+        self._server = ActionServer(self, RunSequence, "sequencer/run", execute_callback=self._execute,
+                                    goal_callback=self._on_goal, cancel_callback=self._on_cancel,
+                                    callback_group=group)
+
+    def _beat(self) -> None:
+        if self._running:
+            self._heartbeat.publish(Empty())
+
+    def _on_goal(self, goal: RunSequence.Goal) -> GoalResponse:
+        if not self._busy.acquire(blocking=False):
+            self.get_logger().warning(f"rejected sequence {goal.sequence!r}: "
+                                      f"sequence {self._running_name!r} is still running")
+            return GoalResponse.REJECT
+        self._running_name = goal.sequence
+        self._cancel.clear()
+        return GoalResponse.ACCEPT
+
+    def _on_cancel(self, _goal_handle) -> CancelResponse:
+        self._cancel.set()
+        return CancelResponse.ACCEPT
+
+    def _on_step(self, goal_handle, event: StepEvent) -> None:
+        if event.phase in FEEDBACK_PHASES:
+            goal_handle.publish_feedback(RunSequence.Feedback(
+                step_index=event.index, step_count=event.count, step_name=event.name,
+                description=event.description, phase=event.phase))
+        if event.phase in EVENT_PHASES:
+            msg = SequenceEvent(sequence=event.sequence, step_index=event.index, step_name=event.name,
+                                phase=EVENT_PHASES[event.phase], message=event.message)
+            msg.header.stamp = self.get_clock().now().to_msg()
+            self._events.publish(msg)
+        log = self.get_logger().error if event.phase in ("failed", "canceled") else self.get_logger().info
+        log(f"{event.sequence} [{event.index + 1}/{event.count}] {event.name}: {event.phase} {event.message}")
+
+    def _execute(self, goal_handle) -> RunSequence.Result:
+        try:
+            try:
+                sequence = load_sequence(goal_handle.request.sequence, self._sequences_dir, self._limits,
+                                         self._defaults)
+            except SequenceError as error:
+                goal_handle.abort()
+                return RunSequence.Result(success=False, message=f"rejected: {error}")
+            self._running = True
+            engine = SequenceEngine(self._robot, self._options, lambda event: self._on_step(goal_handle, event))
+            outcome = engine.run(sequence, self._cancel)
+            if outcome.canceled:
+                goal_handle.canceled()
+            elif outcome.success:
+                goal_handle.succeed()
+            else:
+                goal_handle.abort()
+            return RunSequence.Result(success=outcome.success, message=outcome.message,
+                                      failed_step=outcome.failed_step, step_names=outcome.step_names,
+                                      step_durations=outcome.step_durations)
+        finally:
+            self._running = False
+            self._busy.release()
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    node = SequencerNode()
+    executor = MultiThreadedExecutor()
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

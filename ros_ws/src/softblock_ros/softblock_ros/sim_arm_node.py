@@ -1,0 +1,135 @@
+"""Simulated arm node: action `arm/move` (MoveArm) and `arm/pose` (PoseStamped) at `publish_rate`.
+
+The motion model is sim_fallback.arm (straight line, trapezoidal speed, slerped orientation). A real
+arm is bridged by serving the same action and topic (see docs/sequences.md). A new goal preempts
+the running one; a cancel brakes the arm to rest and holds. Targets must be in `frame_id` (no TF).
+"""
+import threading
+import time
+
+import rclpy
+from geometry_msgs.msg import Pose as PoseMsg
+from geometry_msgs.msg import PoseStamped
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
+from rclpy.action import ActionServer, CancelResponse
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from sim_fallback.arm import ArmLimits, Pose, SimulatedArm
+from softblock_interfaces.action import MoveArm
+
+from .conversions import pose_msg
+
+LIMITS = {  # ArmLimits field: description
+    "max_speed": "linear speed limit [m/s]",
+    "max_acceleration": "linear acceleration limit [m/s^2]",
+    "max_angular_speed": "angular speed limit [rad/s]",
+    "max_angular_acceleration": "angular acceleration limit [rad/s^2]",
+    "position_tolerance": "a target counts as reached within this distance [m]",
+    "orientation_tolerance": "... and within this angle [rad]",
+}
+
+
+def to_msg(pose: Pose) -> PoseMsg:
+    return pose_msg(pose.position, pose.orientation)
+
+
+def from_msg(msg: PoseMsg) -> Pose:
+    q = msg.orientation
+    return Pose((msg.position.x, msg.position.y, msg.position.z), (q.x, q.y, q.z, q.w))
+
+
+class SimArmNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__("sim_arm", **kwargs)
+        positive = [FloatingPointRange(from_value=1e-6, to_value=100.0)]
+        defaults = ArmLimits()
+        for name, description in LIMITS.items():
+            self.declare_parameter(name, getattr(defaults, name),
+                                   ParameterDescriptor(description=description, floating_point_range=positive))
+        self.declare_parameter("frame_id", "base_link", ParameterDescriptor(description="frame of poses and targets"))
+        self.declare_parameter("publish_rate", 50.0, ParameterDescriptor(
+            description="arm/pose rate and simulation step rate [Hz]",
+            floating_point_range=[FloatingPointRange(from_value=20.0, to_value=1000.0)]))
+        self.declare_parameter("initial_position", [0.45, 0.0, 0.3], ParameterDescriptor(description="[m]"))
+        self.declare_parameter("initial_orientation", [1.0, 0.0, 0.0, 0.0],
+                               ParameterDescriptor(description="quaternion (x, y, z, w)"))
+        value = lambda name: self.get_parameter(name).value  # noqa: E731
+        self._frame_id = value("frame_id")
+        self._arm = SimulatedArm(Pose(tuple(value("initial_position")), tuple(value("initial_orientation"))),
+                                 ArmLimits(**{name: value(name) for name in LIMITS}))
+        self._lock = threading.Lock()
+        self._stepped = threading.Condition(self._lock)
+        self._active_goal = None
+        self._last_step = time.monotonic()
+        group = ReentrantCallbackGroup()
+        self._pose_pub = self.create_publisher(PoseStamped, "arm/pose", 10)
+        self.create_timer(1.0 / value("publish_rate"), self._on_timer, callback_group=group)
+        self._server = ActionServer(self, MoveArm, "arm/move", execute_callback=self._execute,
+                                    cancel_callback=lambda _: CancelResponse.ACCEPT, callback_group=group)
+
+    def _on_timer(self) -> None:
+        now = time.monotonic()
+        with self._lock:
+            pose = self._arm.step(now - self._last_step)
+            self._last_step = now
+            self._stepped.notify_all()
+        msg = PoseStamped(pose=to_msg(pose))
+        msg.header.frame_id = self._frame_id
+        msg.header.stamp = self.get_clock().now().to_msg()
+        self._pose_pub.publish(msg)
+
+    def _execute(self, goal_handle) -> MoveArm.Result:
+        goal = goal_handle.request
+        frame = goal.target.header.frame_id or self._frame_id
+        try:
+            if frame != self._frame_id:
+                raise ValueError(f"target frame {frame!r} is not the arm frame {self._frame_id!r} (no TF here)")
+            target = from_msg(goal.target.pose)
+            with self._lock:
+                self._arm.move_to(target, goal.max_speed)
+                self._active_goal = goal_handle
+        except ValueError as error:
+            goal_handle.abort()
+            return MoveArm.Result(success=False, message=str(error), final_pose=to_msg(self._arm.pose))
+        stopping = False
+        while True:
+            with self._lock:
+                self._stepped.wait(timeout=0.5)
+                pose, moving, preempted = self._arm.pose, self._arm.moving, self._active_goal is not goal_handle
+                if goal_handle.is_cancel_requested and not preempted and not stopping:
+                    self._arm.stop()
+                    stopping = True
+            if preempted:
+                goal_handle.abort()
+                return MoveArm.Result(success=False, message="preempted by a newer goal", final_pose=to_msg(pose))
+            if not moving:
+                break
+            goal_handle.publish_feedback(MoveArm.Feedback(current_pose=to_msg(pose),
+                                                          distance_remaining=pose.distance_to(target)))
+        if goal_handle.is_cancel_requested:
+            goal_handle.canceled()
+            return MoveArm.Result(success=False, message="canceled: arm stopped", final_pose=to_msg(pose))
+        with self._lock:
+            reached = self._arm.reached(target)
+        (goal_handle.succeed if reached else goal_handle.abort)()
+        return MoveArm.Result(success=reached, final_pose=to_msg(pose),
+                              message="reached" if reached else "stopped short of the target")
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    node = SimArmNode()
+    executor = MultiThreadedExecutor()
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()
