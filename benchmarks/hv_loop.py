@@ -65,6 +65,8 @@ def fault_latency(sim, hv, trials: int, cause: str, rng: np.random.Generator) ->
             time.sleep(0.0005)
         latencies.append(sim.plant[0].off_at - t0)
         sim.clear_faults()
+        while abs(hv.snapshot().channel("front").measured_current) > 1e-6:  # averaged readback settles
+            hv.wait_cycles(1)
         if (trial + 1) % 10 == 0:
             print(f"{cause}: trial {trial + 1}/{trials}", flush=True)
     return np.array(latencies)
