@@ -1,0 +1,118 @@
+"""Planner node: designs fingers for an object image and chains along 3D paths (planner.design).
+
+Optimisations run in the service callbacks on a reentrant group of a MultiThreadedExecutor, so other
+requests, parameter services and shutdown are served meanwhile. A bad request gets success=false and the
+core's message; the node carries on. Shutting down cancels running optimisations.
+"""
+from __future__ import annotations
+
+import sys
+import threading
+from functools import partial
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.node import Node
+from softblock_interfaces.srv import DesignFingers, DesignPath
+
+from planner import design
+from planner.contours import load_mask
+from planner.table import load_table
+
+from .conversions import designed_chain_msg, inventory_from_lists, mask_from_image, path_from_points
+from .paths import resolve_path
+from .runner import run_node
+
+DEFAULT_OPTIMIZER = "exact"
+
+
+class PlannerNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__("planner", **kwargs)
+        self.declare_parameter("default_time_budget", 30.0, ParameterDescriptor(
+            description="time budget of a request that gives 0 [s]; 0 = no limit",
+            floating_point_range=[FloatingPointRange(from_value=0.0, to_value=3600.0)]))
+        self.declare_parameter("max_blocks", 8, ParameterDescriptor(
+            description="largest number of blocks per finger or chain a request may ask for",
+            integer_range=[IntegerRange(from_value=1, to_value=design.MAX_BLOCKS)]))
+        table_path = self.declare_parameter("table_path", "", ParameterDescriptor(
+            description="look-up table file; empty = the planner's default table", read_only=True)).value
+        self._table = load_table(resolve_path(table_path)) if table_path else load_table()
+        self._stopping = threading.Event()
+        group = ReentrantCallbackGroup()
+        self.create_service(DesignFingers, "planner/design_fingers", partial(self._serve, self._design_fingers),
+                            callback_group=group)
+        self.create_service(DesignPath, "planner/design_path", partial(self._serve, self._design_path),
+                            callback_group=group)
+        self.get_logger().info(f"ready, table of {len(self._table.ids)} designs")
+
+    def destroy_node(self):
+        self._stopping.set()
+        return super().destroy_node()
+
+    def _serve(self, solve, request, response):
+        """Run ``solve``; a rejected request (ValueError) becomes success=false with the reason."""
+        try:
+            solve(request, response)
+        except ValueError as error:
+            response.success, response.message = False, f"request refused: {error}"
+            self.get_logger().warning(response.message)
+        return response
+
+    def _options(self, request) -> dict:
+        max_blocks = self.get_parameter("max_blocks").value
+        if not 1 <= request.num_blocks <= max_blocks:
+            raise ValueError(f"num_blocks must be 1..{max_blocks}, got {request.num_blocks}")
+        budget = request.time_budget or self.get_parameter("default_time_budget").value
+        if not budget >= 0.0:
+            raise ValueError(f"time_budget must be >= 0 s, got {request.time_budget}")
+        optimizer = request.optimizer or DEFAULT_OPTIMIZER
+        if optimizer not in design.METHODS:
+            raise ValueError(f"optimizer must be one of {', '.join(design.METHODS)}, got {optimizer!r}")
+        return dict(method=optimizer, time_budget=budget or None,
+                    seed=request.seed, table=self._table, callback=self._cancel_on_shutdown)
+
+    def _cancel_on_shutdown(self, *_):
+        if self._stopping.is_set() or not self.context.ok():
+            raise StopIteration
+
+    def _design_fingers(self, request, response) -> None:
+        options = self._options(request)
+        if request.image.height:
+            mask = load_mask(mask_from_image(request.image))
+        elif request.image_path:
+            mask = load_mask(resolve_path(request.image_path))
+        else:
+            raise ValueError("give an image or an image_path")
+        result = design.design_fingers(
+            mask, request.pixel_size, request.num_blocks, num_stiff_top=request.num_stiff_top,
+            min_stiff_rod_diameter=request.min_stiff_rod_diameter or design.DEFAULT_MIN_STIFF_ROD_DIAMETER,
+            inventory=inventory_from_lists(request.inventory_ids, request.inventory_counts), **options)
+        response.success, response.message = result.success, result.message
+        response.optimal, response.solve_time = result.optimal, result.solve_time
+        for side in ("left", "right"):
+            finger = getattr(result, side)
+            if finger is not None and len(finger.design_ids):
+                setattr(response, side, designed_chain_msg(side, finger.design_ids, self._table))
+                setattr(response, f"{side}_cost", float(finger.cost))
+                setattr(response, f"{side}_collision", bool(finger.collision))
+        self.get_logger().info(f"design_fingers: {result.message} ({result.solve_time:.2f} s)")
+
+    def _design_path(self, request, response) -> None:
+        options = self._options(request)
+        result = design.design_path(path_from_points(request.path), request.num_blocks,
+                                    allow_rotation=request.allow_rotation, **options)
+        response.success, response.message = result.success, result.message
+        response.cost, response.solve_time = float(result.cost), result.solve_time
+        if len(result.design_ids):
+            response.chain = designed_chain_msg("path", result.design_ids, self._table, result.rotation_steps)
+        self.get_logger().info(f"design_path: {result.message} ({result.solve_time:.2f} s)")
+
+
+def main(args=None):
+    sys.exit(run_node(PlannerNode, "planner", executor=MultiThreadedExecutor, args=args))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,187 @@
+"""Planner node through real rclpy clients: finger design from a file and from an image message, bad
+requests refused with a clear message (the node carries on), a DesignPath round trip, and other requests
+answered while a long optimisation runs."""
+import math
+import threading
+
+import numpy as np
+import pytest
+import rclpy
+from geometry_msgs.msg import Point
+from rcl_interfaces.srv import GetParameters
+from rclpy.parameter import Parameter
+from ros_testing import call, wait_for
+from softblock_interfaces.srv import DesignFingers, DesignPath
+
+import planner.design
+from planner.kinematics import chain_shape
+from planner.table import load_table
+from softblock_ros.conversions import BLOCK_DESIGN_FIELDS, image_msg
+from softblock_ros.planner_node import PlannerNode
+
+MAX_BLOCKS = 6
+TABLE = load_table()
+
+
+@pytest.fixture(scope="module")
+def client(ros_context, spin):
+    node = PlannerNode(context=ros_context, parameter_overrides=[Parameter("max_blocks", value=MAX_BLOCKS)])
+    client = rclpy.create_node("planner_test_client", context=ros_context)
+    spin(node, client)
+    return client
+
+
+def object_mask(height=120, width=80) -> np.ndarray:
+    """A pear-like blob well inside the image: object 255, background 0."""
+    rows, cols = np.mgrid[:height, :width]
+    radius = 18 + 10 * np.sin(np.pi * (rows - 10) / 100)
+    mask = (np.abs(cols - width / 2) < radius) & (rows > 10) & (rows < 110)
+    return np.where(mask, 255, 0).astype(np.uint8)
+
+
+def fingers_request(**fields) -> DesignFingers.Request:
+    request = DesignFingers.Request(pixel_size=0.0005, num_blocks=2, optimizer="exact", time_budget=20.0)
+    request.image = image_msg(object_mask())
+    for name, value in fields.items():
+        setattr(request, name, value)
+    return request
+
+
+def design_fingers(client, request):
+    return call(client.create_client(DesignFingers, "planner/design_fingers"), request, timeout=60.0)
+
+
+def design_path(client, request):
+    return call(client.create_client(DesignPath, "planner/design_path"), request, timeout=60.0)
+
+
+def assert_blocks_from_table(chain, count):
+    assert len(chain.blocks) == count
+    for block in chain.blocks:
+        row = TABLE.design(block.design.id)
+        for name in BLOCK_DESIGN_FIELDS:
+            assert getattr(block.design, name) == pytest.approx(getattr(row, name)), name
+
+
+def test_fingers_for_an_image_message(client):
+    reply = design_fingers(client, fingers_request())
+    assert reply.success, reply.message
+    for chain, cost in ((reply.left, reply.left_cost), (reply.right, reply.right_cost)):
+        assert_blocks_from_table(chain, 2)
+        assert math.isfinite(cost) and cost >= 0.0
+    assert (reply.left.name, reply.right.name) == ("left", "right")
+
+
+def test_fingers_for_a_sample_object_file_with_stiff_top_blocks(client):
+    request = fingers_request(image_path="config/objects/strawberry.png", pixel_size=0.00025, num_blocks=3,
+                              num_stiff_top=1, min_stiff_rod_diameter=0.00062)
+    request.image = image_msg(np.zeros((0, 0), dtype=np.uint8))
+    reply = design_fingers(client, request)
+    assert reply.success, reply.message
+    for chain in (reply.left, reply.right):
+        assert_blocks_from_table(chain, 3)
+        assert chain.blocks[0].design.rod_diameter >= 0.00062 - 1e-9
+
+
+def blank():
+    return np.zeros((40, 40), dtype=np.uint8)
+
+
+def three_levels():
+    mask = object_mask()
+    mask[50:60, 30:50] = 128
+    return mask
+
+
+def touching_border():
+    mask = object_mask()
+    mask[60:, 35:45] = 255  # a stalk down to the bottom edge
+    return mask
+
+
+def two_objects():
+    mask = np.zeros((60, 60), dtype=np.uint8)
+    mask[10:50, 10:25] = mask[10:50, 35:50] = 255
+    return mask
+
+
+@pytest.mark.parametrize("fields, problem", [
+    (dict(image=image_msg(blank())), "object image is empty"),
+    (dict(image=image_msg(three_levels())), "object image is not binary (3 grey levels)"),
+    (dict(image=image_msg(touching_border())), "object touches the image border"),
+    (dict(image=image_msg(two_objects())), "object image holds 2 objects"),
+    (dict(pixel_size=0.0), "pixel_size must be a positive number"),
+    (dict(num_blocks=0), f"num_blocks must be 1..{MAX_BLOCKS}, got 0"),
+    (dict(num_blocks=MAX_BLOCKS + 1), f"num_blocks must be 1..{MAX_BLOCKS}, got {MAX_BLOCKS + 1}"),
+    (dict(optimizer="simplex"), "optimizer must be one of exact, pso, got 'simplex'"),
+    (dict(time_budget=-1.0), "time_budget must be >= 0 s, got -1.0"),
+    (dict(image=image_msg(np.zeros((0, 0), dtype=np.uint8))), "give an image or an image_path"),
+    (dict(inventory_ids=[57, 15], inventory_counts=[4]), "inventory_ids has 2 entries but inventory_counts has 1"),
+])
+def test_bad_finger_requests_are_refused_and_the_node_carries_on(client, fields, problem):
+    reply = design_fingers(client, fingers_request(**fields))
+    assert not reply.success
+    assert problem in reply.message
+    assert reply.message.startswith("request refused: ")
+
+
+def test_wrong_image_encoding_is_refused(client):
+    request = fingers_request()
+    request.image.encoding = "rgb8"
+    reply = design_fingers(client, request)
+    assert not reply.success and "image encoding must be mono8, got 'rgb8'" in reply.message
+
+
+def chain_path(design_ids, rotation_steps):
+    """Centerline of a chain of table designs at 0 V, as path points."""
+    theta = [TABLE.design(i).theta0 for i in design_ids]
+    length = [TABLE.design(i).rod_length for i in design_ids]
+    shape = chain_shape(theta, length, np.radians(30.0) * np.array(rotation_steps))
+    return [Point(x=float(x), y=float(y), z=float(z)) for x, y, z in shape.points]
+
+
+def test_design_path_round_trip_recovers_a_chain_along_its_own_centerline(client):
+    request = DesignPath.Request(path=chain_path([15, 57, 15], [0, 3, 0]), num_blocks=3, allow_rotation=True,
+                                 optimizer="exact", time_budget=30.0)
+    reply = design_path(client, request)
+    assert reply.success, reply.message
+    assert_blocks_from_table(reply.chain, 3)
+    assert reply.cost < 1e-3
+    assert [b.rotation for b in reply.chain.blocks][1] != 0.0
+
+
+def test_path_with_nan_is_refused(client):
+    path = chain_path([15, 15], [0, 0])
+    path[3].y = math.nan
+    reply = design_path(client, DesignPath.Request(path=path, num_blocks=2, optimizer="exact"))
+    assert not reply.success
+    assert "path point 3 is not finite" in reply.message
+
+
+def test_other_requests_are_answered_while_an_optimisation_runs(client, monkeypatch):
+    started, release = threading.Event(), threading.Event()
+    real_design_fingers = planner.design.design_fingers
+
+    def long_design_fingers(*args, **kwargs):
+        started.set()
+        release.wait(60.0)
+        return real_design_fingers(*args, **kwargs)
+
+    monkeypatch.setattr(planner.design, "design_fingers", long_design_fingers)
+    fingers_client = client.create_client(DesignFingers, "planner/design_fingers")
+    assert fingers_client.wait_for_service(timeout_sec=10.0)
+    long_request = fingers_client.call_async(fingers_request())
+    try:
+        wait_for(started.is_set, what="the optimisation to start")
+        parameters = call(client.create_client(GetParameters, "planner/get_parameters"),
+                          GetParameters.Request(names=["max_blocks"]))
+        assert parameters.values[0].integer_value == MAX_BLOCKS
+        path_reply = design_path(client, DesignPath.Request(path=chain_path([15], [0]), num_blocks=1,
+                                                            optimizer="exact"))
+        assert path_reply.success, path_reply.message
+        assert not long_request.done()
+    finally:
+        release.set()
+    reply = wait_for(lambda: long_request.done() and long_request.result(), timeout=60.0,
+                     what="the long request to finish")
+    assert reply.success, reply.message
