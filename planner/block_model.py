@@ -33,7 +33,7 @@ import numpy as np
 from scipy.optimize import elementwise
 
 from planner.geometry import AREAL_PRESTRETCH, PAPER_GEOMETRY, BlockGeometry
-from planner.materials import ELASTOSIL_2030, OgdenMaterial
+from planner.materials import ELASTOSIL_2030, VACUUM_PERMITTIVITY, OgdenMaterial
 from planner.ogden import biaxial_cauchy_stress, biaxial_cauchy_stress_slope
 
 
@@ -179,7 +179,7 @@ class BlockDesigns:
 
     @property
     def permittivity(self) -> np.ndarray:
-        return 8.8541878128e-12 * self.relative_permittivity
+        return VACUUM_PERMITTIVITY * self.relative_permittivity
 
     def strips(self, n_strips: int) -> tuple[np.ndarray, float]:
         """Heights d of the strip mid-lines above the rod axis [m] and each strip's width [m]."""
@@ -217,9 +217,9 @@ class EquilibriumResult:
         return ", ".join(f"{name}: {n}" for name, n in sorted(counts.items()))
 
 
-def _strip_tension(stretch, designs_cols, voltage, material):
+def _strip_tension(stretch, film_columns, voltage, material):
     """Axial membrane stress (Ogden minus Maxwell) and thickness for strips at axial stretch."""
-    hoop, thickness0, permittivity = designs_cols
+    hoop, thickness0, permittivity = film_columns
     thickness = thickness0 / (stretch * hoop)
     maxwell = permittivity * (voltage / thickness) ** 2
     return biaxial_cauchy_stress(material.mu, material.alpha, stretch, hoop) - maxwell, thickness
@@ -247,15 +247,15 @@ class BlockModel:
         self._heights, self._width = designs.strips(fidelity.n_strips)
 
     # -- membrane mechanics -------------------------------------------------------------------
-    def _columns(self, index):
+    def _film_columns(self, index):
         d = self.designs
         return (d.prestretch_tangential[index], d.film_thickness[index], d.permittivity[index])
 
     def _strip_state(self, theta, voltage, index):
-        """Per-strip stress, thickness and (length, dl/dtheta) at theta for designs[index]."""
+        """Per-strip stress, thickness and fibre-length slope dl/dtheta at theta for designs[index]."""
         d = self.designs
         rod_length = d.rod_length[index][..., None]
-        cols = tuple(c[..., None] for c in self._columns(index))
+        cols = tuple(c[..., None] for c in self._film_columns(index))
         length, slope = _fibre_length(theta[..., None], self._heights, rod_length, self.fidelity.kind)
         # Clip so fully collapsed fibres stay finite; they are slack and carry no force anyway.
         stretch = np.maximum(d.prestretch_axial[index][..., None] * length / rod_length, 1e-3)
@@ -275,6 +275,10 @@ class BlockModel:
         if self.fidelity.kind == "closed_form":
             return self._solve_closed_form(voltage)
         return self._solve_strips(voltage)
+
+    def stroke(self, voltage) -> np.ndarray:
+        """theta_0 - theta(V) [rad]; NaN where either state is not a valid equilibrium."""
+        return self.solve(0.0).theta - self.solve(voltage).theta
 
     def _solve_strips(self, voltage) -> EquilibriumResult:
         n = self.designs.size
@@ -329,7 +333,7 @@ class BlockModel:
         d = self.designs
         first, second = d.membrane_moments()
         stretch = d.prestretch_axial
-        stress, thickness = _strip_tension(stretch, self._columns(slice(None)), voltage, d.material)
+        stress, thickness = _strip_tension(stretch, self._film_columns(slice(None)), voltage, d.material)
         slope = biaxial_cauchy_stress_slope(d.material.mu, d.material.alpha, stretch, d.prestretch_tangential)
         # d(sigma t)/d(lambda_a) including the Maxwell term eps V^2 / t (t ~ 1 / lambda_a).
         force_slope = thickness * (slope - stress / stretch) - 2.0 * d.permittivity * voltage**2 / (thickness * stretch)

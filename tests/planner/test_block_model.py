@@ -183,3 +183,9 @@ def test_solve_never_returns_a_silently_wrong_angle(rod_length, rod_diameter, pr
         assert abs(residual[0]) <= 1e-9 * designs.rod_stiffness[0] + 1e-12
     else:
         assert math.isnan(result.theta[0]) and result.status[0] != Status.OK
+
+
+def test_stroke_is_nan_beyond_the_limit():
+    model = BlockModel(BlockDesigns.create(15e-3, 0.31e-3, 1.5))
+    assert model.stroke(2400.0)[0] == pytest.approx(5.29 * DEG, rel=0.25)
+    assert math.isnan(model.stroke(9000.0)[0])

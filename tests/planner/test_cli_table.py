@@ -27,3 +27,14 @@ def test_ogden_fit_command(capsys):
 def test_errors_are_reported_not_raised(tmp_path, capsys):
     assert main(["ogden-fit", str(tmp_path / "missing.csv")]) == 2
     assert "not found" in capsys.readouterr().err
+
+
+def test_block_command_reports_angle_stroke_and_limit(capsys):
+    args = ["block", "--length", "0.015", "--diameter", "0.00031", "--prestretch", "1.5"]
+    assert main(args + ["--voltage", "2400"]) == 0
+    out = capsys.readouterr().out
+    assert "32.2" in out and "stroke" in out and "BREAKDOWN" in out
+    assert main(args + ["--voltage", "4000"]) == 1
+    assert "no valid equilibrium (BREAKDOWN)" in capsys.readouterr().out
+    assert main(["block", "--length", "0.015", "--diameter", "0.01", "--prestretch", "1.5"]) == 2
+    assert "rod_diameter" in capsys.readouterr().err
