@@ -94,8 +94,11 @@ class SequencerNode(Node):
                                 phase=EVENT_PHASES[event.phase], message=event.message)
             msg.header.stamp = self.get_clock().now().to_msg()
             self._events.publish(msg)
-        log = self.get_logger().error if event.phase in ("failed", "canceled") else self.get_logger().info
-        log(f"{event.sequence} [{event.index + 1}/{event.count}] {event.name}: {event.phase} {event.message}")
+        text = f"{event.sequence} [{event.index + 1}/{event.count}] {event.name}: {event.phase} {event.message}"
+        if event.phase in ("failed", "canceled"):  # rclpy wants one severity per logging call site
+            self.get_logger().error(text)
+        else:
+            self.get_logger().info(text)
 
     def _execute(self, goal_handle) -> RunSequence.Result:
         try:

@@ -1,0 +1,114 @@
+"""A small stand-in for the HV driver node: `hv/ramp`, `hv/state` (50 Hz), `hv/estop`, `hv/heartbeat`.
+
+Ramps move the measured voltage linearly over the minimum-jerk duration (1.875 |dV| / slew_rate).
+Faults are injected deterministically: ``fault_during_ramp = (ramp_channel, target, fault_channel)``
+latches OVER_CURRENT on ``fault_channel`` half-way through the first matching ramp; like the real
+driver, a latched fault cuts that output at once and refuses further ramps on it.
+"""
+import threading
+import time
+
+from rclpy.action import ActionServer, CancelResponse
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.node import Node
+from softblock_interfaces.action import RampChannel
+from softblock_interfaces.msg import HvChannelState, HvState
+from std_msgs.msg import Empty
+from std_srvs.srv import Trigger
+
+DEFAULT_SLEW_RATE = 100_000.0  # [V/s]
+STEP = 0.005  # [s]
+
+
+class FakeHv(Node):
+    def __init__(self, channels, **kwargs):
+        super().__init__("fake_hv", **kwargs)
+        self.channels = {name: HvChannelState(name=name, index=index) for index, name in enumerate(channels)}
+        self.lock = threading.Lock()
+        self.estop = False
+        self.heartbeats = 0
+        self.ramps: list[tuple[str, float]] = []
+        self.fault_during_ramp: tuple[str, float, str] | None = None
+        group = ReentrantCallbackGroup()
+        self.state_pub = self.create_publisher(HvState, "hv/state", 10)
+        self.create_timer(0.02, self.publish_state, callback_group=group)
+        self.create_subscription(Empty, "hv/heartbeat", self.on_heartbeat, 10, callback_group=group)
+        self.create_service(Trigger, "hv/estop", self.on_estop, callback_group=group)
+        self.server = ActionServer(self, RampChannel, "hv/ramp", execute_callback=self.execute,
+                                   cancel_callback=lambda _: CancelResponse.ACCEPT, callback_group=group)
+
+    def reset(self) -> None:
+        with self.lock:
+            self.estop, self.ramps, self.fault_during_ramp = False, [], None
+            for channel in self.channels.values():
+                channel.faults, channel.fault_text, channel.measured_voltage = 0, "", 0.0
+                channel.setpoint = channel.target = 0.0
+                channel.output_enabled = channel.ramping = False
+
+    def on_heartbeat(self, _msg) -> None:
+        self.heartbeats += 1
+
+    def publish_state(self) -> None:
+        with self.lock:
+            msg = HvState(device_id="fake", backend="sim", estop=self.estop, channels=list(self.channels.values()))
+            msg.header.stamp = self.get_clock().now().to_msg()
+            self.state_pub.publish(msg)
+
+    def latch(self, name: str, bit: int, text: str) -> None:
+        with self.lock:
+            channel = self.channels[name]
+            channel.faults |= bit
+            channel.fault_text = text
+            channel.measured_voltage = channel.setpoint = 0.0
+            channel.output_enabled = channel.ramping = False
+
+    def on_estop(self, _request, response):
+        for name in self.channels:
+            self.latch(name, HvChannelState.FAULT_ESTOP, "ESTOP")
+        self.estop = True
+        response.success, response.message = True, "e-stop latched"
+        return response
+
+    def set_voltage(self, channel: HvChannelState, voltage: float) -> None:
+        with self.lock:
+            channel.measured_voltage = channel.setpoint = voltage
+            channel.output_enabled = voltage > 0.0 or channel.output_enabled
+
+    def execute(self, goal_handle):
+        goal = goal_handle.request
+        channel = self.channels.get(goal.channel)
+        if channel is None or channel.faults:
+            goal_handle.abort()
+            reason = "unknown channel" if channel is None else "faults latched"
+            return RampChannel.Result(success=False, message=f"{goal.channel}: {reason}")
+        self.ramps.append((goal.channel, goal.target))
+        start, slew = channel.measured_voltage, goal.slew_rate or DEFAULT_SLEW_RATE
+        duration = 1.875 * abs(goal.target - start) / slew
+        fault = self.fault_during_ramp
+        t0 = time.monotonic()
+        channel.target, channel.ramping = goal.target, True
+        while True:
+            progress = 1.0 if duration == 0 else min(1.0, (time.monotonic() - t0) / duration)
+            if fault is not None and fault[:2] == (goal.channel, goal.target) and progress >= 0.5:
+                self.fault_during_ramp = None
+                self.latch(fault[2], HvChannelState.FAULT_OVER_CURRENT, "OVER_CURRENT")
+                fault = None
+            if channel.faults:
+                goal_handle.abort()
+                return RampChannel.Result(success=False, message=f"{goal.channel}: fault", final_voltage=0.0)
+            if goal_handle.is_cancel_requested:
+                self.set_voltage(channel, 0.0)  # cancel ramps down (instantly here)
+                channel.ramping = False
+                goal_handle.canceled()
+                return RampChannel.Result(success=False, message="canceled", final_voltage=0.0)
+            self.set_voltage(channel, start + (goal.target - start) * progress)
+            goal_handle.publish_feedback(RampChannel.Feedback(
+                setpoint=channel.setpoint, measured_voltage=channel.measured_voltage, progress=progress))
+            if progress >= 1.0:
+                break
+            time.sleep(STEP)
+        with self.lock:
+            channel.ramping = False
+            channel.output_enabled = goal.target > 0.0
+        goal_handle.succeed()
+        return RampChannel.Result(success=True, message="reached", final_voltage=channel.measured_voltage)

@@ -1,0 +1,169 @@
+"""Sequencer node through real rclpy action clients, with the simulated arm and a fake HV driver:
+the finger grasp succeeds, an HV fault mid-sequence and a cancel both end in the safe state, bad
+sequences are refused with a clear message, a second goal is rejected, the legged gait pulses its legs.
+
+The shipped strategies run with their timings scaled down (faster arm, steeper ramps, fewer cycles)."""
+from pathlib import Path
+
+import pytest
+import rclpy
+import yaml
+from action_msgs.msg import GoalStatus
+from fake_hv import FakeHv
+from rclpy.action import ActionClient
+from rclpy.parameter import Parameter
+from ros_testing import Inbox, wait_for
+from softblock_interfaces.action import RunSequence
+from softblock_interfaces.msg import SequenceEvent
+
+from softblock_ros.sequencer_node import SequencerNode
+from softblock_ros.sim_arm_node import SimArmNode
+
+SEQUENCES = Path(__file__).resolve().parents[2] / "config" / "sequences"
+CHANNELS = ["front", "back", "leg_front_left", "leg_front_right", "leg_rear_left", "leg_rear_right"]
+RUN_TIMEOUT = 40.0
+
+
+def scaled(name: str, directory: Path, speed: float, slew_rate: float = 100_000.0, cycles: int = 2) -> str:
+    """Write config/sequences/<name>.yaml with every speed, slew rate and cycle count replaced."""
+    def rewrite(node):
+        if isinstance(node, dict):
+            return {key: {"speed": speed, "slew_rate": slew_rate, "cycles": cycles}.get(key, rewrite(value))
+                    if key in ("speed", "slew_rate", "cycles") else rewrite(value) for key, value in node.items()}
+        return [rewrite(item) for item in node] if isinstance(node, list) else node
+
+    document = rewrite(yaml.safe_load((SEQUENCES / f"{name}.yaml").read_text()))
+    document["defaults"] = {**document.get("defaults", {}), "speed": speed, "slew_rate": slew_rate}
+    path = directory / f"{name}.yaml"
+    path.write_text(yaml.safe_dump(document))
+    return str(path)
+
+
+@pytest.fixture(scope="module")
+def stack(ros_context, spin, tmp_path_factory):
+    directory = tmp_path_factory.mktemp("sequences")
+    sequencer = SequencerNode(context=ros_context, parameter_overrides=[
+        Parameter("sequences_dir", value=str(SEQUENCES)), Parameter("settle_time", value=2.0),
+        Parameter("safe_stop_timeout", value=5.0)])
+    arm = SimArmNode(context=ros_context, parameter_overrides=[
+        Parameter("max_speed", value=2.0), Parameter("max_acceleration", value=20.0),
+        Parameter("publish_rate", value=100.0)])
+    hv = FakeHv(CHANNELS, context=ros_context)
+    client = rclpy.create_node("sequencer_test_client", context=ros_context)
+    events = Inbox(client, SequenceEvent, "sequencer/events", 100)
+    action = ActionClient(client, RunSequence, "sequencer/run")
+    spin(sequencer, arm, hv, client)
+    assert action.wait_for_server(timeout_sec=10.0)
+    return {"dir": directory, "hv": hv, "events": events, "action": action, "arm": arm}
+
+
+@pytest.fixture
+def hv(stack):
+    stack["hv"].reset()
+    stack["events"].messages.clear()
+    return stack["hv"]
+
+
+class Run:
+    """One RunSequence goal: its handle, the feedback it got, and a way to wait for the result."""
+
+    def __init__(self, action: ActionClient, sequence: str):
+        self.feedback = []
+        future = action.send_goal_async(RunSequence.Goal(sequence=sequence),
+                                        feedback_callback=lambda msg: self.feedback.append(msg.feedback))
+        self.handle = wait_for(future.done, what="the goal response") and future.result()
+
+    def result(self):
+        future = self.handle.get_result_async()
+        wait_for(future.done, RUN_TIMEOUT, what="the sequence result")
+        return future.result().status, future.result().result
+
+
+def channels_off(hv: FakeHv) -> bool:
+    return all(channel.measured_voltage == 0.0 for channel in hv.channels.values())
+
+
+def test_finger_grasp_runs_to_success(stack, hv):
+    run = Run(stack["action"], scaled("finger_grasp", stack["dir"], speed=2.0))
+    assert run.handle.accepted
+    status, result = run.result()
+    assert status == GoalStatus.STATUS_SUCCEEDED and result.success, result.message
+    assert result.failed_step == ""
+    assert len(result.step_names) == len(result.step_durations) == 12
+    assert [ramp for ramp in hv.ramps] == [("back", 2400.0), ("back", 0.0), ("front", 2400.0), ("front", 0.0),
+                                           ("back", 2400.0), ("back", 0.0)]
+    assert channels_off(hv) and hv.heartbeats > 0
+    assert [(f.step_index, f.phase) for f in run.feedback if f.phase == "succeeded"] == [(i, "succeeded")
+                                                                                       for i in range(12)]
+    assert all(f.step_count == 12 for f in run.feedback)
+    events = stack["events"].wait(lambda msg: msg.step_name == "close_back_rest" and msg.phase == "succeeded")
+    assert events.sequence == "finger_grasp"
+    phases = [(msg.step_index, msg.phase) for msg in stack["events"].messages]
+    assert phases == [(i, phase) for i in range(12) for phase in ("started", "succeeded")]
+    assert stack["arm"]._arm.pose.position == pytest.approx((0.45, 0.3, 0.25))
+
+
+def test_hv_fault_mid_sequence_stops_in_the_safe_state(stack, hv):
+    hv.fault_during_ramp = ("back", 2400.0, "front")  # front trips while the back fingers open
+    status, result = Run(stack["action"], scaled("finger_grasp", stack["dir"], speed=2.0,
+                                                 slew_rate=20_000.0)).result()
+    assert status == GoalStatus.STATUS_ABORTED and not result.success
+    assert result.failed_step == "open_back"
+    assert "HV fault (front: OVER_CURRENT)" in result.message
+    assert "safe state" in result.message
+    assert channels_off(hv)
+    assert hv.ramps[-1] == ("back", 0.0)  # the live channel was ramped down
+    failed = stack["events"].wait(lambda msg: msg.phase == "failed")
+    assert failed.step_name == "open_back"
+
+
+def test_cancel_mid_sequence_ramps_down_and_reports_canceled(stack, hv):
+    run = Run(stack["action"], scaled("finger_grasp", stack["dir"], speed=0.05))
+    stack["events"].wait(lambda msg: msg.step_name == "surround_object" and msg.phase == "started")
+    assert hv.channels["back"].measured_voltage == 2400.0
+    cancel = run.handle.cancel_goal_async()
+    wait_for(cancel.done, what="the cancel response")
+    status, result = run.result()
+    assert status == GoalStatus.STATUS_CANCELED and not result.success
+    assert result.message.startswith("canceled during step 'surround_object'")
+    assert channels_off(hv) and hv.ramps[-1] == ("back", 0.0)
+    assert not stack["arm"]._arm.moving
+    stack["events"].wait(lambda msg: msg.phase == "canceled")
+
+
+@pytest.mark.parametrize("sequence, message", [
+    ("no_such_sequence", "rejected: sequence='no_such_sequence': no such file"),
+    ("BROKEN", "invalid YAML"),
+    ("TOO_HIGH", "step 'open' (steps[0]): ramp.target=9000: above the voltage ceiling 2500 V"),
+])
+def test_bad_sequences_are_refused_with_a_clear_message(stack, hv, sequence, message):
+    broken, too_high = stack["dir"] / "broken.yaml", stack["dir"] / "too_high.yaml"
+    broken.write_text("name: broken\nsteps: [\n")
+    too_high.write_text(yaml.safe_dump({"name": "too_high", "channels": ["back"], "steps": [
+        {"name": "open", "ramp": {"channel": "back", "target": 9000}}]}))
+    sequence = {"BROKEN": str(broken), "TOO_HIGH": str(too_high)}.get(sequence, sequence)
+    status, result = Run(stack["action"], sequence).result()
+    assert status == GoalStatus.STATUS_ABORTED and not result.success
+    assert message in result.message
+    assert hv.ramps == []
+
+
+def test_second_goal_is_rejected_while_one_runs(stack, hv):
+    first = Run(stack["action"], scaled("finger_grasp", stack["dir"], speed=0.5))
+    stack["events"].wait(lambda msg: msg.phase == "started")
+    second = Run(stack["action"], "trunk_flower")
+    assert not second.handle.accepted
+    first.handle.cancel_goal_async()
+    status, _ = first.result()
+    assert status == GoalStatus.STATUS_CANCELED
+
+
+def test_legged_gait_pulses_the_legs(stack, hv):
+    status, result = Run(stack["action"], scaled("legged_gait", stack["dir"], speed=0.0, slew_rate=50_000.0,
+                                                 cycles=2)).result()
+    assert status == GoalStatus.STATUS_SUCCEEDED, result.message
+    assert result.step_names == ["walk_forward", "turn_left", "turn_right"]
+    legs = {name: [target for channel, target in hv.ramps if channel == name] for name in CHANNELS[2:]}
+    # walk: every leg 2 pulses; turn_left adds 2 on the right legs, turn_right 2 on the left legs.
+    assert all(targets == [2000.0, 0.0] * 4 for targets in legs.values())
+    assert channels_off(hv)
