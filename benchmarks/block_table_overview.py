@@ -45,7 +45,9 @@ def main() -> None:
         "id15_theta0_deg": {"model": deg(row15.theta0), "paper_fe": 32.15, "paper_experiment": 30.70},
         "id15_stroke_2400V_deg": {"model": deg(row15.theta0 - at_2400[0]), "paper_fe": 5.29, "paper_experiment": 5.5},
         "four_id15_in_series_deg": {"model": deg(4 * row15.theta0), "paper_model": 130.92, "paper_experiment": 122.80},
-        "four_id15_in_series_2400V_deg": {"model": deg(4 * at_2400[0]), "paper_model": 100.8, "paper_experiment": 107.4},
+        "four_id15_in_series_2400V_deg": {
+            "model": deg(4 * at_2400[0]), "paper_model": 100.8, "paper_experiment": 107.4,
+        },
         "theta0_range_deg": {"model": [deg(table.theta0.min()), deg(table.theta0.max())], "paper": [3, 40]},
         "ids_5_7_vs_40_42_theta0_deg": {
             "ids_5_7": [deg(v) for v in table.theta0[table.index_of([5, 6, 7])]],

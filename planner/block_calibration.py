@@ -59,7 +59,9 @@ def parse_block_calibration(document, source: str = "block calibration") -> Bloc
             raise ValueError(f"{source}: block {serial!r}: {error}") from None
         offset = entry["offset_rad"]
         if isinstance(offset, bool) or not isinstance(offset, (int, float)) or not abs(offset) <= MAX_OFFSET:
-            raise ValueError(f"{source}: block {serial!r}: offset_rad must be a number within +-{MAX_OFFSET:.3f} rad, got {offset!r}")
+            raise ValueError(
+                f"{source}: block {serial!r}: offset_rad must be a number within +-{MAX_OFFSET:.3f} rad, got {offset!r}"
+            )
         blocks[str(serial)] = BlockOffset(design_id=int(entry["design_id"]), offset=float(offset))
     return BlockCalibration(blocks=blocks)
 

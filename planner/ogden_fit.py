@@ -120,7 +120,9 @@ def synthesize_test_data(
     u_x = np.linspace(*uniaxial_range, points)
     s_x = np.linspace(*shear_range, points)
     noisy = lambda y: y * (1.0 + relative_noise * rng.standard_normal(y.shape))  # noqa: E731
-    return OgdenTestData(u_x, noisy(uniaxial_nominal_stress(mu, alpha, u_x)), s_x, noisy(pure_shear_nominal_stress(mu, alpha, s_x)))
+    return OgdenTestData(
+        u_x, noisy(uniaxial_nominal_stress(mu, alpha, u_x)), s_x, noisy(pure_shear_nominal_stress(mu, alpha, s_x))
+    )
 
 
 class _Objective:

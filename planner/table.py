@@ -60,7 +60,8 @@ def design_id(i_lambda: int, i_length: int, i_diameter: int) -> int:
 
 def design_indices(design_id: int) -> tuple[int, int, int]:
     """Inverse of :func:`design_id`: (i_lambda, i_length, i_diameter)."""
-    if isinstance(design_id, bool) or not isinstance(design_id, (int, np.integer)) or not 1 <= design_id <= DESIGN_COUNT:
+    integral = isinstance(design_id, (int, np.integer)) and not isinstance(design_id, bool)
+    if not integral or not 1 <= design_id <= DESIGN_COUNT:
         raise ValueError(f"design_id must be an integer in 1..{DESIGN_COUNT}, got {design_id!r}")
     n_lambda, n_length = len(PRESTRETCH_AXIAL_VALUES), len(ROD_LENGTH_VALUES)
     rest, i_lambda = divmod(int(design_id) - 1, n_lambda)

@@ -26,5 +26,6 @@ def run(args) -> int:
           f"stroke at 2.4 kV {math.degrees(p['id15_stroke']):.2f} deg (paper 5.29)")
     pairs = ", ".join(f"{math.degrees(a):.1f}/{math.degrees(b):.1f}" for a, b in p["similar_pairs"])
     print(f"IDs 5-7 / 40-42 theta0 [deg]: {pairs}")
-    print(f"theta0 range IDs 64..21: {math.degrees(p['range'][0]):.1f}..{math.degrees(p['range'][1]):.1f} deg (paper ~3..40)")
+    low, high = (math.degrees(v) for v in p["range"])
+    print(f"theta0 range IDs 64..21: {low:.1f}..{high:.1f} deg (paper ~3..40)")
     return 0 if result.success else 1

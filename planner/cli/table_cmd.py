@@ -13,7 +13,9 @@ from planner.table import DEFAULT_TABLE_PATH
 def register(subparsers) -> None:
     parser = subparsers.add_parser("table", help="regenerate the 84-design look-up table from the block model")
     parser.add_argument("--out", type=Path, default=DEFAULT_TABLE_PATH, help="CSV to write (default: %(default)s)")
-    parser.add_argument("--strips", type=int, default=TABLE_FIDELITY.n_strips, help="membrane strips (default: %(default)s)")
+    parser.add_argument(
+        "--strips", type=int, default=TABLE_FIDELITY.n_strips, help="membrane strips (default: %(default)s)"
+    )
     parser.set_defaults(handler=run)
 
 

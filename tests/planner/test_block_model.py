@@ -88,7 +88,8 @@ def test_mass_matches_the_paper(table):
 def test_fidelities_agree_with_the_reference():
     designs = BlockDesigns.create([10e-3, 15e-3], [0.31e-3, 0.763e-3], [2.1, 1.5])
     reference = BlockModel(designs, REFERENCE_FIDELITY).solve(1800.0).theta
-    for fidelity, tolerance in ((Fidelity("chord", 16), 0.03), (Fidelity("arc", 64), 0.15), (Fidelity("closed_form"), 0.3)):
+    ladder = ((Fidelity("chord", 16), 0.03), (Fidelity("arc", 64), 0.15), (Fidelity("closed_form"), 0.3))
+    for fidelity, tolerance in ladder:
         np.testing.assert_allclose(BlockModel(designs, fidelity).solve(1800.0).theta, reference, rtol=tolerance)
 
 
