@@ -1,6 +1,7 @@
 """Planner node through real rclpy clients: finger design from a file and from an image message, bad
 requests refused with a clear message (the node carries on), a DesignPath round trip, and other requests
 answered while a long optimisation runs."""
+import io
 import math
 import threading
 
@@ -17,6 +18,7 @@ import planner.design
 from planner.kinematics import chain_shape
 from planner.table import load_table
 from softblock_ros.conversions import BLOCK_DESIGN_FIELDS, image_msg
+from softblock_ros.launcher import Stack
 from softblock_ros.planner_node import PlannerNode
 
 MAX_BLOCKS = 6
@@ -185,3 +187,21 @@ def test_other_requests_are_answered_while_an_optimisation_runs(client, monkeypa
     reply = wait_for(lambda: long_request.done() and long_request.result(), timeout=60.0,
                      what="the long request to finish")
     assert reply.success, reply.message
+
+
+def test_stopping_the_node_cancels_a_running_optimisation(ros_context, spin, tmp_path):
+    params = tmp_path / "params.yaml"
+    params.write_text("planner:\n  ros__parameters:\n    default_time_budget: 0.0\n")  # no limit
+    output = io.StringIO()
+    client = rclpy.create_node("planner_stop_client", context=ros_context)
+    spin(client)
+    with Stack(nodes=["planner"], params=params, output=output, stop_timeout=30.0) as stack:
+        fingers_client = client.create_client(DesignFingers, "planner/design_fingers")
+        assert fingers_client.wait_for_service(timeout_sec=30.0)
+        request = fingers_request(image_path="config/objects/asymmetric.png", pixel_size=0.00025, num_blocks=5,
+                                  num_stiff_top=2, time_budget=0.0)
+        request.image = image_msg(np.zeros((0, 0), dtype=np.uint8))
+        fingers_client.call_async(request)
+        wait_for(lambda: "design_fingers: 5 blocks per finger" in output.getvalue(), what="the optimisation to start")
+        codes = stack.stop()
+    assert codes == {"planner": 0}, output.getvalue()

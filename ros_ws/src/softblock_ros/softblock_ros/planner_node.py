@@ -79,6 +79,7 @@ class PlannerNode(Node):
 
     def _design_fingers(self, request, response) -> None:
         options = self._options(request)
+        self.get_logger().info(f"design_fingers: {request.num_blocks} blocks per finger, {options['method']}")
         if request.image.height:
             mask = load_mask(mask_from_image(request.image))
         elif request.image_path:
@@ -101,6 +102,7 @@ class PlannerNode(Node):
 
     def _design_path(self, request, response) -> None:
         options = self._options(request)
+        self.get_logger().info(f"design_path: {request.num_blocks} blocks, {options['method']}")
         result = design.design_path(path_from_points(request.path), request.num_blocks,
                                     allow_rotation=request.allow_rotation, **options)
         response.success, response.message = result.success, result.message
