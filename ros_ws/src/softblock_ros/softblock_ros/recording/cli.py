@@ -19,16 +19,19 @@ def _parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True)
 
     record = commands.add_parser("record", help="record topics to an MCAP file until Ctrl-C")
-    record.add_argument("-o", "--output", default="recording.mcap", help="MCAP file to write")
+    # Options left out keep the node's parameters (defaults, or a --params-file after --ros-args).
+    record.add_argument("-o", "--output", help="MCAP file to write (default: recording.mcap)")
     record.add_argument("topics", nargs="*", help="topics to record (default: all discovered)")
     record.add_argument("--exclude", help="regex of topics not recorded in all-topics mode "
                         "(default: /rosout and /parameter_events)")
-    record.add_argument("--compression", choices=sorted(COMPRESSIONS), default="zstd")
-    record.add_argument("--chunk-size", type=int, default=DEFAULT_CHUNK_SIZE, help="bytes")
-    record.add_argument("--flush-period", type=float, default=1.0,
-                        help="seconds between flushes to disk (bounds what SIGKILL loses)")
-    record.add_argument("--discovery-period", type=float, default=1.0,
-                        help="seconds between topic discovery")
+    record.add_argument("--compression", choices=sorted(COMPRESSIONS), help="default: zstd")
+    record.add_argument("--chunk-size", type=int,
+                        help=f"bytes per chunk (default: {DEFAULT_CHUNK_SIZE})")
+    record.add_argument("--flush-period", type=float,
+                        help="seconds between flushes to disk, bounds what SIGKILL loses "
+                        "(default: 1.0)")
+    record.add_argument("--discovery-period", type=float,
+                        help="seconds between topic discovery (default: 1.0)")
 
     play = commands.add_parser("play", help="republish a recording with its timing and QoS")
     play.add_argument("recording")
@@ -61,12 +64,11 @@ def _parser() -> argparse.ArgumentParser:
 
 def _record(args, ros_args) -> int:
     from .recorder_node import run
-    overrides = {"compression": args.compression, "chunk_size": args.chunk_size,
-                 "flush_period": args.flush_period, "discovery_period": args.discovery_period}
-    if args.exclude is not None:
-        overrides["exclude"] = args.exclude
-    parameters = [item for name, value in overrides.items() for item in ("-p", f"{name}:={value}")]
-    return run(args.output, args.topics, ["--ros-args", *parameters, *ros_args])
+    given = {"output": args.output, "topics": args.topics or None, "exclude": args.exclude,
+             "compression": args.compression, "chunk_size": args.chunk_size,
+             "flush_period": args.flush_period, "discovery_period": args.discovery_period}
+    return run({name: value for name, value in given.items() if value is not None},
+               ["--ros-args", *ros_args])
 
 
 def _play(args, ros_args) -> int:

@@ -99,12 +99,16 @@ class RecorderNode(Node):
         self.writer.close()
 
 
-def run(output: str, topics=(), ros_args=None) -> int:
-    """Records until SIGINT/SIGTERM, then finishes the file."""
+def run(parameters: dict, ros_args=None) -> int:
+    """Records until SIGINT/SIGTERM, then finishes the file.
+
+    `parameters` (name -> value) win over a --params-file in `ros_args` and the defaults.
+    """
     rclpy.init(args=ros_args)
     node = None
     try:
-        node = RecorderNode(output, topics)
+        node = RecorderNode(parameter_overrides=[Parameter(name, value=value)
+                                                 for name, value in parameters.items()])
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
