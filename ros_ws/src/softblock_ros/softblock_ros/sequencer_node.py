@@ -7,11 +7,10 @@ One goal at a time: a second goal is rejected while one runs. See docs/sequences
 """
 import threading
 
-import rclpy
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from softblock_interfaces.action import RunSequence
 from softblock_interfaces.msg import SequenceEvent
@@ -19,6 +18,7 @@ from std_msgs.msg import Empty
 
 from .paths import resolve_path
 from .ros_robot import RosRobot
+from .runner import run_node
 from .sequencing.engine import RunOptions, SequenceEngine, StepEvent
 from .sequencing.schema import Limits, SequenceError, load_sequence
 
@@ -125,19 +125,9 @@ class SequencerNode(Node):
             self._busy.release()
 
 
-def main(args=None):
-    rclpy.init(args=args)
-    node = SequencerNode()
-    executor = MultiThreadedExecutor()
-    executor.add_node(node)
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+def main(args=None) -> int:
+    return run_node(SequencerNode, "sequencer", MultiThreadedExecutor, args=args)
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

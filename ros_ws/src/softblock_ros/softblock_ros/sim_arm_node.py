@@ -7,18 +7,18 @@ the running one; a cancel brakes the arm to rest and holds. Targets must be in `
 import threading
 import time
 
-import rclpy
 from geometry_msgs.msg import Pose as PoseMsg
 from geometry_msgs.msg import PoseStamped
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from sim_fallback.arm import ArmLimits, Pose, SimulatedArm
 from softblock_interfaces.action import MoveArm
 
 from .conversions import pose_msg
+from .runner import run_node
 
 LIMITS = {  # ArmLimits field: description
     "max_speed": "linear speed limit [m/s]",
@@ -117,19 +117,9 @@ class SimArmNode(Node):
                               message="reached" if reached else "stopped short of the target")
 
 
-def main(args=None):
-    rclpy.init(args=args)
-    node = SimArmNode()
-    executor = MultiThreadedExecutor()
-    executor.add_node(node)
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+def main(args=None) -> int:
+    return run_node(SimArmNode, "sim_arm", MultiThreadedExecutor, args=args)
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())
