@@ -28,6 +28,7 @@ from planner.geometry import PAPER_GEOMETRY
 CAP_LENGTH = PAPER_GEOMETRY.cap_length  # length of one linking cap [m]
 BLOCK_RADIUS = PAPER_GEOMETRY.radius  # outer radius of a block [m]
 DEFAULT_SAMPLES_PER_BLOCK = 10
+CHUNK = 2048  # chains per internal pass
 
 
 def _broadcast_blocks(theta, length, phi) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -60,9 +61,16 @@ def _batch_last(array: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.moveaxis(array, -1, 0).reshape(array.shape[-1], -1))
 
 
-def _batch_first(array: np.ndarray, batch: tuple[int, ...]) -> np.ndarray:
-    """(..., M) -> contiguous (*batch, ...): the inverse of the internal layout."""
-    return np.ascontiguousarray(np.moveaxis(array, -1, 0)).reshape(batch + array.shape[:-1])
+def _in_chunks(inner, arrays, batch: tuple[int, ...]) -> list[np.ndarray]:
+    """Run ``inner`` on (N, m) slices of the internal layout, ``CHUNK`` chains at a time (so the working
+    arrays stay in cache), and return its outputs (..., m) joined and batch-first: (*batch, ...)."""
+    total = arrays[0].shape[-1]
+    pieces = [inner(*(a[:, start : start + CHUNK] for a in arrays)) for start in range(0, total, CHUNK)]
+    joined = []
+    for outputs in zip(*pieces):
+        flat = np.concatenate([np.moveaxis(o, -1, 0) for o in outputs])
+        joined.append(flat.reshape(batch + flat.shape[1:]))
+    return joined
 
 
 def _sin_over(half_angle: np.ndarray, sin_half: np.ndarray) -> np.ndarray:
@@ -173,26 +181,29 @@ def planar_chain(
     turns = phi / np.pi
     if np.any(np.abs(turns - np.round(turns)) > 1e-9):
         raise ValueError("phi must be 0 or pi (mod 2 pi) for the planar model; use chain_shape for 3D")
-    batch = theta.shape[:-1]
     side = np.cumprod(np.where(np.round(_batch_last(turns)) % 2 == 0, 1.0, -1.0), axis=0)
-    signed = side * _batch_last(theta)  # (N, M)
+    signed = side * _batch_last(theta)  # bending angle toward the base's +x, (N, M)
 
-    end_headings = np.zeros((signed.shape[0] + 1, signed.shape[1]))
-    np.cumsum(signed, axis=0, out=end_headings[1:])
-    start = end_headings[:-1, None, :]  # heading at each block start, (N, 1, M)
-    x, z, angle = _local_samples(signed, _batch_last(length), samples_per_block, cap_length)
-    cos, sin = np.cos(start), np.sin(start)
-    offsets = np.stack([x * cos + z * sin, z * cos - x * sin], axis=2)  # turned by the start heading, (N, S, 2, M)
-    ends = np.zeros((signed.shape[0] + 1, 2, signed.shape[1]))
-    np.cumsum(offsets[:, -1], axis=0, out=ends[1:])
-    samples = ends[:-1, None] + offsets
-    points = np.concatenate([ends[:1], samples.reshape(-1, 2, signed.shape[1])])
-    headings = np.concatenate([end_headings[:1], (start + angle).reshape(-1, signed.shape[1])])
+    def inner(signed, length):
+        n, m = signed.shape
+        end_headings = np.zeros((n + 1, m))
+        np.cumsum(signed, axis=0, out=end_headings[1:])
+        start = end_headings[:-1, None, :]  # heading at each block start, (N, 1, M)
+        x, z, angle = _local_samples(signed, length, samples_per_block, cap_length)
+        cos, sin = np.cos(start), np.sin(start)
+        offsets = np.stack([x * cos + z * sin, z * cos - x * sin], axis=2)  # turned to the start heading
+        ends = np.zeros((n + 1, 2, m))
+        np.cumsum(offsets[:, -1], axis=0, out=ends[1:])
+        points = np.concatenate([ends[:1], (ends[:-1, None] + offsets).reshape(-1, 2, m)])
+        headings = np.concatenate([end_headings[:1], (start + angle).reshape(-1, m)])
+        return points, headings, ends, end_headings
+
+    points, headings, ends, end_headings = _in_chunks(inner, (signed, _batch_last(length)), theta.shape[:-1])
     return PlanarShape(
-        points=_batch_first(points, batch),
-        headings=_batch_first(headings, batch),
-        ends=_batch_first(ends, batch),
-        end_headings=_batch_first(end_headings, batch),
+        points=points,
+        headings=headings,
+        ends=ends,
+        end_headings=end_headings,
         theta=theta,
         length=length,
         phi=phi,
@@ -232,18 +243,12 @@ def block_transforms(theta, length, phi, cap_length: float = CAP_LENGTH) -> np.n
     return transform
 
 
-@dataclass(frozen=True)
-class _Frames:
-    """Base and block end frames in the internal layout: rotations (N+1, 3, 3, M), positions (N+1, 3, M)."""
+def _compose(theta: np.ndarray, length: np.ndarray, phi: np.ndarray, cap_length: float):
+    """Chain the block transforms of (N, M) inputs: frame_i = frame_(i-1) . T_i.
 
-    rotations: np.ndarray
-    positions: np.ndarray
-    cos_phi: np.ndarray  # (N, M)
-    sin_phi: np.ndarray
-
-
-def _compose(theta: np.ndarray, length: np.ndarray, phi: np.ndarray, cap_length: float) -> _Frames:
-    """Chain the block transforms of (N, M) inputs: frame_i = frame_(i-1) . T_i."""
+    Returns rotations (N+1, 3, 3, M) and positions (N+1, 3, M) of the base and block ends, and
+    cos(phi), sin(phi) (N, M) for the caller's block start frames.
+    """
     x, z = block_end_offsets(theta, length, cap_length)
     cos_phi, sin_phi = np.cos(phi), np.sin(phi)
     local = np.moveaxis(_turn_then_bend(phi, theta), (-2, -1), (1, 2))  # (N, 3, 3, M)
@@ -257,7 +262,7 @@ def _compose(theta: np.ndarray, length: np.ndarray, phi: np.ndarray, cap_length:
         np.einsum("rjm,jcm->rcm", rotations[i], local[i], out=rotations[i + 1])
         np.einsum("rjm,jm->rm", rotations[i], translation[i], out=positions[i + 1])
         positions[i + 1] += positions[i]
-    return _Frames(rotations, positions, cos_phi, sin_phi)
+    return rotations, positions, cos_phi, sin_phi
 
 
 def chain_frames(theta, length, phi=0.0, *, cap_length: float = CAP_LENGTH) -> tuple[np.ndarray, np.ndarray]:
@@ -267,9 +272,12 @@ def chain_frames(theta, length, phi=0.0, *, cap_length: float = CAP_LENGTH) -> t
     positions (..., N + 1, 3) [m] of the base (index 0) and of each block end, in the chain base frame.
     """
     theta, length, phi = _broadcast_blocks(theta, length, phi)
-    batch = theta.shape[:-1]
-    frames = _compose(_batch_last(theta), _batch_last(length), _batch_last(phi), cap_length)
-    return _batch_first(frames.rotations, batch), _batch_first(frames.positions, batch)
+
+    def inner(theta, length, phi):
+        return _compose(theta, length, phi, cap_length)[:2]
+
+    rotations, positions = _in_chunks(inner, [_batch_last(a) for a in (theta, length, phi)], theta.shape[:-1])
+    return rotations, positions
 
 
 @dataclass(frozen=True)
@@ -347,20 +355,23 @@ def chain_shape(
     """
     theta, length, phi = _broadcast_blocks(theta, length, phi)
     samples_per_block = _check_samples(samples_per_block)
-    batch = theta.shape[:-1]
-    inner_theta, inner_length = _batch_last(theta), _batch_last(length)
-    frames = _compose(inner_theta, inner_length, _batch_last(phi), cap_length)
-    x, z, _ = _local_samples(inner_theta, inner_length, samples_per_block, cap_length)  # (N, S, M)
-    start = frames.rotations[:-1]  # (N, 3, 3, M)
-    # Block start frame = previous end frame turned by phi: its x axis, and its z axis (unchanged).
-    start_x = frames.cos_phi[:, None] * start[:, :, 0] + frames.sin_phi[:, None] * start[:, :, 1]  # (N, 3, M)
-    start_z = start[:, :, 2]
-    samples = frames.positions[:-1, None] + x[:, :, None] * start_x[:, None] + z[:, :, None] * start_z[:, None]
-    points = np.concatenate([frames.positions[:1], samples.reshape(-1, 3, samples.shape[-1])])
+
+    def inner(theta, length, phi):
+        rotations, positions, cos_phi, sin_phi = _compose(theta, length, phi, cap_length)
+        x, z, _ = _local_samples(theta, length, samples_per_block, cap_length)  # (N, S, M)
+        start = rotations[:-1]  # (N, 3, 3, M)
+        # Block start frame = previous end frame turned by phi: its x axis, and its z axis (unchanged).
+        start_x = cos_phi[:, None] * start[:, :, 0] + sin_phi[:, None] * start[:, :, 1]  # (N, 3, M)
+        samples = positions[:-1, None] + x[:, :, None] * start_x[:, None] + z[:, :, None] * start[:, None, :, 2]
+        points = np.concatenate([positions[:1], samples.reshape(-1, 3, samples.shape[-1])])
+        return points, rotations, positions
+
+    arrays = [_batch_last(a) for a in (theta, length, phi)]
+    points, rotations, positions = _in_chunks(inner, arrays, theta.shape[:-1])
     return ChainShape(
-        points=_batch_first(points, batch),
-        rotations=_batch_first(frames.rotations, batch),
-        positions=_batch_first(frames.positions, batch),
+        points=points,
+        rotations=rotations,
+        positions=positions,
         theta=theta,
         length=length,
         phi=phi,

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from planner import kinematics
 from planner.assembly import Chain, PlacedBlock, load_assembly
 from planner.kinematics import (
     BLOCK_RADIUS,
@@ -131,6 +132,20 @@ def test_batch_agrees_with_a_loop_over_designs():
         np.testing.assert_allclose(batch.frames[index], single.frames, atol=1e-15)
         planar = planar_chain(theta[index], length[index], flips[index])
         np.testing.assert_allclose(planar_batch.points[index], planar.points, atol=1e-15)
+
+
+def test_chunked_evaluation_matches_one_pass(monkeypatch):
+    rng = np.random.default_rng(5)
+    theta = rng.uniform(0.0, 1.0, (2, 5, 4))
+    phi = rng.integers(0, 12, (2, 5, 4)) * math.radians(30)
+    whole = chain_shape(theta, 0.015, phi), planar_chain(theta, 0.015, 0.0), chain_frames(theta, 0.015, phi)
+    monkeypatch.setattr(kinematics, "CHUNK", 3)  # 10 chains in passes of 3, 3, 3, 1
+    chunked = chain_shape(theta, 0.015, phi), planar_chain(theta, 0.015, 0.0), chain_frames(theta, 0.015, phi)
+    np.testing.assert_allclose(chunked[0].points, whole[0].points, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(chunked[0].rotations, whole[0].rotations, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(chunked[1].points, whole[1].points, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(chunked[1].headings, whole[1].headings, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(chunked[2][1], whole[2][1], rtol=0, atol=1e-15)
 
 
 def test_composed_block_transforms_give_the_end_frames():
