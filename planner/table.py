@@ -132,13 +132,18 @@ class BlockTable:
         limit = self.safe_voltage[rows]
         valid = volts <= limit
         clipped = np.minimum(volts, limit)
-        angles = np.empty(rows.shape)
-        for k, (row, v) in enumerate(zip(rows, clipped)):
-            usable = self.voltages < self.safe_voltage[row]
-            grid = np.append(self.voltages[usable], self.safe_voltage[row])
-            values = np.append(self.theta[row, usable], self.theta_at_safe_voltage[row])
-            angles[k] = np.interp(v, grid, values)
-        return angles, valid
+        # Bracket each voltage between a tabulated point and either the next tabulated point or,
+        # when that lies at or beyond the design's safe voltage, the safe-voltage point itself.
+        last = len(self.voltages) - 1
+        low = np.clip(np.searchsorted(self.voltages, clipped, side="right") - 1, 0, last)
+        high = np.minimum(low + 1, last)
+        tabulated_next = (low < last) & (self.voltages[high] < limit)
+        v_low, v_high = self.voltages[low], np.where(tabulated_next, self.voltages[high], limit)
+        a_low = self.theta[rows, low]
+        a_high = np.where(tabulated_next, self.theta[rows, high], self.theta_at_safe_voltage[rows])
+        span = v_high - v_low
+        weight = np.divide(clipped - v_low, span, out=np.zeros_like(span), where=span > 0)
+        return a_low + weight * (a_high - a_low), valid
 
     def design(self, design_id) -> BlockDesignRow:
         row = int(self.index_of([design_id])[0])

@@ -83,3 +83,18 @@ def test_missing_and_corrupt_files_give_clear_errors(tmp_path):
     with pytest.raises(ValueError, match="lacks columns"):
         load_table(bad)
     assert math.isfinite(load_table().theta0[0])
+
+
+def test_angle_at_matches_per_design_interpolation(table):
+    rng = np.random.default_rng(5)
+    ids = rng.integers(1, 85, 300)
+    volts = rng.uniform(0.0, 4000.0, 300)
+    angles, valid = table.angle_at(ids, volts)
+    for design, v, angle, ok in zip(ids, volts, angles, valid):
+        row = table.index_of([design])[0]
+        limit = table.safe_voltage[row]
+        usable = table.voltages < limit
+        grid = np.append(table.voltages[usable], limit)
+        values = np.append(table.theta[row, usable], table.theta_at_safe_voltage[row])
+        assert ok == (v <= limit)
+        assert angle == pytest.approx(np.interp(min(v, limit), grid, values), abs=1e-12)
