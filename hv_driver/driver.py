@@ -110,12 +110,15 @@ class RampHandle:
         with self._supply._cycle_done:
             return self._supply._cycle_done.wait_for(lambda: self._state()[1], timeout)
 
-    def cancel(self) -> None:
-        """Ramp the channel back to 0 V (if this ramp is still the running one)."""
+    def cancel(self) -> "RampHandle | None":
+        """Ramp the channel back to 0 V if this ramp is still the running one; returns that ramp."""
+        down = None
         with self._supply._lock:
-            ch, done = self._state()
+            ch = self._supply._supervisor.channel(self.channel)
             if ch.ramp_id == self._ramp_id and not ch.faults and ch.output_enabled:
-                ch.ramp_to(self._supply._clock(), 0.0)
+                down = RampHandle(self._supply, self.channel, ch.ramp_to(self._supply._clock(), 0.0), 0.0)
+        self._supply._wake.set()
+        return down
 
 
 class HvSupply:

@@ -19,6 +19,7 @@ setup(
     entry_points={
         "console_scripts": [
             "assembly_state = softblock_ros.assembly_state_node:main",
+            "hv_driver = softblock_ros.hv_driver_node:main",
             "planner = softblock_ros.planner_node:main",
             "launcher = softblock_ros.launcher:main",
             "recorder = softblock_ros.recording.cli:record_main",

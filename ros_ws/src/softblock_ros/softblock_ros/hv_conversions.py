@@ -1,0 +1,42 @@
+"""HV driver snapshots to ROS messages: softblock_interfaces/HvState and diagnostic_msgs/DiagnosticArray."""
+from __future__ import annotations
+
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from softblock_interfaces.msg import HvChannelState, HvState
+from std_msgs.msg import Header
+
+from hv_driver import SupplySnapshot
+
+
+def hv_state_msg(snapshot: SupplySnapshot, backend: str, stamp: Time) -> HvState:
+    return HvState(
+        header=Header(stamp=stamp),
+        device_id=snapshot.device_id,
+        backend=backend,
+        estop=snapshot.estop,
+        channels=[HvChannelState(name=c.name, index=c.index, setpoint=c.setpoint, target=c.target,
+                                 measured_voltage=c.measured_voltage, measured_current=c.measured_current,
+                                 ceiling=c.ceiling, output_enabled=c.output_enabled, ramping=c.ramping,
+                                 faults=int(c.faults), fault_text=c.fault_text)
+                  for c in snapshot.channels])
+
+
+def diagnostics_msg(snapshot: SupplySnapshot, node_name: str, backend: str, stamp: Time) -> DiagnosticArray:
+    """One status per channel: ERROR with latched faults, WARN while the link has errors, else OK."""
+    statuses = []
+    for c in snapshot.channels:
+        if c.faults:
+            level, message = DiagnosticStatus.ERROR, f"faults latched: {c.fault_text}"
+        elif snapshot.link_error:
+            level, message = DiagnosticStatus.WARN, f"link: {snapshot.link_error}"
+        else:
+            level, message = DiagnosticStatus.OK, "output on" if c.output_enabled else "output off"
+        values = {"port": snapshot.port, "backend": backend, "channel_index": c.index,
+                  "setpoint_v": c.setpoint, "measured_voltage_v": c.measured_voltage,
+                  "measured_current_a": c.measured_current, "ceiling_v": c.ceiling,
+                  "output_enabled": c.output_enabled, "faults": int(c.faults), "estop": snapshot.estop}
+        statuses.append(DiagnosticStatus(level=level, name=f"{node_name}: channel {c.name}", message=message,
+                                         hardware_id=snapshot.device_id,
+                                         values=[KeyValue(key=k, value=str(v)) for k, v in values.items()]))
+    return DiagnosticArray(header=Header(stamp=stamp), status=statuses)

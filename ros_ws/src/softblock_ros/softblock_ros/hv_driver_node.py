@@ -1,0 +1,250 @@
+"""HV driver node (lifecycle): the safety-supervised HV supply behind ROS topics, services and an action.
+
+configure = open the supply (backend ``sim``: an in-process simulated supply on a pty; ``serial``: the
+``port`` parameter) and identify it; activate = outputs on at 0 V; deactivate = ramp to 0 V and off;
+cleanup / shutdown = close (outputs off); error = outputs off at once.
+"""
+from __future__ import annotations
+
+from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.action import ActionServer, CancelResponse
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
+from rclpy.qos import DurabilityPolicy, QoSProfile
+from softblock_interfaces.action import RampChannel
+from softblock_interfaces.msg import HvState
+from softblock_interfaces.srv import InjectFault
+from std_msgs.msg import Empty, Float64
+from std_srvs.srv import Trigger
+
+from hv_driver import ChannelConfig, HvSupply
+from sim_fallback.hv_supply import SimulatedSupply
+
+from .hv_conversions import diagnostics_msg, hv_state_msg
+from .runner import run_node
+
+LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
+DRIVER_ERRORS = (ValueError, RuntimeError, ConnectionError, OSError)  # incl. LimitError, FaultLatchedError, LinkError
+PARAMETERS = {  # name: (default, description, range)
+    "backend": ("sim", "'sim' (simulated supply on a pty) or 'serial' (the port parameter); never swapped", None),
+    "port": ("", "serial device or pyserial URL of the supply (backend 'serial')", None),
+    "baudrate": (9600, "serial baud rate", IntegerRange(from_value=1200, to_value=921600)),
+    "channel_names": (["front", "back"], "channel names", None),
+    "channel_indices": ([0, 1], "channel numbers on the supply, one per name", None),
+    "max_voltage": (3000.0, "hard maximum of every channel [V]", FloatingPointRange(from_value=1.0, to_value=10000.0)),
+    "slew_rate": (1000.0, "maximum slew rate [V/s]", FloatingPointRange(from_value=1.0, to_value=100000.0)),
+    "current_trip": (50e-6, "over-current trip level [A]", FloatingPointRange(from_value=1e-9, to_value=0.1)),
+    "link_timeout": (0.25, "no valid reply for this long trips LINK [s]", FloatingPointRange(from_value=0.1, to_value=10.0)),
+    "heartbeat_timeout": (0.0, "no hv/heartbeat for this long ramps outputs to 0 V [s]; 0 = off",
+                          FloatingPointRange(from_value=0.0, to_value=60.0)),
+    "state_rate": (50.0, "hv/state rate [Hz]", FloatingPointRange(from_value=20.0, to_value=200.0)),
+    "autostart": (True, "configure and activate at start (console script / python -m)", None),
+}
+
+
+class HvDriverNode(LifecycleNode):
+    def __init__(self, **kwargs):
+        super().__init__("hv_driver", **kwargs)
+        for name, (default, description, value_range) in PARAMETERS.items():
+            descriptor = ParameterDescriptor(description=description, read_only=True)
+            if isinstance(value_range, FloatingPointRange):
+                descriptor.floating_point_range = [value_range]
+            elif isinstance(value_range, IntegerRange):
+                descriptor.integer_range = [value_range]
+            self.declare_parameter(name, default, descriptor)
+        self._supply = self._sim = None
+        self._entities = []
+        self._active = False
+        self._group = ReentrantCallbackGroup()
+
+    def _param(self, name):
+        return self.get_parameter(name).value
+
+    # --- lifecycle -------------------------------------------------------------------------------
+    def on_configure(self, state) -> TransitionCallbackReturn:
+        names, indices, backend, port = (self._param(p) for p in ("channel_names", "channel_indices", "backend", "port"))
+        try:
+            if len(names) != len(indices):
+                raise ValueError(f"channel_names {names} and channel_indices {indices} differ in length")
+            channels = [ChannelConfig(n, int(i), self._param("max_voltage"), self._param("slew_rate"),
+                                      self._param("current_trip")) for n, i in zip(names, indices)]
+            if backend == "sim":
+                self._sim = SimulatedSupply(channels=max(indices) + 1).start()
+                port = self._sim.port
+            elif backend != "serial" or not port:
+                raise ValueError(f"backend={backend!r}, port={port!r}: use 'sim', or 'serial' with a port")
+            self._supply = HvSupply(port, self._param("baudrate"), channels, link_timeout_s=self._param("link_timeout"),
+                                    heartbeat_timeout_s=self._param("heartbeat_timeout") or None,
+                                    handle_signals=False).open()
+        except DRIVER_ERRORS as error:
+            self.get_logger().fatal(f"configure failed: {error}")
+            self._stop()
+            return FAILURE
+        self._index = {n: int(i) for n, i in zip(names, indices)}
+        self._fault_bits, self._diag_time = None, 0
+        self._state_pub = self.create_publisher(HvState, "hv/state", 10)
+        self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        g = self._group
+        self._entities = [
+            self._state_pub, self._diag_pub,
+            self.create_timer(1.0 / self._param("state_rate"), self._publish, callback_group=g),
+            self.create_service(Trigger, "hv/estop", self._on_estop, callback_group=g),
+            self.create_service(Trigger, "hv/reset_faults", self._on_reset, callback_group=g),
+            self.create_service(InjectFault, "hv/inject_fault", self._on_inject, callback_group=g),
+            self.create_subscription(Empty, "hv/heartbeat", lambda _: self._supply.heartbeat(), 10, callback_group=g),
+            self.create_subscription(Float64, "assembly/safe_voltage", self._on_safe_voltage, LATCHED, callback_group=g),
+            ActionServer(self, RampChannel, "hv/ramp", self._execute_ramp, callback_group=g,
+                         cancel_callback=lambda _: CancelResponse.ACCEPT)]
+        self.get_logger().info(f"configured: {self._supply.device_id} on {port} ({backend})")
+        return SUCCESS
+
+    def on_activate(self, state) -> TransitionCallbackReturn:
+        try:
+            for name in self._index:
+                self._supply.enable(name)
+        except DRIVER_ERRORS as error:
+            self.get_logger().error(f"activate refused: {error}")
+            return FAILURE
+        self._active = True
+        return super().on_activate(state)
+
+    def on_deactivate(self, state) -> TransitionCallbackReturn:
+        self._active = False
+        for name in self._index:
+            self._supply.disable(name)
+        self._supply.wait_cycles(1)
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state) -> TransitionCallbackReturn:
+        self._stop()
+        return SUCCESS
+
+    def on_shutdown(self, state) -> TransitionCallbackReturn:
+        self._stop()
+        return SUCCESS
+
+    def on_error(self, state) -> TransitionCallbackReturn:
+        if self._supply is not None:
+            self._supply.abort()
+        self._stop()
+        return SUCCESS
+
+    def _stop(self) -> None:
+        """Outputs ramped to 0 V and off, port closed, simulated supply stopped, entities destroyed."""
+        self._active = False
+        for entity in self._entities:
+            entity.destroy() if isinstance(entity, ActionServer) else self._destroy(entity)
+        self._entities = []
+        if self._supply is not None:
+            self._supply.close()
+        if self._sim is not None:
+            self._sim.stop()
+        self._supply = self._sim = None
+
+    def _destroy(self, entity) -> None:
+        for destroy in (self.destroy_publisher, self.destroy_timer, self.destroy_service, self.destroy_subscription):
+            if destroy(entity):
+                return
+
+    def destroy_node(self):
+        self._stop()
+        return super().destroy_node()
+
+    # --- topics, services, action ----------------------------------------------------------------
+    def _publish(self) -> None:
+        snapshot, stamp = self._supply.snapshot(), self.get_clock().now().to_msg()
+        self._state_pub.publish(hv_state_msg(snapshot, self._param("backend"), stamp))
+        bits = tuple(int(c.faults) for c in snapshot.channels)
+        now = self.get_clock().now().nanoseconds
+        if bits != self._fault_bits or now - self._diag_time >= 1e9:  # 1 Hz, and at once on a fault change
+            self._fault_bits, self._diag_time = bits, now
+            self._diag_pub.publish(diagnostics_msg(snapshot, self.get_name(), self._param("backend"), stamp))
+
+    def _on_estop(self, request, response):
+        self._supply.estop()
+        response.success, response.message = True, "emergency stop latched: every output 0 V and off"
+        return response
+
+    def _on_reset(self, request, response):
+        self._supply.reset_faults()
+        response.success, response.message = True, "faults cleared; outputs off"
+        if self._active:
+            try:
+                for name in self._index:
+                    self._supply.enable(name)
+                response.message = "faults cleared; outputs on at 0 V (active)"
+            except DRIVER_ERRORS as error:
+                response.success, response.message = False, f"faults cleared, enabling refused: {error}"
+        return response
+
+    def _on_inject(self, request, response):
+        try:
+            if self._sim is None:
+                raise ValueError(f"inject_fault needs backend 'sim', this node runs {self._param('backend')!r}")
+            if request.fault == "clear":
+                self._sim.clear_faults()
+            else:
+                channel = self._index[request.channel] if request.channel in self._index else None
+                if request.channel and channel is None:
+                    raise ValueError(f"channel={request.channel!r}: unknown, configured are {sorted(self._index)}")
+                self._sim.inject(request.fault, channel)
+            response.success, response.message = True, f"injected {request.fault} on {request.channel or 'the device'}"
+        except ValueError as error:
+            response.success, response.message = False, str(error)
+        return response
+
+    def _on_safe_voltage(self, msg: Float64) -> None:
+        try:
+            self._supply.set_safe_voltage(msg.data)
+        except ValueError as error:  # an unusable ceiling blocks all voltage rather than none
+            self.get_logger().error(f"assembly/safe_voltage: {error}; ceiling set to 0 V")
+            self._supply.set_safe_voltage(0.0)
+
+    def _execute_ramp(self, goal_handle):
+        goal, result = goal_handle.request, RampChannel.Result()
+        try:
+            if not self._active:
+                raise RuntimeError("hv_driver is not active")
+            handle = self._supply.ramp_to(goal.channel, goal.target, goal.slew_rate or None)
+        except DRIVER_ERRORS as error:
+            result.message = str(error)
+            goal_handle.abort()
+            return result
+        start, cancelled = self._supply.snapshot().channel(goal.channel).setpoint, False
+        while not handle.wait(0.05):
+            if goal_handle.is_cancel_requested and not cancelled:  # ramp back to 0 V, then report
+                handle, cancelled = handle.cancel() or handle, True
+            channel = self._supply.snapshot().channel(goal.channel)
+            span = goal.target - start
+            goal_handle.publish_feedback(RampChannel.Feedback(
+                setpoint=channel.setpoint, measured_voltage=channel.measured_voltage,
+                progress=1.0 if span == 0 else min(1.0, max(0.0, (channel.setpoint - start) / span))))
+        result.final_voltage = self._supply.snapshot().channel(goal.channel).measured_voltage
+        result.success, result.message = handle.succeeded, handle.message
+        if cancelled:
+            result.success, result.message = False, f"cancelled: {handle.message}"
+            goal_handle.canceled()
+        elif result.success:
+            goal_handle.succeed()
+        else:
+            goal_handle.abort()
+        return result
+
+
+def main(args=None) -> int:
+    def make_node():
+        node = HvDriverNode()
+        if node.get_parameter("autostart").value:
+            if node.trigger_configure() != SUCCESS or node.trigger_activate() != SUCCESS:
+                node.destroy_node()
+                raise ValueError("autostart: configure/activate failed (see the log above)")
+        return node
+    # Threads for the ramp goals (each waits on its ramp), services and the state timer.
+    return run_node(make_node, "hv_driver", lambda: MultiThreadedExecutor(num_threads=8), args=args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

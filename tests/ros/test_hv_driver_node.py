@@ -1,0 +1,181 @@
+"""HV driver node through real rclpy clients: lifecycle services, the ramp action to 2.4 kV and back,
+injected faults in hv/state and /diagnostics, the assembly's safe voltage, e-stop during streamed ramps."""
+import threading
+
+import pytest
+import rclpy
+from action_msgs.msg import GoalStatus
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from lifecycle_msgs.msg import State, Transition
+from lifecycle_msgs.srv import ChangeState, GetState
+from rclpy.action import ActionClient
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, QoSProfile
+from ros_testing import Inbox, call, wait_for
+from softblock_interfaces.action import RampChannel
+from softblock_interfaces.msg import HvChannelState, HvState
+from softblock_interfaces.srv import InjectFault
+from std_msgs.msg import Float64
+from std_srvs.srv import Trigger
+
+from softblock_ros.hv_driver_node import HvDriverNode
+
+LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+class Client:
+    """The test's client node with one handle per interface of the driver."""
+
+    def __init__(self, ros_context, spin):
+        self.driver = HvDriverNode(context=ros_context, parameter_overrides=[
+            Parameter("autostart", value=False), Parameter("slew_rate", value=8000.0)])
+        self.node = rclpy.create_node("hv_driver_test_client", context=ros_context)
+        n = self.node
+        self.change_state = n.create_client(ChangeState, "hv_driver/change_state")
+        self.get_state = n.create_client(GetState, "hv_driver/get_state")
+        self.estop = n.create_client(Trigger, "hv/estop")
+        self.reset = n.create_client(Trigger, "hv/reset_faults")
+        self.inject = n.create_client(InjectFault, "hv/inject_fault")
+        self.ramp = ActionClient(n, RampChannel, "hv/ramp")
+        self.safe_voltage = n.create_publisher(Float64, "assembly/safe_voltage", LATCHED)
+        self.state = Inbox(n, HvState, "hv/state")
+        self.diagnostics = Inbox(n, DiagnosticArray, "/diagnostics")
+        spin(self.driver, n)
+
+    def transition(self, transition_id):
+        return call(self.change_state, ChangeState.Request(transition=Transition(id=transition_id))).success
+
+    def lifecycle_state(self):
+        return call(self.get_state, GetState.Request()).current_state.id
+
+    def latest_state(self, predicate=lambda s: True) -> HvState:
+        """The first hv/state from now on that satisfies ``predicate``."""
+        self.state.messages.clear()
+        return self.state.wait(predicate)
+
+    def send_ramp(self, channel, target, feedback=None):
+        assert self.ramp.wait_for_server(timeout_sec=10.0)
+        future = self.ramp.send_goal_async(RampChannel.Goal(channel=channel, target=target), feedback_callback=feedback)
+        goal = wait_for(future.done) and future.result()
+        assert goal.accepted
+        return goal
+
+    def ramp_result(self, channel, target, feedback=None):
+        future = self.send_ramp(channel, target, feedback).get_result_async()
+        wait_for(future.done, what=f"the result of the ramp to {target} V")
+        return future.result().result
+
+
+@pytest.fixture(scope="module")
+def client(ros_context, spin):
+    return Client(ros_context, spin)
+
+
+@pytest.fixture
+def active(client):
+    """The driver active with no faults and no assembly ceiling."""
+    if client.lifecycle_state() == State.PRIMARY_STATE_UNCONFIGURED:
+        assert client.transition(Transition.TRANSITION_CONFIGURE)
+    call(client.inject, InjectFault.Request(fault="clear"))
+    client.safe_voltage.publish(Float64(data=5000.0))
+    if client.lifecycle_state() == State.PRIMARY_STATE_INACTIVE:
+        assert client.transition(Transition.TRANSITION_ACTIVATE)
+    assert call(client.reset, Trigger.Request()).success
+    client.latest_state(lambda s: all(c.output_enabled and not c.faults and c.ceiling == 3000.0 for c in s.channels))
+    return client
+
+
+def outputs_off(state: HvState) -> bool:
+    return all(not c.output_enabled and c.setpoint == 0.0 for c in state.channels)
+
+
+def test_lifecycle_transitions_through_the_lifecycle_services(client):
+    assert client.lifecycle_state() == State.PRIMARY_STATE_UNCONFIGURED
+    assert client.transition(Transition.TRANSITION_CONFIGURE)
+    state = client.latest_state()
+    assert state.backend == "sim" and state.device_id.startswith("iseg") and outputs_off(state)
+    assert [c.name for c in state.channels] == ["front", "back"]
+    assert client.transition(Transition.TRANSITION_ACTIVATE)
+    assert client.lifecycle_state() == State.PRIMARY_STATE_ACTIVE
+    client.latest_state(lambda s: all(c.output_enabled and c.setpoint == 0.0 for c in s.channels))
+    assert client.transition(Transition.TRANSITION_DEACTIVATE)
+    client.latest_state(outputs_off)
+    assert client.transition(Transition.TRANSITION_CLEANUP)
+    assert client.lifecycle_state() == State.PRIMARY_STATE_UNCONFIGURED
+
+
+def test_ramp_action_to_2400_volts_and_back(active):
+    feedback = []
+    result = active.ramp_result("front", 2400.0, lambda msg: feedback.append(msg.feedback))
+    assert result.success and result.message == "reached 2400 V", result.message
+    assert result.final_voltage == pytest.approx(2400.0, abs=50.0)
+    assert feedback and max(f.measured_voltage for f in feedback) > 0.0
+    assert all(0.0 <= f.progress <= 1.0 for f in feedback)
+    front = active.latest_state().channels[0]
+    assert front.setpoint == 2400.0 and front.measured_voltage == pytest.approx(2400.0, abs=5.0)
+    assert active.ramp_result("front", 0.0).success
+    assert active.latest_state().channels[0].setpoint == 0.0
+
+
+def test_a_goal_above_the_assembly_safe_voltage_is_refused_naming_it(active):
+    active.safe_voltage.publish(Float64(data=1500.0))
+    active.latest_state(lambda s: s.channels[0].ceiling == 1500.0)
+    result = active.ramp_result("front", 2400.0)
+    assert not result.success and "assembly safe voltage of 1500 V" in result.message
+
+
+def test_unknown_channel_and_wrong_fault_are_refused(active):
+    result = active.ramp_result("left", 100.0)
+    assert not result.success and "unknown, configured are ['back', 'front']" in result.message
+    reply = call(active.inject, InjectFault.Request(channel="left", fault="over_current"))
+    assert not reply.success and "channel='left'" in reply.message
+    reply = call(active.inject, InjectFault.Request(channel="", fault="lightning"))
+    assert not reply.success and "over_current, no_reply" in reply.message
+
+
+def test_injected_fault_ends_with_outputs_off_and_the_named_fault(active):
+    assert active.ramp_result("front", 1500.0).success
+    assert call(active.inject, InjectFault.Request(channel="front", fault="over_current")).success
+    state = active.latest_state(lambda s: s.channels[0].faults & HvChannelState.FAULT_OVER_CURRENT)
+    assert not state.channels[0].output_enabled and state.channels[0].setpoint == 0.0
+    assert "over_current" in state.channels[0].fault_text
+    diagnostics = active.diagnostics.wait(lambda d: any(s.level == DiagnosticStatus.ERROR for s in d.status))
+    front = next(s for s in diagnostics.status if s.name.endswith("channel front"))
+    assert "over_current" in front.message and front.hardware_id.startswith("iseg")
+    assert {kv.key: kv.value for kv in front.values}["port"].startswith("/dev/")
+
+
+def test_estop_while_another_client_streams_ramps(active):
+    results, stop = [], threading.Event()
+
+    def stream():
+        target = 0.0
+        while not stop.is_set():
+            target = 1200.0 - target
+            results.append(active.ramp_result("back", target))
+    streamer = threading.Thread(target=stream, daemon=True)
+    streamer.start()
+    wait_for(lambda: len(results) >= 2, what="two streamed ramps")
+    assert call(active.estop, Trigger.Request()).success
+    state = active.latest_state(lambda s: s.estop)
+    assert outputs_off(state)
+    assert all(c.faults & HvChannelState.FAULT_ESTOP for c in state.channels)
+    count = len(results)
+    wait_for(lambda: len(results) >= count + 2, what="ramps refused after the e-stop")
+    stop.set()
+    streamer.join(timeout=20.0)
+    assert "latched faults" in results[-1].message and "estop" in results[-1].message
+    assert outputs_off(active.latest_state())
+
+
+def test_cancel_ramps_the_channel_back_to_zero(active):
+    feedback = []
+    goal = active.send_ramp("front", 2400.0, lambda msg: feedback.append(msg.feedback))
+    wait_for(lambda: feedback and feedback[-1].setpoint > 100.0, what="the ramp under way")
+    cancel = goal.cancel_goal_async()
+    wait_for(cancel.done, what="the cancel reply")
+    future = goal.get_result_async()
+    wait_for(future.done, what="the cancelled result")
+    assert future.result().status == GoalStatus.STATUS_CANCELED
+    assert future.result().result.message == "cancelled: reached 0 V"
+    assert active.latest_state().channels[0].setpoint == 0.0
