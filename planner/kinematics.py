@@ -65,7 +65,8 @@ def _in_chunks(inner, arrays, batch: tuple[int, ...]) -> list[np.ndarray]:
     """Run ``inner`` on (N, m) slices of the internal layout, ``CHUNK`` chains at a time (so the working
     arrays stay in cache), and return its outputs (..., m) joined and batch-first: (*batch, ...)."""
     total = arrays[0].shape[-1]
-    pieces = [inner(*(a[:, start : start + CHUNK] for a in arrays)) for start in range(0, total, CHUNK)]
+    starts = range(0, max(total, 1), CHUNK)  # an empty batch still gets one (empty) pass
+    pieces = [inner(*(a[:, start : start + CHUNK] for a in arrays)) for start in starts]
     joined = []
     for outputs in zip(*pieces):
         flat = np.concatenate([np.moveaxis(o, -1, 0) for o in outputs])
@@ -194,8 +195,8 @@ def planar_chain(
         offsets = np.stack([x * cos + z * sin, z * cos - x * sin], axis=2)  # turned to the start heading
         ends = np.zeros((n + 1, 2, m))
         np.cumsum(offsets[:, -1], axis=0, out=ends[1:])
-        points = np.concatenate([ends[:1], (ends[:-1, None] + offsets).reshape(-1, 2, m)])
-        headings = np.concatenate([end_headings[:1], (start + angle).reshape(-1, m)])
+        points = np.concatenate([ends[:1], (ends[:-1, None] + offsets).reshape(n * samples_per_block, 2, m)])
+        headings = np.concatenate([end_headings[:1], (start + angle).reshape(n * samples_per_block, m)])
         return points, headings, ends, end_headings
 
     points, headings, ends, end_headings = _in_chunks(inner, (signed, _batch_last(length)), theta.shape[:-1])
@@ -363,7 +364,8 @@ def chain_shape(
         # Block start frame = previous end frame turned by phi: its x axis, and its z axis (unchanged).
         start_x = cos_phi[:, None] * start[:, :, 0] + sin_phi[:, None] * start[:, :, 1]  # (N, 3, M)
         samples = positions[:-1, None] + x[:, :, None] * start_x[:, None] + z[:, :, None] * start[:, None, :, 2]
-        points = np.concatenate([positions[:1], samples.reshape(-1, 3, samples.shape[-1])])
+        n, count, _, m = samples.shape
+        points = np.concatenate([positions[:1], samples.reshape(n * count, 3, m)])
         return points, rotations, positions
 
     arrays = [_batch_last(a) for a in (theta, length, phi)]

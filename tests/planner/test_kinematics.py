@@ -148,6 +148,12 @@ def test_chunked_evaluation_matches_one_pass(monkeypatch):
     np.testing.assert_allclose(chunked[2][1], whole[2][1], rtol=0, atol=1e-15)
 
 
+def test_empty_batches_keep_their_shape():
+    assert chain_shape(np.zeros((0, 4)), 0.015).points.shape == (0, 41, 3)
+    assert planar_chain(np.zeros((0, 4)), 0.015).points.shape == (0, 41, 2)
+    assert chain_frames(np.zeros((2, 0, 4)), 0.015)[0].shape == (2, 0, 5, 3, 3)
+
+
 def test_composed_block_transforms_give_the_end_frames():
     rng = np.random.default_rng(3)
     theta, length = rng.uniform(0, 1, 5), np.full(5, 0.015)
