@@ -2,9 +2,7 @@
 the finger grasp succeeds, an HV fault mid-sequence and a cancel both end in the safe state, bad
 sequences are refused with a clear message, a second goal is rejected, the legged gait pulses its legs.
 
-The shipped strategies run with their timings scaled down (faster arm, steeper ramps, fewer cycles)."""
-from pathlib import Path
-
+The shipped strategies run with their timings scaled down (sequence_files.scaled)."""
 import pytest
 import rclpy
 import yaml
@@ -13,30 +11,15 @@ from fake_hv import FakeHv
 from rclpy.action import ActionClient
 from rclpy.parameter import Parameter
 from ros_testing import Inbox, wait_for
+from sequence_files import SEQUENCES, scaled
 from softblock_interfaces.action import RunSequence
 from softblock_interfaces.msg import SequenceEvent
 
 from softblock_ros.sequencer_node import SequencerNode
 from softblock_ros.sim_arm_node import SimArmNode
 
-SEQUENCES = Path(__file__).resolve().parents[2] / "config" / "sequences"
 CHANNELS = ["front", "back", "leg_front_left", "leg_front_right", "leg_rear_left", "leg_rear_right"]
 RUN_TIMEOUT = 40.0
-
-
-def scaled(name: str, directory: Path, speed: float, slew_rate: float = 100_000.0, cycles: int = 2) -> str:
-    """Write config/sequences/<name>.yaml with every speed, slew rate and cycle count replaced."""
-    def rewrite(node):
-        if isinstance(node, dict):
-            return {key: {"speed": speed, "slew_rate": slew_rate, "cycles": cycles}.get(key, rewrite(value))
-                    if key in ("speed", "slew_rate", "cycles") else rewrite(value) for key, value in node.items()}
-        return [rewrite(item) for item in node] if isinstance(node, list) else node
-
-    document = rewrite(yaml.safe_load((SEQUENCES / f"{name}.yaml").read_text()))
-    document["defaults"] = {**document.get("defaults", {}), "speed": speed, "slew_rate": slew_rate}
-    path = directory / f"{name}.yaml"
-    path.write_text(yaml.safe_dump(document))
-    return str(path)
 
 
 @pytest.fixture(scope="module")
