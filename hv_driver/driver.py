@@ -130,15 +130,16 @@ class HvSupply:
         and status of every channel.
     link_timeout_s: no valid reply for this long trips LINK.
     heartbeat_timeout_s: None, or no `heartbeat()` for this long ramps enabled outputs to 0 V.
-    reply_timeout_s: time allowed for one echoed answer.
+    reply_timeout_s: time allowed for one echoed answer (default: a quarter of link_timeout_s).
     """
 
     def __init__(self, port: str, baudrate: int | None = None, channels: list[ChannelConfig] = (),
                  loop_rate_hz: float = 100.0, link_timeout_s: float = 0.25,
-                 heartbeat_timeout_s: float | None = None, reply_timeout_s: float = 0.05,
+                 heartbeat_timeout_s: float | None = None, reply_timeout_s: float | None = None,
                  dialect: Dialect | None = None, handle_signals: bool = True, clock=time.monotonic):
         if not (math.isfinite(loop_rate_hz) and 1.0 <= loop_rate_hz <= 1000.0):
             raise ValueError(f"loop_rate_hz={loop_rate_hz!r}: between 1 and 1000")
+        reply_timeout_s = link_timeout_s / 4 if reply_timeout_s is None else reply_timeout_s
         if not (math.isfinite(reply_timeout_s) and 0 < reply_timeout_s < link_timeout_s):
             raise ValueError(f"reply_timeout_s={reply_timeout_s!r}: > 0 and below link_timeout_s")
         self.port_name = port
