@@ -142,11 +142,11 @@ def test_second_goal_is_rejected_while_one_runs(stack, hv):
 
 
 def test_legged_gait_pulses_the_legs(stack, hv):
-    status, result = Run(stack["action"], scaled("legged_gait", stack["dir"], speed=0.0, slew_rate=50_000.0,
+    status, result = Run(stack["action"], scaled("legged_gait", stack["dir"], speed=0.0, slew_rate=16_000.0,
                                                  cycles=2)).result()
     assert status == GoalStatus.STATUS_SUCCEEDED, result.message
     assert result.step_names == ["walk_forward", "turn_left", "turn_right"]
     legs = {name: [target for channel, target in hv.ramps if channel == name] for name in CHANNELS[2:]}
     # walk: every leg 2 pulses; turn_left adds 2 on the right legs, turn_right 2 on the left legs.
-    assert all(targets == [2000.0, 0.0] * 4 for targets in legs.values())
+    assert all(targets == [750.0, 0.0] * 4 for targets in legs.values())
     assert channels_off(hv)
