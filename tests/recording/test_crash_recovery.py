@@ -44,7 +44,8 @@ class HvPublisher:
 
     def __init__(self, ros_context):
         self.node = rclpy.create_node("hv_driver", context=ros_context)
-        self.publisher = self.node.create_publisher(HvState, "hv/state", 100)
+        # deep history: a recorder stalled by a loaded machine still gets every sample
+        self.publisher = self.node.create_publisher(HvState, "hv/state", 1000)
         self.sent = 0
 
     def wait_for_recorder(self):
@@ -57,7 +58,7 @@ class HvPublisher:
 
     def publish_until(self, stop: threading.Event):
         while not stop.wait(0.005):
-            self.publish(5)
+            self.publish(2)
 
 
 def test_sigkill_leaves_readable_prefix_and_recover_makes_it_valid(ros_context, tmp_path):

@@ -70,9 +70,13 @@ class RecordingWriter:
         """Writes the chunk in progress to disk: what a SIGKILL afterwards cannot lose."""
         self._writer.flush()
 
+    @property
+    def closed(self) -> bool:
+        return self._stream.closed
+
     def close(self) -> None:
         """Writes indexes, statistics and footer; the file is complete afterwards."""
-        if self._stream.closed:
+        if self.closed:
             return
         self._writer.finish()
         self._stream.close()

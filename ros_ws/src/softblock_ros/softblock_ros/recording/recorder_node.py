@@ -6,12 +6,11 @@ for what the publishers offer, so latched (transient_local) samples are captured
 import re
 import sys
 
-import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from ..runner import run_node
 from .mcap_file import COMPRESSIONS, DEFAULT_CHUNK_SIZE, RecordingWriter
 from .message_definitions import DefinitionNotFoundError
 from .message_types import UnknownMessageTypeError, import_message_type
@@ -96,7 +95,17 @@ class RecorderNode(Node):
         return sorted(self._recorded)
 
     def close_recording(self) -> None:
+        """Finishes the file (idempotent) and reports what it holds."""
+        if self.writer.closed:
+            return
         self.writer.close()
+        counts = self.writer.message_counts
+        print(f"wrote {sum(counts.values())} messages on {len(counts)} topics to {self.output}",
+              file=sys.stderr)
+
+    def destroy_node(self):
+        self.close_recording()
+        return super().destroy_node()
 
 
 def run(parameters: dict, ros_args=None) -> int:
@@ -104,20 +113,6 @@ def run(parameters: dict, ros_args=None) -> int:
 
     `parameters` (name -> value) win over a --params-file in `ros_args` and the defaults.
     """
-    rclpy.init(args=ros_args)
-    node = None
-    try:
-        node = RecorderNode(parameter_overrides=[Parameter(name, value=value)
-                                                 for name, value in parameters.items()])
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.close_recording()
-            counts = node.writer.message_counts
-            print(f"wrote {sum(counts.values())} messages on {len(counts)} topics to "
-                  f"{node.output}", file=sys.stderr)
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    overrides = [Parameter(name, value=value) for name, value in parameters.items()]
+    return run_node(lambda: RecorderNode(parameter_overrides=overrides), "recorder",
+                    args=ros_args)
