@@ -14,7 +14,6 @@ import numpy as np
 from planner.block_model import BlockDesigns
 
 NITI_DENSITY = 6450.0  # [kg/m^3]
-ROD_ANCHOR_LENGTH = 2.0 * 2.5e-3  # rod length glued inside the two caps [m]
 
 
 @dataclass(frozen=True)
@@ -29,7 +28,9 @@ CALIBRATED_MASS = MassConstants(fixed=4.8409e-04, per_length=3.5090e-02)
 
 def component_mass(designs: BlockDesigns) -> np.ndarray:
     """Mass of the two NiTi rods and the active membrane [kg] (the parts that vary by design)."""
-    rods = 2.0 * NITI_DENSITY * math.pi * designs.rod_diameter**2 / 4.0 * (designs.rod_length + ROD_ANCHOR_LENGTH)
+    # Each rod also runs through both caps, where it is glued in.
+    rod_length = designs.rod_length + 2.0 * designs.geometry.cap_length
+    rods = 2.0 * NITI_DENSITY * math.pi * designs.rod_diameter**2 / 4.0 * rod_length
     arc = 2.0 * designs.membrane_half_angle * designs.geometry.radius
     # Film volume is conserved: its current thickness times area equals t0 times reference area.
     film = designs.material.density * designs.film_thickness * arc * designs.rod_length / (
