@@ -213,8 +213,13 @@ class EquilibriumResult:
 
     @property
     def message(self) -> str:
-        counts = {Status(s).name: int(n) for s, n in zip(*np.unique(self.status, return_counts=True))}
-        return ", ".join(f"{name}: {n}" for name, n in sorted(counts.items()))
+        """How many designs ended in each status, e.g. 'BREAKDOWN: 2, OK: 82'."""
+        return _status_counts(self.status)
+
+
+def _status_counts(statuses) -> str:
+    counts = {Status(s).name: int(n) for s, n in zip(*np.unique(statuses, return_counts=True))}
+    return ", ".join(f"{name}: {n}" for name, n in sorted(counts.items()))
 
 
 def _strip_tension(stretch, film_columns, voltage, material):
@@ -392,3 +397,8 @@ class BlockModel:
 class VoltageLimit:
     voltage: np.ndarray  # highest voltage with a valid equilibrium [V]
     limited_by: np.ndarray  # Status that ends the valid range (OK: valid up to the scan's v_max)
+
+    @property
+    def message(self) -> str:
+        """Which limit ends how many designs, e.g. 'BREAKDOWN: 84'."""
+        return _status_counts(self.limited_by)

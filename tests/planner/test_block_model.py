@@ -108,7 +108,7 @@ def test_voltage_sweep_past_the_limit_reports_the_limit(table, design):
     model = BlockModel(BlockDesigns.create(row.rod_length, row.rod_diameter, row.prestretch_axial))
     limit = model.voltage_limit()
     assert limit.voltage[0] == pytest.approx(row.safe_voltage)
-    assert limit.limited_by[0] == Status.BREAKDOWN
+    assert limit.limited_by[0] == Status.BREAKDOWN and limit.message == "BREAKDOWN: 1"
     previous = math.inf
     for voltage in np.linspace(0.0, 1.5 * row.safe_voltage, 16):
         result = model.solve(voltage)
