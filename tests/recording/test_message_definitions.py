@@ -1,4 +1,4 @@
-"""Schema text as rosbag2 writes it: root .msg verbatim, each nested type once, depth-first, sorted."""
+"""Schema text as rosbag2 writes it: root .msg verbatim, then each nested type once, sorted."""
 import os
 import re
 

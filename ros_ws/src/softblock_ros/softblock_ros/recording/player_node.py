@@ -74,6 +74,8 @@ class PlayerNode(Node):
         self.publishers_by_channel[channel.id].publish(message.data)
 
     def _publish_clock(self) -> None:
+        if not self._thread.is_alive():
+            return  # /clock runs while messages are played, as in ros2 bag play
         seconds, nanoseconds = divmod(self.clock.now(), 1_000_000_000)
         self._clock_publisher.publish(Clock(clock=Time(sec=seconds, nanosec=nanoseconds)))
 
