@@ -37,6 +37,16 @@ def test_stack_runs_nodes_with_the_params_file_and_stops_them_cleanly(ros_contex
     assert any("publishing at" in line for line in lines)
 
 
+def test_namespace_moves_the_nodes_relative_names(ros_context, spin, tmp_path):
+    params = tmp_path / "params.yaml"  # a /**/ key matches the node in any namespace
+    params.write_text("/**/assembly_state:\n  ros__parameters:\n    frame_id: namespaced_frame\n")
+    client = rclpy.create_node("launcher_namespace_client", context=ros_context)
+    inbox = Inbox(client, Assembly, "/robot7/assembly/current", LATCHED)
+    spin(client)
+    with Stack(nodes=["assembly_state"], params=params, namespace="/robot7", output=io.StringIO()):
+        assert inbox.wait().header.frame_id == "namespaced_frame"
+
+
 def test_a_node_that_dies_ends_the_wait(params):
     with Stack(nodes=["assembly_state"], params=params, output=io.StringIO()) as stack:
         stack.processes["assembly_state"].kill()

@@ -191,12 +191,13 @@ def test_other_requests_are_answered_while_an_optimisation_runs(client, monkeypa
 
 def test_stopping_the_node_cancels_a_running_optimisation(ros_context, spin, tmp_path):
     params = tmp_path / "params.yaml"
-    params.write_text("planner:\n  ros__parameters:\n    default_time_budget: 0.0\n")  # no limit
+    params.write_text("/**/planner:\n  ros__parameters:\n    default_time_budget: 0.0\n")  # no limit
     output = io.StringIO()
     client = rclpy.create_node("planner_stop_client", context=ros_context)
     spin(client)
-    with Stack(nodes=["planner"], params=params, output=output, stop_timeout=30.0) as stack:
-        fingers_client = client.create_client(DesignFingers, "planner/design_fingers")
+    # Own namespace: the in-process planner of this module serves planner/design_fingers too.
+    with Stack(nodes=["planner"], params=params, output=output, stop_timeout=30.0, namespace="/stop_test") as stack:
+        fingers_client = client.create_client(DesignFingers, "/stop_test/planner/design_fingers")
         assert fingers_client.wait_for_service(timeout_sec=30.0)
         request = fingers_request(image_path="config/objects/asymmetric.png", pixel_size=0.00025, num_blocks=5,
                                   num_stiff_top=2, time_budget=0.0)

@@ -2,9 +2,9 @@
 
     python -m softblock_ros.launcher --nodes assembly_state,planner --params my_params.yaml
 
-Each node runs as ``python -m <module> --ros-args --params-file <params>`` in its own process group, so a
-terminal's Ctrl-C reaches only the launcher, which then stops the nodes in reverse start order: SIGINT,
-then SIGKILL after ``stop_timeout``. The launcher exits non-zero when a node dies on its own.
+Each node runs as ``python -m <module> --ros-args --params-file <params> [-r __ns:=<namespace>]`` in its
+own process group, so a terminal's Ctrl-C reaches only the launcher, which then stops the nodes in reverse
+start order: SIGINT, then SIGKILL after ``stop_timeout``. The launcher exits non-zero when a node dies on its own.
 As a library: ``with Stack(nodes=["planner"]) as stack: ...``.
 """
 from __future__ import annotations
@@ -40,7 +40,7 @@ class Stack:
 
     def __init__(self, nodes: Iterable[str] = tuple(NODE_COMMANDS), params: str | Path | None = None,
                  env: Mapping[str, str] | None = None, output: TextIO | None = None,
-                 stop_timeout: float = DEFAULT_STOP_TIMEOUT):
+                 stop_timeout: float = DEFAULT_STOP_TIMEOUT, namespace: str = ""):
         self.nodes = list(nodes)
         unknown = [name for name in self.nodes if name not in NODE_COMMANDS]
         if unknown:
@@ -48,6 +48,7 @@ class Stack:
         if params is not None and not Path(params).is_file():
             raise ValueError(f"params file {params} does not exist")
         self.params = params
+        self.namespace = namespace  # e.g. "/robot1": every node's relative names move under it
         self.env = {**os.environ, **(env or {}), "PYTHONUNBUFFERED": "1"}
         self.output = output or sys.stdout
         self.stop_timeout = stop_timeout
@@ -57,8 +58,10 @@ class Stack:
         self._pumps: list[threading.Thread] = []
 
     def command(self, name: str) -> list[str]:
-        ros_args = ["--ros-args", "--params-file", str(self.params)] if self.params else []
-        return [sys.executable, "-m", *NODE_COMMANDS[name], *ros_args]
+        ros_args = ["--params-file", str(self.params)] if self.params else []
+        if self.namespace:
+            ros_args += ["-r", f"__ns:={self.namespace}"]
+        return [sys.executable, "-m", *NODE_COMMANDS[name], *(["--ros-args", *ros_args] if ros_args else [])]
 
     def start(self) -> Stack:
         for name in self.nodes:
@@ -126,6 +129,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--nodes", default=",".join(NODE_COMMANDS),
                         help=f"comma-separated nodes to start, in order (default: all: {','.join(NODE_COMMANDS)})")
     parser.add_argument("--params", help="ROS parameter YAML passed to every node (--params-file)")
+    parser.add_argument("--namespace", default="", help="namespace of every node, e.g. /robot1")
     parser.add_argument("--stop-timeout", type=float, default=DEFAULT_STOP_TIMEOUT,
                         help="seconds each node gets to stop after SIGINT before SIGKILL")
     return parser.parse_args(argv)
@@ -134,7 +138,8 @@ def parse_args(argv=None) -> argparse.Namespace:
 def main(argv=None) -> int:
     args = parse_args(argv)
     try:
-        stack = Stack([n for n in args.nodes.split(",") if n], args.params, stop_timeout=args.stop_timeout)
+        stack = Stack([n for n in args.nodes.split(",") if n], args.params, stop_timeout=args.stop_timeout,
+                      namespace=args.namespace)
     except ValueError as error:
         print(f"launcher: {error}", file=sys.stderr)
         return 2
