@@ -108,10 +108,17 @@ def test_rosbags_anyreader_reads_the_same_contents(recording):
             **{t: (f"{cls.__module__.split('.')[0]}/msg/{cls.__name__}", COUNT)
                for t, cls in STREAMED.items()},
             **{t: (type_name, 1) for t, type_name in LATCHED_TOPICS.items()}}
-        hv = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages()
-              if c.topic == "/hv/state"]
+        decoded: dict = {}
+        for connection, _, raw in reader.messages():
+            decoded.setdefault(connection.topic, []).append(
+                reader.deserialize(raw, connection.msgtype))
+    hv = decoded["/hv/state"]
     assert [m.channels[1].measured_voltage for m in hv] == [5.0 * i for i in range(COUNT)]
     assert hv[3].channels[0].name == "front"
+    assert list(decoded["/assembly/state"][-1].chains[0].block_angles) == \
+        pytest.approx([0.01 * (COUNT - 1), -0.01 * (COUNT - 1)])
+    assert decoded["/assembly/current"][0].name == "gripper"
+    assert decoded["/notes"][7].data == "note 7"
 
 
 def test_topic_list_records_only_the_listed_topics(ros_context, tmp_path):
