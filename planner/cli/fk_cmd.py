@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from planner.kinematics import DEFAULT_SAMPLES_PER_BLOCK
 from planner.table import DEFAULT_TABLE_PATH
 
 
@@ -33,7 +34,7 @@ def register(subparsers) -> None:
     parser.add_argument("--json", type=Path, help="write the shape as JSON (SI units)")
     parser.add_argument("--png", type=Path, help="draw the assembly in 3D")
     parser.add_argument("--table", type=Path, default=DEFAULT_TABLE_PATH, help="look-up table CSV (default: %(default)s)")
-    parser.add_argument("--samples-per-block", type=int, default=10, help="centerline samples per block (default: %(default)s)")
+    parser.add_argument("--samples-per-block", type=int, default=DEFAULT_SAMPLES_PER_BLOCK, help="centerline samples per block (default: %(default)s)")
     parser.set_defaults(handler=run)
 
 
