@@ -391,7 +391,7 @@ def design_parameters(table, ids, voltage: float | None = None):
     Returns (theta [rad], length [m], valid), each shaped like ``ids``.
     """
     ids = np.asarray(ids)
-    index = table.index_of(ids)
+    index = table.index_of(ids.ravel()).reshape(ids.shape)
     length = np.asarray(table.rod_length)[index]
     if voltage is None:
         return np.asarray(table.theta0)[index], length, np.ones(ids.shape, dtype=bool)

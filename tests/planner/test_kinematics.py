@@ -243,6 +243,10 @@ def test_design_parameters_batch_matches_the_table(table):
     expected, expected_valid = table.angle_at(ids.ravel(), 1200.0)
     np.testing.assert_array_equal(actuated.ravel(), expected)
     np.testing.assert_array_equal(actuated_valid.ravel(), expected_valid)
+    single = design_parameters(table, 15, voltage=1200.0)
+    assert [np.shape(a) for a in single] == [(), (), ()] and single[0] == expected[0]
+    with pytest.raises(ValueError, match="unknown design IDs"):
+        design_parameters(table, [15, 99])
 
 
 def test_figure2_arc_bends_by_four_theta0_in_the_assembly_frame(table):
