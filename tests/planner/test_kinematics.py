@@ -4,6 +4,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from planner import kinematics
@@ -162,6 +164,24 @@ def test_composed_block_transforms_give_the_end_frames():
     for transform in block_transforms(theta, length, phi):
         frame = frame @ transform
     np.testing.assert_allclose(chain_shape(theta, length, phi).frames[-1], frame, atol=1e-15)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    theta=st.lists(st.floats(-math.pi, math.pi), min_size=1, max_size=12),
+    steps=st.lists(st.integers(0, 11), min_size=12, max_size=12),
+    length=st.sampled_from([10e-3, 12.5e-3, 15e-3]),
+)
+def test_frames_stay_rigid_and_the_centerline_keeps_its_length(theta, steps, length):
+    n = len(theta)
+    shape = chain_shape(theta, length, np.array(steps[:n]) * math.radians(30), samples_per_block=40)
+    rotations = shape.rotations
+    np.testing.assert_allclose(rotations @ np.swapaxes(rotations, -1, -2), np.broadcast_to(np.eye(3), rotations.shape), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(rotations), 1.0, atol=1e-12)
+    polyline = np.linalg.norm(np.diff(shape.points, axis=0), axis=-1).sum()
+    total = n * (length + 2 * CAP_LENGTH)
+    assert polyline <= total + 1e-12
+    assert polyline == pytest.approx(total, rel=2e-3)  # chords of 38 arc steps per block
 
 
 def test_frames_only_path_matches_the_full_shape():
