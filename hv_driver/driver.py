@@ -218,12 +218,9 @@ class HvSupply:
         """Ramp every output to 0 V and switch it off, stop the loop, close the port."""
         if self._thread is None:
             return
-        with self._lock:
-            for channel in self._supervisor.channels.values():
-                channel.disable(self._clock())
-        with self._cycle_done:
-            self._cycle_done.wait_for(lambda: not any(c.output_enabled for c in self._supervisor.channels.values()),
-                                      ramp_down_timeout)
+        for name in self._supervisor.channels:
+            self.disable(name)
+        self.wait_outputs_off(ramp_down_timeout)
         self._shutdown(emergency=False)
 
     def abort(self) -> None:
@@ -333,6 +330,12 @@ class HvSupply:
                 for name, c in self._supervisor.channels.items())
             return SupplySnapshot(self.device_id, self.port_name, self._supervisor.estop_latched,
                                   self._link_error, self._stamp, channels)
+
+    def wait_outputs_off(self, timeout: float | None = None) -> bool:
+        """Block until every output is off (e.g. after `disable`); False if ``timeout`` [s] passed first."""
+        with self._cycle_done:
+            return self._cycle_done.wait_for(
+                lambda: not any(c.output_enabled for c in self._supervisor.channels.values()), timeout)
 
     def wait_cycles(self, count: int = 1, timeout: float | None = None) -> bool:
         """Block until ``count`` more control cycles have finished."""

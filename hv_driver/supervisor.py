@@ -137,6 +137,7 @@ class ChannelSupervisor:
         if self.output_enabled:
             self._start_ramp(now, 0.0, self.config.slew_rate)
             self._off_at_zero = True
+            self.ramp_id += 1
 
     def ramp_to(self, now: float, target: float, slew_rate: float | None = None) -> int:
         """Start a smooth ramp to ``target`` [V]; returns the ramp id. Refuses, never clips."""

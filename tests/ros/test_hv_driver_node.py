@@ -98,8 +98,11 @@ def test_lifecycle_transitions_through_the_lifecycle_services(client):
     assert client.transition(Transition.TRANSITION_ACTIVATE)
     assert client.lifecycle_state() == State.PRIMARY_STATE_ACTIVE
     client.latest_state(lambda s: all(c.output_enabled and c.setpoint == 0.0 for c in s.channels))
-    assert client.transition(Transition.TRANSITION_DEACTIVATE)
-    client.latest_state(outputs_off)
+    assert client.ramp_result("back", 1200.0).success
+    assert client.transition(Transition.TRANSITION_DEACTIVATE)  # ramps down, then returns
+    assert client.lifecycle_state() == State.PRIMARY_STATE_INACTIVE
+    assert outputs_off(client.latest_state())
+    assert not client.ramp_result("back", 100.0).success  # inactive: goals refused
     assert client.transition(Transition.TRANSITION_CLEANUP)
     assert client.lifecycle_state() == State.PRIMARY_STATE_UNCONFIGURED
 

@@ -7,7 +7,6 @@ cleanup / shutdown = close (outputs off); error = outputs off at once.
 from __future__ import annotations
 
 from diagnostic_msgs.msg import DiagnosticArray
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
@@ -19,42 +18,22 @@ from softblock_interfaces.srv import InjectFault
 from std_msgs.msg import Empty, Float64
 from std_srvs.srv import Trigger
 
-from hv_driver import ChannelConfig, HvSupply
+from hv_driver import HvSupply
 from sim_fallback.hv_supply import SimulatedSupply
 
 from .hv_conversions import diagnostics_msg, hv_state_msg
+from .hv_parameters import channel_configs, declare_parameters
 from .runner import run_node
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
 DRIVER_ERRORS = (ValueError, RuntimeError, ConnectionError, OSError)  # incl. LimitError, FaultLatchedError, LinkError
-PARAMETERS = {  # name: (default, description, range)
-    "backend": ("sim", "'sim' (simulated supply on a pty) or 'serial' (the port parameter); never swapped", None),
-    "port": ("", "serial device or pyserial URL of the supply (backend 'serial')", None),
-    "baudrate": (9600, "serial baud rate", IntegerRange(from_value=1200, to_value=921600)),
-    "channel_names": (["front", "back"], "channel names", None),
-    "channel_indices": ([0, 1], "channel numbers on the supply, one per name", None),
-    "max_voltage": (3000.0, "hard maximum of every channel [V]", FloatingPointRange(from_value=1.0, to_value=10000.0)),
-    "slew_rate": (1000.0, "maximum slew rate [V/s]", FloatingPointRange(from_value=1.0, to_value=100000.0)),
-    "current_trip": (50e-6, "over-current trip level [A]", FloatingPointRange(from_value=1e-9, to_value=0.1)),
-    "link_timeout": (0.25, "no valid reply for this long trips LINK [s]", FloatingPointRange(from_value=0.1, to_value=10.0)),
-    "heartbeat_timeout": (0.0, "no hv/heartbeat for this long ramps outputs to 0 V [s]; 0 = off",
-                          FloatingPointRange(from_value=0.0, to_value=60.0)),
-    "state_rate": (50.0, "hv/state rate [Hz]", FloatingPointRange(from_value=20.0, to_value=200.0)),
-    "autostart": (True, "configure and activate at start (console script / python -m)", None),
-}
 
 
 class HvDriverNode(LifecycleNode):
     def __init__(self, **kwargs):
         super().__init__("hv_driver", **kwargs)
-        for name, (default, description, value_range) in PARAMETERS.items():
-            descriptor = ParameterDescriptor(description=description, read_only=True)
-            if isinstance(value_range, FloatingPointRange):
-                descriptor.floating_point_range = [value_range]
-            elif isinstance(value_range, IntegerRange):
-                descriptor.integer_range = [value_range]
-            self.declare_parameter(name, default, descriptor)
+        declare_parameters(self)
         self._supply = self._sim = None
         self._entities = []
         self._active = False
@@ -65,14 +44,11 @@ class HvDriverNode(LifecycleNode):
 
     # --- lifecycle -------------------------------------------------------------------------------
     def on_configure(self, state) -> TransitionCallbackReturn:
-        names, indices, backend, port = (self._param(p) for p in ("channel_names", "channel_indices", "backend", "port"))
+        backend, port = self._param("backend"), self._param("port")
         try:
-            if len(names) != len(indices):
-                raise ValueError(f"channel_names {names} and channel_indices {indices} differ in length")
-            channels = [ChannelConfig(n, int(i), self._param("max_voltage"), self._param("slew_rate"),
-                                      self._param("current_trip")) for n, i in zip(names, indices)]
+            channels = channel_configs(self)
             if backend == "sim":
-                self._sim = SimulatedSupply(channels=max(indices) + 1).start()
+                self._sim = SimulatedSupply(channels=max(c.index for c in channels) + 1).start()
                 port = self._sim.port
             elif backend != "serial" or not port:
                 raise ValueError(f"backend={backend!r}, port={port!r}: use 'sim', or 'serial' with a port")
@@ -83,7 +59,7 @@ class HvDriverNode(LifecycleNode):
             self.get_logger().fatal(f"configure failed: {error}")
             self._stop()
             return FAILURE
-        self._index = {n: int(i) for n, i in zip(names, indices)}
+        self._index = {c.name: c.index for c in channels}
         self._fault_bits, self._diag_time = None, 0
         self._state_pub = self.create_publisher(HvState, "hv/state", 10)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
@@ -115,16 +91,16 @@ class HvDriverNode(LifecycleNode):
         self._active = False
         for name in self._index:
             self._supply.disable(name)
-        self._supply.wait_cycles(1)
+        if not self._supply.wait_outputs_off(timeout=30.0):
+            self.get_logger().error("deactivate: outputs still on after 30 s")
+            return FAILURE
         return super().on_deactivate(state)
 
     def on_cleanup(self, state) -> TransitionCallbackReturn:
         self._stop()
         return SUCCESS
 
-    def on_shutdown(self, state) -> TransitionCallbackReturn:
-        self._stop()
-        return SUCCESS
+    on_shutdown = on_cleanup
 
     def on_error(self, state) -> TransitionCallbackReturn:
         if self._supply is not None:
@@ -187,7 +163,7 @@ class HvDriverNode(LifecycleNode):
             if request.fault == "clear":
                 self._sim.clear_faults()
             else:
-                channel = self._index[request.channel] if request.channel in self._index else None
+                channel = self._index.get(request.channel)
                 if request.channel and channel is None:
                     raise ValueError(f"channel={request.channel!r}: unknown, configured are {sorted(self._index)}")
                 self._sim.inject(request.fault, channel)
