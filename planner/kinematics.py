@@ -89,7 +89,8 @@ def _local_samples(theta: np.ndarray, length: np.ndarray, samples_per_block: int
     """Centerline samples of each block in its own start frame (after the phi turn), internal layout.
 
     theta, length: (N, M). Per block: end of the first cap, ``samples_per_block - 2`` equal steps along
-    the arc (last = arc end), end of the second cap. Returns x, z and the bend angle reached, (N, S, M).
+    the arc (last = arc end), end of the second cap. Returns x, z (N, S, M) and half the bend angle
+    reached at the arc samples, (N, S - 2, M).
     """
     steps = samples_per_block - 2
     n, m = theta.shape
@@ -112,8 +113,7 @@ def _local_samples(theta: np.ndarray, length: np.ndarray, samples_per_block: int
     end_sin, end_cos = sin_half[:, -1], cos_half[:, -1]  # the second cap continues along the end tangent
     x[:, -1] = x[:, -2] + cap_length * 2.0 * end_sin * end_cos
     z[:, -1] = z[:, -2] + cap_length * (1.0 - 2.0 * end_sin**2)
-    angle = np.concatenate([np.zeros((n, 1, m)), 2.0 * half, theta[:, None, :]], axis=1)
-    return x, z, angle
+    return x, z, half
 
 
 def block_end_offsets(theta, length, cap_length: float = CAP_LENGTH) -> tuple[np.ndarray, np.ndarray]:
@@ -190,7 +190,8 @@ def planar_chain(
         end_headings = np.zeros((n + 1, m))
         np.cumsum(signed, axis=0, out=end_headings[1:])
         start = end_headings[:-1, None, :]  # heading at each block start, (N, 1, M)
-        x, z, angle = _local_samples(signed, length, samples_per_block, cap_length)
+        x, z, half = _local_samples(signed, length, samples_per_block, cap_length)
+        angle = np.concatenate([np.zeros((n, 1, m)), 2.0 * half, signed[:, None, :]], axis=1)  # bend reached
         cos, sin = np.cos(start), np.sin(start)
         offsets = np.stack([x * cos + z * sin, z * cos - x * sin], axis=2)  # turned to the start heading
         ends = np.zeros((n + 1, 2, m))
@@ -360,12 +361,16 @@ def chain_shape(
     def inner(theta, length, phi):
         rotations, positions, cos_phi, sin_phi = _compose(theta, length, phi, cap_length)
         x, z, _ = _local_samples(theta, length, samples_per_block, cap_length)  # (N, S, M)
+        n, count, m = x.shape
         start = rotations[:-1]  # (N, 3, 3, M)
         # Block start frame = previous end frame turned by phi: its x axis, and its z axis (unchanged).
         start_x = cos_phi[:, None] * start[:, :, 0] + sin_phi[:, None] * start[:, :, 1]  # (N, 3, M)
-        samples = positions[:-1, None] + x[:, :, None] * start_x[:, None] + z[:, :, None] * start[:, None, :, 2]
-        n, count, _, m = samples.shape
-        points = np.concatenate([positions[:1], samples.reshape(n * count, 3, m)])
+        points = np.empty((1 + n * count, 3, m))
+        points[0] = positions[0]
+        samples = points[1:].reshape(n, count, 3, m)
+        np.multiply(x[:, :, None], start_x[:, None], out=samples)
+        samples += z[:, :, None] * start[:, None, :, 2]
+        samples += positions[:-1, None]
         return points, rotations, positions
 
     arrays = [_batch_last(a) for a in (theta, length, phi)]
