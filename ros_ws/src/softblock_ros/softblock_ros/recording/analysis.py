@@ -148,21 +148,22 @@ def analyze(recording: str) -> dict:
 
 
 def format_summary(summary: dict) -> str:
-    """Human-readable text of `summarize`'s result (kV, mA, degrees)."""
+    """Human-readable text of `summarize`'s result (kV, µA, degrees)."""
     lines = [f"duration {summary['duration']:.3f} s"]
     for topic, count in summary["message_counts"].items():
         lines.append(f"  {topic}: {count} messages")
     for name, channel in summary["channels"].items():
         lines.append(f"channel {name}: peak {channel['peak_voltage'] / 1e3:.3f} kV at "
                      f"{channel['peak_voltage_time']:.3f} s, peak current "
-                     f"{channel['peak_current'] * 1e3:.4f} mA")
+                     f"{channel['peak_current'] * 1e6:.2f} µA")
     for step in summary["steps"]:
         duration = "-" if step["duration"] is None else f"{step['duration']:.3f} s"
         lines.append(f"step {step['step_index']} {step['step_name']}: {step['outcome']} "
                      f"after {duration} (from {step['start']:.3f} s)")
     for fault in summary["faults"]:
+        text = f" ({fault['fault_text']})" if fault["fault_text"] else ""
         lines.append(f"fault {fault['event']} at {fault['time']:.3f} s on {fault['channel']}: "
-                     f"{', '.join(fault['faults'])} {fault['fault_text']}".rstrip())
+                     f"{', '.join(fault['faults'])}{text}")
     for name, chain in summary["chains"].items():
         degrees = ", ".join(f"{math.degrees(a):.1f}" for a in chain["final_angles"])
         lines.append(f"chain {name}: final block angles [{degrees}] deg")

@@ -21,24 +21,20 @@ def plot(data: RecordingData, png_path: str, title: str = "") -> None:
                              label=f"{name} measured")
         voltage.plot(series["time"], [v / 1e3 for v in series["setpoint"]], "--",
                      color=line.get_color(), alpha=0.6, label=f"{name} setpoint")
-        current.plot(series["time"], [i * 1e3 for i in series["current"]], label=name)
+        current.plot(series["time"], [i * 1e6 for i in series["current"]], label=name)
     voltage.set_ylabel("voltage [kV]")
-    current.set_ylabel("current [mA]")
-    for fault in data.faults:
-        colour = "tab:red" if fault["event"] == "raised" else "tab:blue"
-        for axis in (voltage, current):
-            axis.axvline(fault["time"], color=colour, linestyle=":", linewidth=1)
-        voltage.annotate(f"{fault['channel']}: {fault['event']} {','.join(fault['faults'])}",
-                         (fault["time"], 1), xycoords=("data", "axes fraction"),
-                         rotation=90, va="top", fontsize=7, color=colour)
+    current.set_ylabel("current [µA]")
+    _mark_faults((voltage, current), data.faults)
     _plot_steps(steps, step_durations(data.events), data.duration)
-    for name, series in sorted(data.angles.items()):
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for number, (name, series) in enumerate(sorted(data.angles.items())):
         width = max(len(a) for a in series["angles"])
         for block in range(width):
             angles.plot(series["time"],
                         [math.degrees(a[block]) if block < len(a) else math.nan
-                         for a in series["angles"]], label=f"{name} block {block}")
-    angles.set_ylabel("predicted angle [deg]")
+                         for a in series["angles"]], color=colours[number % len(colours)],
+                        label=f"{name} ({width} blocks)" if block == 0 else None)
+    angles.set_ylabel("predicted block angle [deg]")
     angles.set_xlabel("time [s]")
     for axis in (voltage, current, angles):
         if axis.get_legend_handles_labels()[0]:
@@ -48,6 +44,21 @@ def plot(data: RecordingData, png_path: str, title: str = "") -> None:
     figure.tight_layout()
     figure.savefig(png_path, dpi=110)
     plt.close(figure)
+
+
+def _mark_faults(axes, faults: list[dict]) -> None:
+    """A vertical line per fault event; channels raising the same bits at once share one label."""
+    grouped: dict = {}
+    for fault in faults:
+        key = (round(fault["time"], 3), fault["event"], ",".join(fault["faults"]))
+        grouped.setdefault(key, []).append(fault["channel"])
+    for (time, event, names), channels in grouped.items():
+        colour = "tab:red" if event == "raised" else "tab:blue"
+        for axis in axes:
+            axis.axvline(time, color=colour, linestyle=":", linewidth=1)
+        axes[0].annotate(f"{event} {names}: {', '.join(channels)}", (time, 1),
+                         xycoords=("data", "axes fraction"), rotation=90, va="top",
+                         fontsize=7, color=colour)
 
 
 def _plot_steps(axis, steps: list[dict], duration: float) -> None:
