@@ -21,6 +21,7 @@ from scipy import ndimage
 
 OBJECTS_CATALOG = Path(__file__).resolve().parent.parent / "config" / "objects" / "objects.yaml"
 DEFAULT_SPECK_FRACTION = 0.01
+GREY_MODES = ("1", "L", "I", "I;16", "F")  # Pillow modes read as they are
 
 
 def load_mask(source, threshold: float | None = None) -> np.ndarray:
@@ -33,7 +34,8 @@ def load_mask(source, threshold: float | None = None) -> np.ndarray:
     if isinstance(source, (str, Path)):
         try:
             with Image.open(source) as image:
-                grey = np.asarray(image.convert("L") if image.mode not in ("1", "L", "I", "I;16", "F") else image)
+                # single-channel modes keep their values (16-bit PGM included); colour becomes grey
+                grey = np.asarray(image if image.mode in GREY_MODES else image.convert("L"))
         except OSError as error:
             raise ValueError(f"cannot read object image {source}: {error}") from None
     else:
