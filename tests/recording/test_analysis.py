@@ -1,15 +1,20 @@
-"""Analysis of a synthetic grasp recording, without ROS: peaks, step durations, faults, angles."""
+"""Analysis of a synthetic grasp recording, without ROS: peaks, step durations, faults, angles;
+and the same summary after a replay is recorded again."""
 import json
 import subprocess
 import sys
 
 import pytest
 from mcap.exceptions import McapError
-from recording_helpers import (assembly_state, hv_state, sequence_event, stamp,
+from rclpy.parameter import Parameter
+from recording_helpers import (Spinner, assembly_state, hv_state, sequence_event, stamp, wait_for,
                                write_recording)
 from softblock_interfaces.msg import HvChannelState
 
 from softblock_ros.recording.analysis import analyze, fault_names
+from softblock_ros.recording.playback import PlaybackOptions
+from softblock_ros.recording.player_node import PlayerNode
+from softblock_ros.recording.recorder_node import RecorderNode
 
 START = 1_700_000_000_000_000_000
 TENTH = 100_000_000
@@ -93,3 +98,25 @@ def test_unfinished_file_is_refused_with_a_hint_to_recover(tmp_path):
     truncated.write_bytes(b"\x89MCAP0\r\n" + b"\x00" * 40)
     with pytest.raises(McapError, match="recover"):
         analyze(str(truncated))
+
+
+def test_replay_recorded_again_gives_the_same_summary(grasp, ros_context, tmp_path):
+    """The check a replay into a fresh stack will use: analyze(original) == analyze(replay)."""
+    player = PlayerNode(grasp, PlaybackOptions(rate=5.0), context=ros_context)
+    recorder = RecorderNode(str(tmp_path / "replayed.mcap"), context=ros_context,
+                            parameter_overrides=[Parameter("discovery_period", value=0.1)])
+    spinner = Spinner(ros_context, player, recorder)
+    try:
+        wait_for(lambda: set(recorder.recorded_topics) >= {
+            "/hv/state", "/sequencer/events", "/assembly/state"}, "recorder subscribed")
+        for publisher in player.publishers_by_channel.values():
+            wait_for(lambda: publisher.get_subscription_count() >= 1, "recorder matched")
+        player.start()
+        wait_for(player.finished.is_set, "end of playback")
+        wait_for(lambda: sum(recorder.writer.message_counts.values()) == player.published,
+                 "every replayed message recorded")
+    finally:
+        spinner.close()
+        player.destroy_node()
+        recorder.destroy_node()
+    assert analyze(str(tmp_path / "replayed.mcap")) == analyze(grasp)

@@ -151,7 +151,8 @@ def test_recorded_qos_round_trips_to_playback_qos():
 
 
 @pytest.mark.parametrize("field, value", [("rate", 0.0), ("start_offset", -1.0),
-                                          ("clock_frequency", -5.0), ("include", "(")])
+                                          ("clock_frequency", -5.0), ("delay", -1.0),
+                                          ("include", "(")])
 def test_bad_playback_options_name_the_parameter(field, value):
     with pytest.raises(ValueError, match=field):
         PlaybackOptions(**{field: value}).validate()

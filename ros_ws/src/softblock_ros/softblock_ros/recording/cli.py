@@ -41,6 +41,9 @@ def _parser() -> argparse.ArgumentParser:
     play.add_argument("--exclude", default="", help="regex: never play matching topics")
     play.add_argument("--start-offset", type=float, default=0.0,
                       help="seconds into the recording to start from")
+    play.add_argument("--delay", type=float, default=0.0,
+                      help="seconds to wait after advertising before playing, so subscribers "
+                      "(a recorder, a fresh stack) match first")
     play.add_argument("--clock", type=float, default=0.0, metavar="HZ",
                       help="publish /clock (rosgraph_msgs/Clock) at this rate")
     play.add_argument("--skip-unknown", action="store_true",
@@ -76,7 +79,8 @@ def _play(args, ros_args) -> int:
     from .player_node import run
     options = PlaybackOptions(rate=args.rate, loop=args.loop, include=args.include,
                               exclude=args.exclude, start_offset=args.start_offset,
-                              skip_unknown=args.skip_unknown, clock_frequency=args.clock)
+                              skip_unknown=args.skip_unknown, clock_frequency=args.clock,
+                              delay=args.delay)
     return run(args.recording, options, args.keep_alive, ["--ros-args", *ros_args])
 
 

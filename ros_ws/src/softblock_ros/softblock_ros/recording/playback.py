@@ -22,6 +22,8 @@ class PlaybackOptions:
     start_offset: float = 0.0    # seconds into the recording to start from
     skip_unknown: bool = False   # play the other topics when a type cannot be imported
     clock_frequency: float = 0.0  # Hz of /clock (rosgraph_msgs/Clock); 0 = no /clock
+    delay: float = 0.0           # seconds between advertising the topics and the first message,
+                                 # so subscribers can discover and match the publishers first
 
     def validate(self) -> None:
         if not self.rate > 0:
@@ -30,6 +32,8 @@ class PlaybackOptions:
             raise ValueError(f"start_offset must be >= 0 s, not {self.start_offset}")
         if self.clock_frequency < 0:
             raise ValueError(f"clock_frequency must be >= 0 Hz, not {self.clock_frequency}")
+        if self.delay < 0:
+            raise ValueError(f"delay must be >= 0 s, not {self.delay}")
         for name in ("include", "exclude"):
             try:
                 re.compile(getattr(self, name))
@@ -101,6 +105,8 @@ def play(recording: Recording, channels: list[Channel], options: PlaybackOptions
          clock: PlaybackClock, publish) -> int:
     """Calls publish(channel, message) at the recorded timing; returns how many were published."""
     published = 0
+    if clock.stop.wait(options.delay):
+        return published
     while not clock.stop.is_set():
         clock.restart(recording.start_time + round(options.start_offset * 1e9))
         for channel, message in recording.messages(channels, options.start_offset):
