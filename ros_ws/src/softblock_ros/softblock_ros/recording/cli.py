@@ -1,7 +1,8 @@
 """Record the stack's topics to MCAP, replay, inspect, recover and analyse recordings.
 
-`python -m softblock_ros.recording {record,play,info,recover,analyze} ...`; ROS arguments go after `--ros-args` (e.g. `--ros-args -r __ns:=/robot1`). rclpy is imported only
-by the record and play subcommands.
+`python -m softblock_ros.recording {record,play,info,recover,analyze} ...`. ROS arguments go
+after `--ros-args` (e.g. `--ros-args -r __ns:=/robot1`). rclpy is imported only by the record
+and play subcommands.
 """
 import argparse
 import json
