@@ -131,3 +131,4 @@ def test_recover_refuses_a_file_that_is_not_mcap(tmp_path):
     junk.write_bytes(b"not an mcap file at all")
     result = recover(str(junk), str(tmp_path / "out.mcap"))
     assert not result.success and "MCAP header" in result.message
+    assert not (tmp_path / "out.mcap").exists()

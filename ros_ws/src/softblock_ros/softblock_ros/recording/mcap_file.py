@@ -150,9 +150,11 @@ def recover(source: str, target: str) -> RecoveryResult:
             elif isinstance(record, Attachment):
                 writer.add_attachment(record.create_time, record.log_time, record.name,
                                       record.media_type, record.data)
-        if writer is None:
-            return RecoveryResult(False, f"{source} does not start with an MCAP header")
-        writer.finish()
+        if writer is not None:
+            writer.finish()
+    if writer is None:
+        os.remove(target)
+        return RecoveryResult(False, f"{source} does not start with an MCAP header")
     return RecoveryResult(True, f"recovered {sum(counts.values())} messages into {target}",
                           sum(counts.values()), counts)
 
