@@ -1,0 +1,252 @@
+"""High-level design API: fingers that conform to an object image, chains that follow a 3D path.
+
+Finger placement (the convention behind eq. 3): the object is grasped vertically, so each finger hangs
+straight down from the object's top edge (z = 0 of the ``planner.contours`` object frame) and bends toward
+the object. Its base centerline point sits one block radius outside the object's bounding box (x = -w/2 - r
+for the left finger, +w/2 + r for the right; a straight finger then just touches the widest point) plus an
+outward offset that the optimiser chooses from ``base_offsets`` (default 0-12 mm in 1 mm steps) together
+with the blocks: the blocks only curl toward the object, so an object that is widest low down needs the
+base farther out. The left finger is matched to the left contour, the right finger to the right
+one; contours are resampled every ``contour_spacing`` along their length so the cost does not depend on
+the image resolution.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from planner.assembly import ROTATION_STEP
+from planner.contours import extract_contours
+from planner.kinematics import BLOCK_RADIUS, chain_shape
+from planner.objectives import ClearanceMap, ShapeTarget, evaluate, finger_target, path_target
+from planner.optimize import DesignOptimizeResult, DesignSpace, design_space, solve_exact, solve_pso
+from planner.optimize.space import MAX_BLOCKS
+from planner.table import load_table
+
+DEFAULT_MIN_STIFF_ROD_DIAMETER = 0.62e-3  # [m], the D of ID 57 used for the paper's stiff blocks
+DEFAULT_CONTOUR_SPACING = 1e-3  # [m]
+DEFAULT_BASE_OFFSETS = np.arange(0.0, 12.5e-3, 1e-3)  # outward from touching the bounding box [m]
+METHODS = ("exact", "pso")
+
+
+@dataclass(frozen=True)
+class FingerDesign:
+    """One optimised finger; geometry in the object frame (x right, z up) [m]."""
+
+    side: str  # "left" or "right"
+    design_ids: tuple[int, ...]  # base (top) first
+    cost: float  # eq. (3) [m], including k = 1e11 if colliding
+    collision: bool
+    optimal: bool  # certified optimum for this finger
+    contour: np.ndarray  # (n, 2) the resampled target contour
+    centerline: np.ndarray  # (m, 2) the finger's centerline, base first
+    base: np.ndarray  # (2,) base centerline point
+    result: DesignOptimizeResult
+
+
+@dataclass(frozen=True)
+class FingerDesignResult:
+    left: FingerDesign | None
+    right: FingerDesign | None
+    success: bool
+    message: str
+    optimal: bool
+    solve_time: float  # [s]
+
+
+@dataclass(frozen=True)
+class PathDesignResult:
+    design_ids: tuple[int, ...]
+    rotation_steps: tuple[int, ...]
+    cost: float  # eq. (1) [m]
+    success: bool
+    message: str
+    optimal: bool
+    lower_bound: float  # proven lower bound on the optimum [m] (-inf if none)
+    solve_time: float  # [s]
+    centerline: np.ndarray  # (m, 3) in the chain base frame [m]
+    result: DesignOptimizeResult
+
+
+def _check_common(num_blocks, method: str) -> None:
+    if not isinstance(num_blocks, (int, np.integer)) or isinstance(num_blocks, bool) or not 1 <= num_blocks <= MAX_BLOCKS:
+        raise ValueError(f"num_blocks must be an integer 1..{MAX_BLOCKS}, got {num_blocks!r}")
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+
+
+def _optimise(target: ShapeTarget, space: DesignSpace, method: str, *, seed, time_budget, callback, options):
+    if method == "pso":
+        return solve_pso(target, space, rng=np.random.default_rng(seed), options=options,
+                         time_budget=time_budget, callback=callback)
+    return solve_exact(target, space, options=options, time_budget=time_budget, callback=callback)
+
+
+def resample_polyline(points: np.ndarray, spacing: float) -> np.ndarray:
+    """Points every ``spacing`` along a polyline (n, d), first and last point kept."""
+    step = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    arc = np.concatenate([[0.0], np.cumsum(step)])
+    count = max(int(np.ceil(arc[-1] / spacing)), 1) + 1
+    where = np.linspace(0.0, arc[-1], count)
+    return np.stack([np.interp(where, arc, points[:, k]) for k in range(points.shape[1])], axis=1)
+
+
+def _scaled_callback(callback, start: float, share: float):
+    """Pass progress of one finger on as a fraction of the whole request."""
+    if callback is None:
+        return None
+
+    def scaled(progress):
+        callback(type(progress)(start + share * progress.fraction, progress.best_cost, progress.nfev,
+                                progress.elapsed))
+
+    return scaled
+
+
+def design_fingers(
+    mask: np.ndarray,
+    pixel_size: float,
+    num_blocks: int,
+    *,
+    num_stiff_top: int = 0,
+    min_stiff_rod_diameter: float = DEFAULT_MIN_STIFF_ROD_DIAMETER,
+    method: str = "exact",
+    time_budget: float | None = None,
+    seed: int = 0,
+    inventory: dict[int, int] | None = None,
+    table=None,
+    callback=None,
+    options: dict | None = None,
+    contour_spacing: float = DEFAULT_CONTOUR_SPACING,
+    base_offsets=DEFAULT_BASE_OFFSETS,
+) -> FingerDesignResult:
+    """Design a left and a right finger of ``num_blocks`` conforming to the object in ``mask`` (eq. 3).
+
+    The top ``num_stiff_top`` blocks of each finger must have a rod diameter >= ``min_stiff_rod_diameter``
+    [m]. ``inventory`` (design ID -> blocks on the shelf) is shared by both fingers: when their separate
+    optima do not fit together, the right finger is redesigned from what the left one leaves (the pair is
+    then not certified). ``callback(progress)`` gets a ``planner.optimize.Progress`` and may raise
+    StopIteration to cancel. ``time_budget`` [s] covers both fingers.
+    """
+    _check_common(num_blocks, method)
+    if not isinstance(num_stiff_top, (int, np.integer)) or not 0 <= num_stiff_top <= num_blocks:
+        raise ValueError(f"num_stiff_top must be an integer 0..num_blocks ({num_blocks}), got {num_stiff_top!r}")
+    base_offsets = np.asarray(base_offsets, dtype=float).reshape(-1)
+    if base_offsets.size == 0 or not np.all(np.isfinite(base_offsets) & (base_offsets >= 0)):
+        raise ValueError("base_offsets must be one or more finite lengths >= 0 [m]")
+    if not (np.isfinite(contour_spacing) and contour_spacing > 0):
+        raise ValueError(f"contour_spacing must be a positive length [m], got {contour_spacing!r}")
+    if inventory is not None and sum(inventory.values()) < 2 * num_blocks:
+        raise ValueError(f"inventory holds {sum(inventory.values())} blocks; two fingers need {2 * num_blocks}")
+    if time_budget is not None and not (np.isfinite(time_budget) and time_budget > 0):
+        raise ValueError(f"time_budget must be a positive number of seconds or None, got {time_budget!r}")
+    table = load_table() if table is None else table
+    contours = extract_contours(mask, pixel_size)
+    space_for = lambda stock: design_space(  # noqa: E731
+        table, num_blocks, stiff_positions=range(num_stiff_top), min_stiff_rod_diameter=min_stiff_rod_diameter,
+        inventory=stock,
+    )
+    space = space_for(inventory)
+    problems = {}
+    for side, contour, sign in (("left", contours.left, 1.0), ("right", contours.right, -1.0)):
+        base_x = -sign * (contours.width / 2 + BLOCK_RADIUS)
+        clearance = ClearanceMap.from_contours(contours, base_x, sign)
+        resampled = resample_polyline(contour, contour_spacing)
+        finger_frame = np.stack([sign * (resampled[:, 0] - base_x), np.zeros(len(resampled)), -resampled[:, 1]], 1)
+        problems[side] = (finger_target(finger_frame, clearance, base_offsets), clearance, resampled)
+
+    started = time.perf_counter()
+    results = {}
+    for index, side in enumerate(("left", "right")):
+        budget = None if time_budget is None else max(time_budget - (time.perf_counter() - started), 1e-3) / (2 - index)
+        results[side] = _optimise(problems[side][0], space, method, seed=seed, time_budget=budget,
+                                  callback=_scaled_callback(callback, 0.5 * index, 0.5), options=options)
+    shared_stock_ok = True
+    if inventory is not None:
+        used: dict[int, int] = {}
+        for result in results.values():
+            for design_id in result.design_ids:
+                used[design_id] = used.get(design_id, 0) + 1
+        if any(count > inventory.get(i, 0) for i, count in used.items()):
+            shared_stock_ok = False
+            left_over = dict(inventory)
+            for design_id in results["left"].design_ids:
+                left_over[design_id] -= 1
+            budget = None if time_budget is None else max(time_budget - (time.perf_counter() - started), 1e-3)
+            results["right"] = _optimise(problems["right"][0], space_for(left_over), method, seed=seed,
+                                         time_budget=budget, callback=_scaled_callback(callback, 0.5, 0.5),
+                                         options=options)
+
+    fingers = {side: _finger(side, results[side], *problems[side], table) for side in results}
+    success = all(r.success for r in results.values())
+    optimal = all(r.optimal for r in results.values()) and shared_stock_ok
+    message = "; ".join(f"{side}: {results[side].message}" for side in ("left", "right"))
+    if not shared_stock_ok:
+        message += "; right finger redesigned from the stock the left one leaves (pair not certified)"
+    return FingerDesignResult(
+        left=fingers["left"], right=fingers["right"], success=success, message=message, optimal=optimal,
+        solve_time=time.perf_counter() - started,
+    )
+
+
+def _finger(side, result, target, clearance, contour, table) -> FingerDesign:
+    ids = np.array(result.design_ids)
+    index = table.index_of(ids)
+    shape = chain_shape(np.asarray(table.theta0)[index], np.asarray(table.rod_length)[index], 0.0)
+    base = target.bases[result.base]
+    cost = evaluate(target, shape.points + base, shape.rotations[-1], shape.positions[-1] + base)
+    return FingerDesign(
+        side=side,
+        design_ids=result.design_ids,
+        cost=float(cost.total),
+        collision=bool(cost.collision),
+        optimal=result.optimal,
+        contour=contour,
+        centerline=clearance.to_object(shape.points + base),
+        base=clearance.to_object(base),
+        result=result,
+    )
+
+
+def design_path(
+    path: np.ndarray,
+    num_blocks: int,
+    *,
+    allow_rotation: bool = True,
+    method: str = "exact",
+    time_budget: float | None = None,
+    seed: int = 0,
+    table=None,
+    callback=None,
+    options: dict | None = None,
+) -> PathDesignResult:
+    """Design a chain of ``num_blocks`` whose centerline follows ``path`` (n, 3) [m], given in the chain base
+    frame with the base first (eq. 1). ``allow_rotation`` False keeps the chain planar (all phi = 0)."""
+    _check_common(num_blocks, method)
+    path = np.asarray(path, dtype=float)
+    if path.ndim != 2 or path.shape[1] != 3 or len(path) < 2:
+        raise ValueError(f"path must be an (n, 3) array of at least 2 points [m], got shape {path.shape}")
+    if not np.all(np.isfinite(path)):
+        raise ValueError("path contains NaN or infinite coordinates")
+    table = load_table() if table is None else table
+    space = design_space(table, num_blocks, allow_rotation=allow_rotation)
+    target = path_target(path)
+    result = _optimise(target, space, method, seed=seed, time_budget=time_budget, callback=callback, options=options)
+    index = table.index_of(np.array(result.design_ids))
+    shape = chain_shape(np.asarray(table.theta0)[index], np.asarray(table.rod_length)[index],
+                        np.array(result.rotation_steps) * ROTATION_STEP)
+    cost = evaluate(target, shape.points, shape.rotations[-1], shape.positions[-1])
+    return PathDesignResult(
+        design_ids=result.design_ids,
+        rotation_steps=result.rotation_steps,
+        cost=float(cost.total),
+        success=result.success,
+        message=result.message,
+        optimal=result.optimal,
+        lower_bound=result.lower_bound,
+        solve_time=result.solve_time,
+        centerline=shape.points,
+        result=result,
+    )
