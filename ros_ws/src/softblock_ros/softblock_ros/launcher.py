@@ -89,7 +89,7 @@ class Stack:
         self._stopping.set()
 
     def wait(self, poll_interval: float = 0.2) -> None:
-        """Block until ``stop()`` is called (e.g. from a signal handler); NodeDied if a node ends first."""
+        """Block until ``request_stop()`` or ``stop()``; NodeDied if a node ends first."""
         while not self._stopping.wait(poll_interval):
             dead = self.dead()
             if dead:
