@@ -148,5 +148,5 @@ def test_legged_gait_pulses_the_legs(stack, hv):
     assert result.step_names == ["walk_forward", "turn_left", "turn_right"]
     legs = {name: [target for channel, target in hv.ramps if channel == name] for name in CHANNELS[2:]}
     # walk: every leg 2 pulses; turn_left adds 2 on the right legs, turn_right 2 on the left legs.
-    assert all(targets == [750.0, 0.0] * 4 for targets in legs.values())
+    assert all(targets == [600.0, 0.0] * 4 for targets in legs.values())
     assert channels_off(hv)

@@ -23,10 +23,14 @@ class FakeMotion:
     def outcome(self) -> Outcome:
         return self._outcome
 
+    def finish(self, outcome: Outcome) -> None:
+        if not self._done.is_set():
+            self._outcome = outcome
+            self._done.set()
+
     def cancel(self) -> None:
         self.canceled = True
-        self._outcome = Outcome(False, "canceled")
-        self._done.set()
+        self.finish(Outcome(False, "canceled"))
 
 
 class FakeRobot:

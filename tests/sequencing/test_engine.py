@@ -7,7 +7,7 @@ from fake_robot import FakeMotion, FakeRobot
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from softblock_ros.sequencing.engine import Outcome, RobotError, RunOptions, SequenceEngine
+from softblock_ros.sequencing.engine import ChannelReading, Outcome, RobotError, RunOptions, SequenceEngine
 from softblock_ros.sequencing.schema import load_sequence, parse_sequence
 
 SEQUENCES = Path(__file__).resolve().parents[2] / "config" / "sequences"
@@ -42,7 +42,7 @@ def test_finger_grasp_runs_every_step_in_order():
 
 def test_precondition_mismatch_fails_before_the_step_and_ramps_down():
     robot = FakeRobot(FINGER_GRASP.channels)
-    robot.states["front"] = robot.states["front"].__class__(1500.0, 0, "", True)  # left energised
+    robot.states["front"] = ChannelReading(1500.0, 0, "", True)  # left energised
     result, events = run(FINGER_GRASP, robot)
     assert not result.success and not result.canceled
     assert result.failed_step == "above_object"
@@ -145,9 +145,13 @@ def test_ramp_duration_sets_the_slew_rate_of_the_minimum_jerk_ramp():
     assert robot.ramps() == [("ramp", "front", 2000.0, pytest.approx(1.875 * 2000.0 / 2.0))]
 
 
-def test_ramp_ending_off_target_fails():
-    robot = FakeRobot(["front"], lambda robot, call: FakeMotion(Outcome(True, "", 1200.0))
-                      if call[:3] == ("ramp", "front", 2000.0) else None)
+def test_ramp_settling_off_target_fails():
+    def stuck_at_1200(robot, call):
+        if call[:3] == ("ramp", "front", 2000.0):
+            robot.states["front"] = ChannelReading(1200.0, 0, "", True)
+            return FakeMotion(Outcome(True, "", 1200.0))
+
+    robot = FakeRobot(["front"], stuck_at_1200)
     sequence = parse_sequence({"name": "t", "channels": ["front"], "steps": [
         {"name": "up", "ramp": {"channel": "front", "target": 2000.0}}]})
     result, _ = run(sequence, robot)
@@ -209,3 +213,55 @@ def test_property_any_fault_during_any_ramp_ends_failed_and_safe(fault_at, chann
     assert result.failed_step == ramp_steps[fault_at]
     assert "HV fault" in result.message
     assert channels_safe(robot) or ("estop",) in robot.calls
+
+
+def test_ramp_waits_for_the_measured_voltage_to_settle():
+    """The driver reports the ramp done when the setpoint arrives; the measured voltage lags a little."""
+    def lagging(robot, call):
+        if call[:3] == ("ramp", "front", 2000.0):
+            robot.states["front"] = ChannelReading(1700.0, 0, "", True)
+            threading.Timer(0.005, lambda: robot.states.update(front=ChannelReading(1990.0, 0, "", True))).start()
+            return FakeMotion(Outcome(True, "", 1700.0))
+
+    sequence = parse_sequence({"name": "t", "channels": ["front"], "steps": [
+        {"name": "up", "ramp": {"channel": "front", "target": 2000.0}}]})
+    result, _ = run(sequence, FakeRobot(["front"], lagging), options=RunOptions(poll_period=0.002, settle_time=5.0))
+    assert result.success, result.message
+
+
+def one_train(cycles=1, **fields):
+    spec = {"channels": ["front"], "voltage": 600.0, "frequency": 5.0, "duty": 0.5, "cycles": cycles,
+            "slew_rate": 20000.0, **fields}
+    return parse_sequence({"name": "t", "channels": ["front"], "steps": [{"name": "trot", "pulse_train": spec}]})
+
+
+def test_a_late_edge_waits_for_the_running_ramp_instead_of_superseding_it():
+    """The on-edge's result comes after the off-edge is due: the off-edge goes out only once it is in."""
+    results, pending_at_call = [], []
+
+    def late(robot, call):
+        if call[0] != "ramp":
+            return None
+        pending_at_call.append([not motion.wait(0.0) for motion in results])
+        motion = FakeMotion()
+        threading.Timer(0.15, lambda: motion.finish(Outcome(True, "", call[2]))).start()
+        robot.states[call[1]] = ChannelReading(call[2], 0, "", call[2] > 0)
+        results.append(motion)
+        return motion
+
+    result, events = run(one_train(), FakeRobot(["front"], late), options=RunOptions(poll_period=0.002))
+    assert result.success, result.message
+    assert pending_at_call == [[], [False]]
+    assert "behind schedule" in events[-1].message
+
+
+def test_a_failed_edge_stops_the_train_and_names_it():
+    def refuse_second_on_edge(robot, call):
+        if call[0] == "ramp" and call[2] > 0 and len(robot.ramps("front")) == 3:
+            return FakeMotion(Outcome(False, "superseded by a later request"))
+
+    robot = FakeRobot(["front"], refuse_second_on_edge)
+    result, _ = run(one_train(cycles=3), robot)
+    assert "edge of 'front' to 600 V failed: superseded by a later request" in result.message
+    assert len(robot.ramps("front")) == 3  # on, off, refused on: the channel is off, nothing to ramp down
+    assert channels_safe(robot)

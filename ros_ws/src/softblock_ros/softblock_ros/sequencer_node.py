@@ -126,7 +126,9 @@ class SequencerNode(Node):
 
 
 def main(args=None) -> int:
-    return run_node(SequencerNode, "sequencer", MultiThreadedExecutor, args=args)
+    # The goal's execute callback blocks one thread for the whole sequence; the others serve hv/state,
+    # the heartbeat timer and the action clients' responses (several per pulse-train edge).
+    return run_node(SequencerNode, "sequencer", lambda: MultiThreadedExecutor(num_threads=8), args=args)
 
 
 if __name__ == "__main__":

@@ -7,7 +7,7 @@ tests use a fake. Every step:
 1. precondition: no HV fault on the sequence's channels and the expected channel voltages within
    tolerance (re-checked for up to ``settle_time``, since the state arrives a little after a ramp);
 2. running: motions are watched until done; a cancel, the step's timeout or an HV fault cancels them;
-3. a ramp must end within tolerance of its target.
+3. a ramp must end with the measured voltage within tolerance of its target (allowed ``settle_time``).
 
 On failure the step's ``on_failure`` reaction runs (``safe_stop``: arm stops, every channel ramps to
 0 V, e-stop if a ramp-down fails; ``estop``: arm stops, e-stop at once). A cancel always does the
@@ -269,15 +269,18 @@ class SequenceEngine:
             raise StepFailure(f"arm move failed: {outcome.message}")
         return outcome.message or "arm reached the target"
 
-    def _check_reached(self, channel: str, target: float, tolerance: float, outcome: Outcome) -> None:
+    def _check_reached(self, channel: str, target: float, tolerance: float, outcome: Outcome, ctx: _Context) -> None:
+        """The ramp succeeded and the measured voltage settled within tolerance (it lags the setpoint a little)."""
         if not outcome.success:
             raise StepFailure(f"ramp of {channel!r} to {target:.0f} V failed: {outcome.message}")
-        voltage = outcome.value
-        if voltage is None:
+        voltage, settle_until = outcome.value, self.clock() + self.options.settle_time
+        while voltage is None or abs(voltage - target) > tolerance:
+            if self.clock() > settle_until:
+                raise StepFailure(f"channel {channel!r} ended at {voltage:.0f} V, expected {target:.0f} "
+                                  f"+- {tolerance:.0f} V")
+            self._check_interrupts(ctx)
+            ctx.cancel.wait(self.options.poll_period)
             voltage = self.robot.channel_states()[channel].voltage
-        if abs(voltage - target) > tolerance:
-            raise StepFailure(f"channel {channel!r} ended at {voltage:.0f} V, expected {target:.0f} "
-                              f"+- {tolerance:.0f} V")
 
     def _ramp(self, step: RampStep, ctx: _Context) -> str:
         slew_rate = step.slew_rate
@@ -286,7 +289,7 @@ class SequenceEngine:
             present = self.robot.channel_states()[step.channel].voltage
             slew_rate = MIN_JERK_PEAK_RATE * abs(step.target - present) / step.duration
         outcome, = self._watch([self.robot.ramp(step.channel, step.target, slew_rate)], ctx)
-        self._check_reached(step.channel, step.target, step.tolerance, outcome)
+        self._check_reached(step.channel, step.target, step.tolerance, outcome, ctx)
         return f"{step.channel} at {step.target:.0f} V"
 
     def _parallel(self, step: ParallelStep, ctx: _Context) -> str:
@@ -316,19 +319,36 @@ class SequenceEngine:
         return "; ".join(f"{child.name}: {future.result()}" for child, future in futures)
 
     def _pulse_train(self, step: PulseTrainStep, ctx: _Context) -> str:
+        """Each edge fires on schedule; its result is awaited only when the next edge is due, so the
+        action round trip overlaps the on/off phase instead of adding to it. An edge never supersedes
+        a ramp still running on its channels: a late edge waits (the schedule stays absolute, later
+        edges catch up). The last edge is also checked for the settled voltage."""
         period, start = 1.0 / step.frequency, self.clock()
         edges = [(start + (cycle + step.phase + offset) * period, voltage)
                  for cycle in range(step.cycles) for offset, voltage in ((0.0, step.voltage), (step.duty, 0.0))]
-        worst_delay = 0.0
+        previous: list[tuple[str, float, Motion]] = []
+        worst_delay, on_times = 0.0, []
         for when, target in edges:
             self._sleep_until(when, ctx)
+            self._check_edges(previous, ctx)
             worst_delay = max(worst_delay, self.clock() - when)
-            motions = [self.robot.ramp(channel, target, step.slew_rate) for channel in step.channels]
-            for channel, outcome in zip(step.channels, self._watch(motions, ctx)):
-                self._check_reached(channel, target, step.tolerance, outcome)
-        achieved = step.cycles / (self.clock() - start - step.phase * period)
-        return (f"{step.cycles} cycles on {list(step.channels)} at {achieved:.2f} Hz "
-                f"(asked {step.frequency:g} Hz); latest edge {worst_delay * 1e3:.0f} ms behind schedule")
+            if target > 0:
+                on_times.append(self.clock())
+            previous = [(channel, target, self.robot.ramp(channel, target, step.slew_rate))
+                        for channel in step.channels]
+        for channel, target, outcome in self._check_edges(previous, ctx):
+            self._check_reached(channel, target, step.tolerance, outcome, ctx)
+        achieved = f"{(len(on_times) - 1) / (on_times[-1] - on_times[0]):.2f} Hz" if len(on_times) > 1 else "-"
+        return (f"{step.cycles} cycles on {list(step.channels)} at {achieved} (asked {step.frequency:g} Hz); "
+                f"latest edge {worst_delay * 1e3:.0f} ms behind schedule")
+
+    def _check_edges(self, edges: list[tuple[str, float, Motion]], ctx: _Context) -> list:
+        """Wait for the ramps of one edge; fail if one did not succeed; (channel, target, outcome) each."""
+        outcomes = self._watch([motion for _, _, motion in edges], ctx)
+        for (channel, target, _), outcome in zip(edges, outcomes):
+            if not outcome.success:
+                raise StepFailure(f"edge of {channel!r} to {target:.0f} V failed: {outcome.message}")
+        return [(channel, target, outcome) for (channel, target, _), outcome in zip(edges, outcomes)]
 
     # -- reactions --------------------------------------------------------------------------------------
 
