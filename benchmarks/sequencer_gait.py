@@ -2,7 +2,7 @@
 
 Starts the HV driver node (simulated supply on a pty, 6 channels, 16 kV/s), the simulated arm and the
 sequencer as processes; this process sends RunSequence goals and records hv/state (100 Hz).
-Node output goes to docs/figures/sequencer_gait.log.
+Node output goes to out/sequencer_gait.log.
 
 1. Gait: the `walk_forward` step of config/sequences/legged_gait.yaml (diagonal leg pairs alternating,
    600 V edges at 16 kV/s) at 1..5 Hz. From the measured leg voltages: achieved frequency (slope of
@@ -42,6 +42,7 @@ from softblock_ros.launcher import Stack  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 FIGURES = ROOT / "docs" / "figures"
 SEQUENCES = ROOT / "config" / "sequences"
+LOG = ROOT / "out" / "sequencer_gait.log"
 CHANNELS = ["front", "back", "leg_front_left", "leg_front_right", "leg_rear_left", "leg_rear_right"]
 FREQUENCIES = [1.0, 2.0, 3.0, 4.0, 5.0]  # [Hz]
 CYCLES = 8
@@ -177,9 +178,10 @@ def measure_fault(bench: Bench) -> dict:
 
 def main() -> int:
     os.makedirs(FIGURES, exist_ok=True)
+    os.makedirs(LOG.parent, exist_ok=True)
     rclpy.init()
     try:
-        with tempfile.TemporaryDirectory() as directory, open(FIGURES / "sequencer_gait.log", "w") as log:
+        with tempfile.TemporaryDirectory() as directory, open(LOG, "w") as log:
             bench = Bench(Path(directory), log)
             try:
                 gait = []
