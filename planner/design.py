@@ -28,6 +28,7 @@ from planner.table import load_table
 DEFAULT_MIN_STIFF_ROD_DIAMETER = 0.62e-3  # [m], the D of ID 57 used for the paper's stiff blocks
 DEFAULT_CONTOUR_SPACING = 1e-3  # [m]
 DEFAULT_BASE_OFFSETS = np.arange(0.0, 12.5e-3, 1e-3)  # outward from touching the bounding box [m]
+PATH_EXACT_OPTIONS = {"max_width": 64}  # 12 rotations x 84 shapes per block: keep the beam narrow
 METHODS = ("exact", "pso")
 
 
@@ -233,6 +234,8 @@ def design_path(
     table = load_table() if table is None else table
     space = design_space(table, num_blocks, allow_rotation=allow_rotation)
     target = path_target(path)
+    if method == "exact":
+        options = PATH_EXACT_OPTIONS | (options or {})
     result = _optimise(target, space, method, seed=seed, time_budget=time_budget, callback=callback, options=options)
     index = table.index_of(np.array(result.design_ids))
     shape = chain_shape(np.asarray(table.theta0)[index], np.asarray(table.rod_length)[index],

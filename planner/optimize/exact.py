@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from planner.assembly import ROTATION_STEP
-from planner.kinematics import DEFAULT_SAMPLES_PER_BLOCK, chain_shape
+from planner.kinematics import CAP_LENGTH, DEFAULT_SAMPLES_PER_BLOCK, chain_shape
 from planner.objectives import COLLISION_PENALTY, ShapeTarget
 from planner.optimize.result import DesignOptimizeResult, RunControl, Status, Stop, make_result
 from planner.optimize.space import DesignSpace
@@ -97,7 +97,8 @@ class _Prefixes:
     counts: np.ndarray | None  # (n, S) blocks used per shape (inventory only)
     stiff_counts: np.ndarray | None
     bound: np.ndarray  # (n,)
-    rank: np.ndarray  # (n,) beam order: the bound, plus k when even the least-bent completion collides
+    rank: np.ndarray  # (n,) beam order (see PrefixSearch.expand)
+    travelled: np.ndarray  # (n,) centerline length so far [m]
 
     def __len__(self) -> int:
         return len(self.bound)
@@ -121,6 +122,9 @@ class PrefixSearch:
         self.space = space
         self.library = block_library(space, samples_per_block)
         self.targets_sq = np.einsum("pk,pk->p", target.points, target.points)
+        steps = np.linalg.norm(np.diff(target.points, axis=0), axis=1)
+        self.target_arc = np.linalg.norm(target.points[0]) + np.concatenate([[0.0], np.cumsum(steps)])
+        self.block_arc = space.length + 2 * CAP_LENGTH
 
     def root(self) -> _Prefixes:
         """One empty chain per candidate base position."""
@@ -143,6 +147,7 @@ class PrefixSearch:
             stiff_counts=None if counts is None else counts.copy(),
             bound=np.zeros(count),
             rank=np.zeros(count),
+            travelled=np.zeros(count),
         )
 
     def options(self, level: int) -> tuple[np.ndarray, np.ndarray]:
@@ -180,12 +185,8 @@ class PrefixSearch:
         end_rotation = rotation[:, None] @ library.end_rotation[shapes, rotations][None]
         end_position = position[:, None] + np.einsum("nij,qj->nqi", rotation, library.end_position[shapes, rotations])
         bound = self._bound(nearest, collided, end_rotation, end_position, level)
-        rank = bound
-        tail = library.straight_tails[level]
-        if target.clearance is not None and len(tail):
-            completion = np.einsum("nqij,tj->nqti", end_rotation, tail) + end_position[:, :, None, :]
-            doomed = np.any(target.clearance(completion) < target.collision_distance, axis=-1)
-            rank = bound + COLLISION_PENALTY * doomed
+        travelled = parents.travelled[:, None] + self.block_arc[shapes]
+        rank = self._rank(bound, nearest, travelled, end_rotation, end_position, level)
 
         keep = np.ones((n, q), dtype=bool)
         counts = stiff_counts = None
@@ -213,7 +214,25 @@ class PrefixSearch:
             stiff_counts=None if stiff_counts is None else reshape(stiff_counts, stiff_counts.shape[-1]),
             bound=reshape(bound),
             rank=reshape(rank),
+            travelled=reshape(travelled),
         )
+
+    def _rank(self, bound, nearest, travelled, rotation, position, level: int) -> np.ndarray:
+        """Beam order of children. Fingers: the bound, plus k when even the least-bent completion collides.
+        Paths: the error of the target points up to the same length along the path, plus the distance
+        from the prefix end to the path point at that length (where the tip should be by now)."""
+        target = self.target
+        if target.clearance is not None:
+            tail = self.library.straight_tails[level]
+            if not len(tail):
+                return bound
+            completion = np.einsum("nqij,tj->nqti", rotation, tail) + position[:, :, None, :]
+            doomed = np.any(target.clearance(completion) < target.collision_distance, axis=-1)
+            return bound + COLLISION_PENALTY * doomed
+        covered = self.target_arc <= travelled[..., None]
+        passed = np.where(covered, np.abs(nearest - target.offset), 0.0).sum(axis=-1)
+        due = np.stack([np.interp(travelled, self.target_arc, target.points[:, k]) for k in range(3)], axis=-1)
+        return passed + np.linalg.norm(position - due, axis=-1)
 
     def _region_distance(self, points, rotation, position, level: int) -> np.ndarray:
         """Lower bound on the distance from points (..., P, 3) to the blocks after ``level``.
