@@ -118,6 +118,8 @@ def two_objects():
     (dict(optimizer="simplex"), "optimizer must be one of exact, pso, got 'simplex'"),
     (dict(time_budget=-1.0), "time_budget must be >= 0 s, got -1.0"),
     (dict(image=image_msg(np.zeros((0, 0), dtype=np.uint8))), "give an image or an image_path"),
+    (dict(image=image_msg(np.zeros((0, 0), dtype=np.uint8)), image_path="/nonexistent/object.png"),
+     "cannot read object image /nonexistent/object.png"),
     (dict(inventory_ids=[57, 15], inventory_counts=[4]), "inventory_ids has 2 entries but inventory_counts has 1"),
 ])
 def test_bad_finger_requests_are_refused_and_the_node_carries_on(client, fields, problem):
