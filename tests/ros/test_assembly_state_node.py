@@ -140,3 +140,21 @@ def test_set_assembly_refuses_an_invalid_one_and_keeps_the_old(ros_context, spin
     assert problem in reply.message
     current = late_joiner_inbox(ros_context, spin, Assembly, "assembly/current").wait()
     assert current.name == "gripper"
+
+
+def test_negative_readback_noise_counts_as_rest_and_the_node_carries_on(client, table):
+    states = Inbox(client, AssemblyState, "assembly/state")
+    hv = client.create_publisher(HvState, "hv/state", 10)
+
+    def state_at(voltage, expected_voltage):
+        message = HvState(channels=[HvChannelState(name="front", measured_voltage=voltage)])
+
+        def matching():
+            hv.publish(message)
+            return next((s for s in reversed(states.messages) if s.chains[0].voltage == expected_voltage), None)
+        return wait_for(matching, what=f"assembly/state after a readback of {voltage} V")
+
+    state_at(500.0, 500.0)
+    at_rest = state_at(-3.0, 0.0)
+    np.testing.assert_allclose(at_rest.chains[0].block_angles, [table.design(i).theta0 for i in (57, 57, 1, 11)])
+    state_at(700.0, 700.0)  # still running

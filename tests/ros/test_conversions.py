@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 from geometry_msgs.msg import Point
 from softblock_interfaces.msg import Assembly as AssemblyMsg
+from softblock_interfaces.msg import HvChannelState, HvState
 from std_msgs.msg import Header
 from visualization_msgs.msg import Marker
 
@@ -16,6 +17,7 @@ from softblock_ros.conversions import (
     assembly_from_msg,
     assembly_msg,
     block_design_msg,
+    channel_voltages,
     designed_chain_msg,
     image_msg,
     inventory_from_lists,
@@ -113,6 +115,13 @@ def test_path_points_become_an_array_and_nan_is_refused():
     assert path_from_points([]).shape == (0, 3)
     with pytest.raises(ValueError, match=r"path point 1 is not finite: \[0.0, nan, 0.0\]"):
         path_from_points([Point(), Point(y=math.nan)])
+
+
+def test_channel_voltages_clamp_readback_noise_and_skip_missing_readings():
+    state = HvState(channels=[HvChannelState(name="front", measured_voltage=-2.5),
+                              HvChannelState(name="back", measured_voltage=math.nan),
+                              HvChannelState(name="aux", measured_voltage=1200.0)])
+    assert channel_voltages(state) == {"front": 0.0, "aux": 1200.0}
 
 
 def test_inventory_lists_become_a_mapping():

@@ -21,7 +21,8 @@ from planner.assembly import load_assembly
 from planner.kinematics import assembly_centerlines
 from planner.table import load_table
 
-from .conversions import assembly_from_msg, assembly_msg, chain_state_msg, check_assembly, safe_voltage
+from .conversions import (assembly_from_msg, assembly_msg, chain_state_msg, channel_voltages, check_assembly,
+                          safe_voltage)
 from .markers import assembly_markers
 from .paths import resolve_path
 from .runner import run_node
@@ -84,7 +85,7 @@ class AssemblyStateNode(Node):
         return response
 
     def _on_hv_state(self, message: HvState) -> None:
-        self._voltages = {channel.name: channel.measured_voltage for channel in message.channels}
+        self._voltages = channel_voltages(message)
 
     def _predict(self, voltages: dict[str, float]):
         shapes = assembly_centerlines(self._assembly, self._table, voltages, self._calibration)

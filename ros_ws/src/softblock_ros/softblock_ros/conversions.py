@@ -6,6 +6,8 @@ the look-up table is the single source of block parameters.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from geometry_msgs.msg import Point, Pose
 from sensor_msgs.msg import Image
@@ -105,6 +107,12 @@ def safe_voltage(assembly: Assembly, table) -> float:
     """Lowest safe voltage over every block of the assembly [V]."""
     ids = [i for chain in assembly.chains for i in chain.design_ids]
     return float(np.min(np.asarray(table.safe_voltage)[table.index_of(np.array(ids))]))
+
+
+def channel_voltages(hv_state: msg.HvState) -> dict[str, float]:
+    """Channel name -> measured voltage [V] for the prediction: readback noise below 0 V counts as 0 V, and a
+    channel without a finite reading is left out (its chains are predicted at rest)."""
+    return {c.name: max(c.measured_voltage, 0.0) for c in hv_state.channels if math.isfinite(c.measured_voltage)}
 
 
 def points_msg(points: np.ndarray) -> list[Point]:
