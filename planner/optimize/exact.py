@@ -197,7 +197,7 @@ class PrefixSearch:
                 keep &= parents.stiff_counts[:, shapes] < self.space.stiff_stock[shapes]
             one_hot = (shapes[:, None] == np.arange(len(self.space.theta))).astype(np.int16)
             counts = parents.counts[:, None, :] + one_hot
-            stiff_counts = parents.stiff_counts[:, None, :] + (one_hot if stiff else 0)
+            stiff_counts = parents.stiff_counts[:, None, :] + (one_hot if stiff else 0 * one_hot)
         flat = keep.reshape(-1)
         reshape = lambda a, *tail: a.reshape(n * q, *tail)[flat]  # noqa: E731
         return _Prefixes(
