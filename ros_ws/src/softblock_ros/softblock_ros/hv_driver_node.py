@@ -23,6 +23,7 @@ from sim_fallback.hv_supply import SimulatedSupply
 
 from .hv_conversions import diagnostics_msg, hv_state_msg
 from .hv_parameters import channel_configs, declare_parameters
+from .hv_ramp_goal import execute_ramp_goal
 from .runner import run_node
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -180,34 +181,10 @@ class HvDriverNode(LifecycleNode):
             self._supply.set_safe_voltage(0.0)
 
     def _execute_ramp(self, goal_handle):
-        goal, result = goal_handle.request, RampChannel.Result()
-        try:
-            if not self._active:
-                raise RuntimeError("hv_driver is not active")
-            handle = self._supply.ramp_to(goal.channel, goal.target, goal.slew_rate or None)
-        except DRIVER_ERRORS as error:
-            result.message = str(error)
+        if not self._active:
             goal_handle.abort()
-            return result
-        start, cancelled = self._supply.snapshot().channel(goal.channel).setpoint, False
-        while not handle.wait(0.05):
-            if goal_handle.is_cancel_requested and not cancelled:  # ramp back to 0 V, then report
-                handle, cancelled = handle.cancel() or handle, True
-            channel = self._supply.snapshot().channel(goal.channel)
-            span = goal.target - start
-            goal_handle.publish_feedback(RampChannel.Feedback(
-                setpoint=channel.setpoint, measured_voltage=channel.measured_voltage,
-                progress=1.0 if span == 0 else min(1.0, max(0.0, (channel.setpoint - start) / span))))
-        result.final_voltage = self._supply.snapshot().channel(goal.channel).measured_voltage
-        result.success, result.message = handle.succeeded, handle.message
-        if cancelled:
-            result.success, result.message = False, f"cancelled: {handle.message}"
-            goal_handle.canceled()
-        elif result.success:
-            goal_handle.succeed()
-        else:
-            goal_handle.abort()
-        return result
+            return RampChannel.Result(message="hv_driver is not active")
+        return execute_ramp_goal(self._supply, goal_handle)
 
 
 def main(args=None) -> int:

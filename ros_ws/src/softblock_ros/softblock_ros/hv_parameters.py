@@ -15,7 +15,7 @@ PARAMETERS = {  # name: (default, description, range)
     "max_voltage": (3000.0, "hard maximum of every channel [V]", FloatingPointRange(from_value=1.0, to_value=10000.0)),
     "slew_rate": (1000.0, "maximum slew rate [V/s]", FloatingPointRange(from_value=1.0, to_value=100000.0)),
     "current_trip": (50e-6, "over-current trip level [A]", FloatingPointRange(from_value=1e-9, to_value=0.1)),
-    "link_timeout": (0.25, "no valid reply for this long trips LINK [s]", FloatingPointRange(from_value=0.1, to_value=10.0)),
+    "link_timeout": (0.5, "no valid reply for this long trips LINK [s]", FloatingPointRange(from_value=0.1, to_value=10.0)),
     "heartbeat_timeout": (0.0, "no hv/heartbeat for this long ramps outputs to 0 V [s]; 0 = off",
                           FloatingPointRange(from_value=0.0, to_value=60.0)),
     "state_rate": (50.0, "hv/state rate [Hz]", FloatingPointRange(from_value=20.0, to_value=200.0)),

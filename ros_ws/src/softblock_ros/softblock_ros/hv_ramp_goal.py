@@ -1,0 +1,38 @@
+"""Execution of one hv/ramp (RampChannel) goal against the driver: feedback while ramping, cancel ramps to 0 V."""
+from __future__ import annotations
+
+from softblock_interfaces.action import RampChannel
+
+from hv_driver import HvSupply
+
+FEEDBACK_PERIOD = 0.05  # [s]
+
+
+def execute_ramp_goal(supply: HvSupply, goal_handle) -> RampChannel.Result:
+    """Run the goal to its end; a refused request (limit, fault, unknown channel) aborts with the reason."""
+    goal, result = goal_handle.request, RampChannel.Result()
+    try:
+        handle = supply.ramp_to(goal.channel, goal.target, goal.slew_rate or None)
+    except (ValueError, RuntimeError) as error:  # LimitError, FaultLatchedError, output not enabled
+        result.message = str(error)
+        goal_handle.abort()
+        return result
+    start, cancelled = supply.snapshot().channel(goal.channel).setpoint, False
+    while not handle.wait(FEEDBACK_PERIOD):
+        if goal_handle.is_cancel_requested and not cancelled:  # ramp back to 0 V, then report
+            handle, cancelled = handle.cancel() or handle, True
+        channel = supply.snapshot().channel(goal.channel)
+        span = goal.target - start
+        goal_handle.publish_feedback(RampChannel.Feedback(
+            setpoint=channel.setpoint, measured_voltage=channel.measured_voltage,
+            progress=1.0 if span == 0 else min(1.0, max(0.0, (channel.setpoint - start) / span))))
+    result.final_voltage = supply.snapshot().channel(goal.channel).measured_voltage
+    result.success, result.message = handle.succeeded, handle.message
+    if cancelled:
+        result.success, result.message = False, f"cancelled: {handle.message}"
+        goal_handle.canceled()
+    elif result.success:
+        goal_handle.succeed()
+    else:
+        goal_handle.abort()
+    return result
