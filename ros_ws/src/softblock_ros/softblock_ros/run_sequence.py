@@ -1,0 +1,92 @@
+"""Command-line client of `sequencer/run` (stands in for `ros2 action send_goal`).
+
+    python -m softblock_ros.run_sequence finger_grasp        # or a path to a sequence YAML file
+    python -m softblock_ros.run_sequence legged_gait --ros-args -r __ns:=/robot1
+
+Prints each step transition, then the result with the per-step durations. Ctrl-C cancels the
+sequence (the sequencer ramps every channel down) and waits for the canceled result.
+Exit status: 0 succeeded, 1 failed or refused, 2 canceled, 3 no sequencer.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import threading
+
+import rclpy
+from action_msgs.msg import GoalStatus
+from rclpy.action import ActionClient
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.signals import SignalHandlerOptions
+from softblock_interfaces.action import RunSequence
+
+
+def print_feedback(message) -> None:
+    feedback = message.feedback
+    print(f"[{feedback.step_index + 1}/{feedback.step_count}] {feedback.step_name}: {feedback.phase}"
+          + (f"  ({feedback.description})" if feedback.phase == "running" and feedback.description else ""),
+          flush=True)
+
+
+def run(sequence: str, server_timeout: float) -> int:
+    node = rclpy.create_node("run_sequence")
+    executor = MultiThreadedExecutor(num_threads=2)
+    executor.add_node(node)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    try:
+        return send(ActionClient(node, RunSequence, "sequencer/run"), sequence, server_timeout)
+    finally:
+        executor.shutdown()
+        spinner.join()
+        node.destroy_node()
+
+
+def send(client: ActionClient, sequence: str, server_timeout: float) -> int:
+    if not client.wait_for_server(timeout_sec=server_timeout):
+        print(f"no sequencer/run server within {server_timeout:g} s", file=sys.stderr)
+        return 3
+    done = threading.Event()
+    goal_future = client.send_goal_async(RunSequence.Goal(sequence=sequence), feedback_callback=print_feedback)
+    goal_future.add_done_callback(lambda _: done.set())
+    done.wait()
+    handle = goal_future.result()
+    if not handle.accepted:
+        print("goal rejected: another sequence is running (see the sequencer's log)", file=sys.stderr)
+        return 1
+    done.clear()
+    result_future = handle.get_result_async()
+    result_future.add_done_callback(lambda _: done.set())
+    try:
+        while not done.wait(0.1):
+            pass
+    except KeyboardInterrupt:
+        print("canceling ...", flush=True)
+        handle.cancel_goal_async()
+        done.wait()
+    response = result_future.result()
+    result = response.result
+    for name, duration in zip(result.step_names, result.step_durations):
+        print(f"  {name:<24} {duration:7.2f} s")
+    print(result.message)
+    if response.status == GoalStatus.STATUS_CANCELED:
+        return 2
+    return 0 if result.success else 1
+
+
+def main(argv=None) -> int:
+    argv = sys.argv if argv is None else argv
+    parser = argparse.ArgumentParser(prog="python -m softblock_ros.run_sequence", description=__doc__.split("\n")[0])
+    parser.add_argument("sequence", help="sequence name (config/sequences/<name>.yaml) or path to a YAML file")
+    parser.add_argument("--server-timeout", type=float, default=10.0, help="wait for the sequencer [s]")
+    args = parser.parse_args(rclpy.utilities.remove_ros_args(argv)[1:])
+    # No rclpy signal handler: Ctrl-C must reach run() as KeyboardInterrupt to cancel the goal.
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        return run(args.sequence, args.server_timeout)
+    finally:
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
