@@ -223,7 +223,7 @@ def main() -> int:
         ax_l.plot(np.full(len(values), k), values, "o", alpha=0.6)
         ax_l.plot([k - 0.2, k + 0.2], [np.median(values)] * 2, color="k")
     ax_l.set_xticks([0, 1], ["fault -> sequence result", "fault -> all channels < 50 V"])
-    ax_l.set(ylabel="latency [ms]", title=f"Over-current at 2.4 kV ({FAULT_TRIALS} trials, median bar)")
+    ax_l.set(ylabel="latency [ms]", title=f"Over-current, back fingers at 2.4 kV ({FAULT_TRIALS} trials, median bar)")
     fig.tight_layout()
     fig.savefig(FIGURES / "sequencer_gait.png", dpi=120)
     print(json.dumps({key: summary[key] for key in ("gait_median", "fault_median_ms", "failed_runs")}, indent=2))

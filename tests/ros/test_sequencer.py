@@ -15,10 +15,11 @@ from sequence_files import SEQUENCES, scaled
 from softblock_interfaces.action import RunSequence
 from softblock_interfaces.msg import SequenceEvent
 
+from softblock_ros import run_sequence
 from softblock_ros.sequencer_node import SequencerNode
 from softblock_ros.sim_arm_node import SimArmNode
 
-CHANNELS = ["front", "back", "leg_front_left", "leg_front_right", "leg_rear_left", "leg_rear_right"]
+CHANNELS = ["front", "back", "trunk", "leg_front_left", "leg_front_right", "leg_rear_left", "leg_rear_right"]
 RUN_TIMEOUT = 40.0
 
 
@@ -146,7 +147,17 @@ def test_legged_gait_pulses_the_legs(stack, hv):
                                                  cycles=2)).result()
     assert status == GoalStatus.STATUS_SUCCEEDED, result.message
     assert result.step_names == ["walk_forward", "turn_left", "turn_right"]
-    legs = {name: [target for channel, target in hv.ramps if channel == name] for name in CHANNELS[2:]}
+    legs = {name: [target for channel, target in hv.ramps if channel == name] for name in CHANNELS[3:]}
     # walk: every leg 2 pulses; turn_left adds 2 on the right legs, turn_right 2 on the left legs.
     assert all(targets == [600.0, 0.0] * 4 for targets in legs.values())
     assert channels_off(hv)
+
+
+def test_command_line_client_prints_steps_and_result(stack, hv, capsys):
+    path = scaled("trunk_flower", stack["dir"], speed=2.0)
+    assert run_sequence.main(["run_sequence", path]) == 0
+    output = capsys.readouterr().out
+    assert "[2/8] open_trunk: running  (ii) actuate the trunk to open)" in output
+    assert "sequence 'trunk_flower': all 8 steps succeeded" in output
+    assert run_sequence.main(["run_sequence", "no_such_sequence"]) == 1
+    assert "rejected: sequence='no_such_sequence'" in capsys.readouterr().out
