@@ -189,8 +189,9 @@ class HvSupply:
             self._link.query("set_voltage", indices, 0.0)  # known state: 0 V, off
             self._link.query("output_off", indices)
             self._configure_device()
-            for config, register in zip(self.configs, self._link.query("read_status", indices)):
-                report = self.dialect.status_report(register)
+            registers = zip(self._link.query("read_status", indices), self._link.query("read_event_status", indices))
+            for config, (status, events) in zip(self.configs, registers):
+                report = self.dialect.status_report(status, events)
                 if report.fault:  # a latched device fault survives reconnects until reset on purpose
                     self._supervisor.channel(config.name).trip(Fault.DEVICE, report.fault)
                     self._sent[config.name].emergency = True
@@ -398,7 +399,8 @@ class HvSupply:
             indices = [c.index for c in self.configs]
             voltages = self._link.query("measure_voltage", indices)
             currents = self._link.query("measure_current", indices)
-            registers = self._link.query("read_status", indices)
+            statuses = self._link.query("read_status", indices)
+            events = self._link.query("read_event_status", indices)
         except (LinkError, ProtocolError, ConfigurationError) as error:
             with self._cycle_done:
                 self._link_error = str(error)
@@ -411,8 +413,8 @@ class HvSupply:
             self._supervisor.link_ok(now)
             self._link_error = ""
             self._applied = stepped
-            for config, voltage, current, register in zip(self.configs, voltages, currents, registers):
-                report = self.dialect.status_report(register)
+            for config, voltage, current, status, event in zip(self.configs, voltages, currents, statuses, events):
+                report = self.dialect.status_report(status, event)
                 sent = self._sent[config.name]
                 fault = None
                 if not sent.emergency:  # after our own emergency off the device state is expected

@@ -17,6 +17,8 @@ from collections import deque
 
 import numpy as np
 
+from hv_driver.dialects.iseg_edcp import ChannelEvent
+
 from .hv_plant import ChannelDefaults, DeaLoad, PlantChannel
 
 FAULTS = ("over_current", "no_reply", "garbled", "partial", "disconnect", "device_reset", "readback_drift")
@@ -108,6 +110,7 @@ class SimulatedSupply:
                 for ch in targets:
                     if self.plant[ch].output_on:
                         self.plant[ch].arcing = True
+                        self.plant[ch].events |= ChannelEvent.EVENT_ARC
             elif fault == "readback_drift":
                 for ch in targets:
                     self.plant[ch].drift_rate = DRIFT_RATE
@@ -228,7 +231,7 @@ class SimulatedSupply:
             return None
         if header == "*CLS":
             for ch in self.plant:
-                ch.events = type(ch.events)(0)
+                ch.events = ChannelEvent(0)
             return None
         if header.endswith("?"):
             getter = self._queries().get(header)
@@ -295,7 +298,7 @@ class SimulatedSupply:
         elif header == ":CONF:TRIP:ACTION":
             ch.trip_action = int(_number(value))
         elif header == ":EVENT" and value == "CLEAR":
-            ch.events = type(ch.events)(0)
+            ch.events = ChannelEvent(0)
             ch.current_trip = False
         else:
             raise CommandError(f"unknown setting {header} {value}")

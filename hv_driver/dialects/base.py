@@ -107,4 +107,5 @@ class Dialect(ABC):
     def parse_number(self, field: str, command: Command, operation: str) -> float | int: ...
 
     @abstractmethod
-    def status_report(self, register: int) -> StatusReport: ...
+    def status_report(self, status: int, events: int) -> StatusReport:
+        """Decode a channel's status register and its latched event register."""

@@ -59,6 +59,11 @@ DEVICE_FAULT_BITS = (ChannelStatus.IS_INPUT_ERROR | ChannelStatus.IS_EMERGENCY_O
                      | ChannelStatus.IS_EXTERNAL_INHIBIT | ChannelStatus.IS_VOLTAGE_LIMIT
                      | ChannelStatus.IS_CURRENT_LIMIT | ChannelStatus.IS_ARC_NUMBER_EXCEEDED)
 OVER_CURRENT_BITS = ChannelStatus.IS_CURRENT_TRIP | ChannelStatus.IS_ARC
+# The same, latched as events: catches what happened between two polls.
+DEVICE_FAULT_EVENTS = (ChannelEvent.EVENT_INPUT_ERROR | ChannelEvent.EVENT_EMERGENCY_OFF
+                       | ChannelEvent.EVENT_EXTERNAL_INHIBIT | ChannelEvent.EVENT_VOLTAGE_LIMIT
+                       | ChannelEvent.EVENT_CURRENT_LIMIT | ChannelEvent.EVENT_ARC_NUMBER_EXCEEDED)
+OVER_CURRENT_EVENTS = ChannelEvent.EVENT_CURRENT_TRIP | ChannelEvent.EVENT_ARC
 
 # TRIP:ACTION codes: 0 flag only, 1 off with ramp, 2 off without ramp, 3 module off, 4 no delayed trip.
 TRIP_ACTION_OFF_WITHOUT_RAMP = 2
@@ -116,13 +121,14 @@ class IsegEdcp(Dialect):
             raise ProtocolError(f"{operation}: expected a number in {command.unit}, got {field!r}")
         return float(text[: len(text) - len(command.unit)])
 
-    def status_report(self, register: int) -> StatusReport:
-        status = ChannelStatus(register & sum(ChannelStatus))
-        device = status & DEVICE_FAULT_BITS
+    def status_report(self, status: int, events: int) -> StatusReport:
+        state = ChannelStatus(status & sum(ChannelStatus))
+        latched = ChannelEvent(events & sum(ChannelEvent))
+        device = [b.name.lower() for b in ChannelStatus if b in state & DEVICE_FAULT_BITS]
+        device += [b.name.lower() for b in ChannelEvent if b in latched & DEVICE_FAULT_EVENTS]
         return StatusReport(
-            output_on=ChannelStatus.IS_ON in status,
-            ramping=ChannelStatus.IS_VOLTAGE_RAMP in status,
-            over_current=bool(status & OVER_CURRENT_BITS),
-            fault=("supply reports " + ", ".join(b.name.lower() for b in ChannelStatus if b in device))
-            if device else None,
+            output_on=ChannelStatus.IS_ON in state,
+            ramping=ChannelStatus.IS_VOLTAGE_RAMP in state,
+            over_current=bool(state & OVER_CURRENT_BITS or latched & OVER_CURRENT_EVENTS),
+            fault="supply reports " + ", ".join(device) if device else None,
         )

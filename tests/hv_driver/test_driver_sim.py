@@ -8,6 +8,7 @@ import textwrap
 import pytest
 
 from hv_driver import ChannelConfig, ConfigurationError, Fault, FaultLatchedError, HvSupply, LimitError
+from hv_driver.dialects.iseg_edcp import ChannelEvent
 from sim_fallback.hv_plant import ChannelDefaults
 from sim_fallback.hv_supply import SimulatedSupply
 
@@ -94,6 +95,14 @@ def test_every_injected_fault_ends_with_outputs_off_and_the_named_fault(fault, s
         assert expected.name.lower() in c.fault_text
     with pytest.raises(FaultLatchedError):
         supply.enable(tripped[0])
+
+
+def test_an_interlock_pulse_between_two_polls_is_caught_by_the_event_register(sim, supply, wait_until):
+    ramp_both(supply, 800.0)
+    sim.plant[1].events |= ChannelEvent.EVENT_EXTERNAL_INHIBIT  # the status bit came and went unseen
+    assert wait_until(lambda: supply.snapshot().channel("back").faults == Fault.DEVICE)
+    assert "event_external_inhibit" in supply.snapshot().channel("back").fault_text
+    assert wait_until(lambda: not sim.plant[1].output_on) and sim.plant[0].output_on
 
 
 def test_faults_stay_latched_until_reset_then_outputs_stay_off_until_enabled(sim, supply, wait_until):

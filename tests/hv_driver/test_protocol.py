@@ -4,7 +4,7 @@ import serial
 
 from hv_driver import IsegEdcp, LinkError, ProtocolError
 from hv_driver.dialects import Command, Dialect
-from hv_driver.dialects.iseg_edcp import ChannelStatus
+from hv_driver.dialects.iseg_edcp import ChannelEvent, ChannelStatus
 from hv_driver.link import Link
 
 EDCP = IsegEdcp()
@@ -58,13 +58,17 @@ def test_garbage_replies_are_rejected_naming_the_operation(operation, reply, cou
     assert operation in str(error.value)
 
 
-def test_status_register_maps_to_output_and_fault_flags():
-    on = EDCP.status_report(int(ChannelStatus.IS_POSITIVE | ChannelStatus.IS_ON | ChannelStatus.IS_VOLTAGE_RAMP))
+def test_status_and_event_registers_map_to_output_and_fault_flags():
+    running = ChannelStatus.IS_POSITIVE | ChannelStatus.IS_ON | ChannelStatus.IS_VOLTAGE_RAMP
+    on = EDCP.status_report(int(running), int(ChannelEvent.EVENT_END_OF_RAMP | ChannelEvent.EVENT_ON_TO_OFF))
     assert on.output_on and on.ramping and not on.over_current and on.fault is None
-    tripped = EDCP.status_report(int(ChannelStatus.IS_CURRENT_TRIP))
+    tripped = EDCP.status_report(int(ChannelStatus.IS_CURRENT_TRIP), 0)
     assert tripped.over_current and not tripped.output_on
-    inhibited = EDCP.status_report(int(ChannelStatus.IS_EXTERNAL_INHIBIT | ChannelStatus.IS_EMERGENCY_OFF))
-    assert "is_external_inhibit" in inhibited.fault and "is_emergency_off" in inhibited.fault
+    arc_between_polls = EDCP.status_report(int(running), int(ChannelEvent.EVENT_ARC))
+    assert arc_between_polls.over_current and arc_between_polls.output_on
+    inhibited = EDCP.status_report(int(ChannelStatus.IS_EXTERNAL_INHIBIT | ChannelStatus.IS_EMERGENCY_OFF),
+                                   int(ChannelEvent.EVENT_VOLTAGE_LIMIT))
+    assert inhibited.fault == "supply reports is_emergency_off, is_external_inhibit, event_voltage_limit"
 
 
 def test_a_dialect_must_define_every_operation():
