@@ -416,13 +416,13 @@ class HvSupply:
             for config, voltage, current, status, event in zip(self.configs, voltages, currents, statuses, events):
                 report = self.dialect.status_report(status, event)
                 sent = self._sent[config.name]
-                fault = None
-                if not sent.emergency:  # after our own emergency off the device state is expected
-                    fault = report.fault
+                fault, over_current = None, False
+                if not sent.emergency:  # after our own emergency off the device flags are expected
+                    fault, over_current = report.fault, report.over_current
                     if fault is None and sent.output_on != report.output_on:
                         fault = "supply output " + ("off although commanded on (reset or interlock)"
                                                     if sent.output_on else "on although commanded off")
-                self._supervisor.channel(config.name).observe(now, voltage, current, fault, report.over_current)
+                self._supervisor.channel(config.name).observe(now, voltage, current, fault, over_current)
                 self._measured[config.name] = (voltage, current)
             self._cycles += 1
             self._cycle_done.notify_all()
