@@ -46,7 +46,7 @@ LOG = ROOT / "out" / "sequencer_gait.log"
 CHANNELS = ["front", "back", "leg_front_left", "leg_front_right", "leg_rear_left", "leg_rear_right"]
 FREQUENCIES = [1.0, 2.0, 3.0, 4.0, 5.0]  # [Hz]
 CYCLES = 8
-REPEATS = 2
+REPEATS = 3
 FAULT_TRIALS = 5
 SAFE_VOLTAGE = 50.0  # [V]
 
@@ -171,8 +171,12 @@ def measure_fault(bench: Bench) -> dict:
     result_at = time.monotonic()
     if result.failed_step != "surround_object" or "over_current" not in result.message:
         return {"failed": result.message}
-    safe_at = next(received for _, received, volts in bench.samples
-                   if received > injected and max(map(abs, volts.values())) < SAFE_VOLTAGE)
+    def first_safe_sample():
+        return next((received for _, received, volts in list(bench.samples)
+                     if received > injected and max(map(abs, volts.values())) < SAFE_VOLTAGE), None)
+
+    wait(lambda: first_safe_sample() is not None, what="every channel below 50 V on hv/state")
+    safe_at = first_safe_sample()
     return {"result_ms": (result_at - injected) * 1e3, "safe_state_ms": (safe_at - injected) * 1e3}
 
 
