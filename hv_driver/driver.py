@@ -171,7 +171,7 @@ class HvSupply:
         self._sent = {c.name: _Sent() for c in self.configs}
         self._measured = {c.name: (0.0, 0.0) for c in self.configs}
         self._applied = {c.name: _Applied() for c in self.configs}
-        self._reconfigure = False
+        self._reconfigure = self._device_reset = False
         self._link_error = ""
         self._cycles = 0
         self._stamp = clock()
@@ -332,6 +332,15 @@ class HvSupply:
             self._reconfigure = True
         self._change(reset)
 
+    def reset_device(self) -> None:
+        """Send ``*RST`` (outputs off, Vset 0, device defaults), then set and read back the device limits
+        again; only with every output off. Latched faults stay latched."""
+        with self._lock:
+            if any(c.output_enabled for c in self._supervisor.channels.values()):
+                raise RuntimeError("reset_device: switch every output off first (disable)")
+            self._device_reset = self._reconfigure = True
+        self._wake.set()
+
     def snapshot(self) -> SupplySnapshot:
         with self._lock:
             channels = tuple(
@@ -387,8 +396,12 @@ class HvSupply:
             commands = self._supervisor.step(self._stamp)
             stepped = {n: _Applied(c.ramp_id, c.ramping) for n, c in self._supervisor.channels.items()}
             reconfigure, self._reconfigure = self._reconfigure, False
+            device_reset, self._device_reset = self._device_reset, False
             faults_before = {n: c.faults for n, c in self._supervisor.channels.items()}
         try:
+            if device_reset:
+                self._link.query("reset")
+                self._sent = {c.name: _Sent() for c in self.configs}  # latched faults cut again below
             if reconfigure:
                 self._configure_device()
             self._emergency_off([c for c in self.configs
@@ -405,6 +418,7 @@ class HvSupply:
             with self._cycle_done:
                 self._link_error = str(error)
                 self._reconfigure |= reconfigure
+                self._device_reset |= device_reset
                 self._cycles += 1
                 self._cycle_done.notify_all()
             return False

@@ -42,6 +42,24 @@ def _number(field: str) -> float:
         raise CommandError(f"not a number: {field!r}") from None
 
 
+def _reading(value: float, unit: str) -> str:
+    return f"{value:.5E}{unit}"
+
+
+# Per-channel queries: header -> answer of one channel (channels answer comma-separated).
+_QUERIES = {
+    ":MEAS:VOLT?": lambda ch: _reading(ch.measured_voltage, "V"),
+    ":MEAS:CURR?": lambda ch: _reading(ch.measured_current, "A"),
+    ":READ:CHAN:STATUS?": lambda ch: str(int(ch.status)),
+    ":READ:CHAN:EVENT:STATUS?": lambda ch: str(int(ch.events)),
+    ":READ:VOLT:LIM?": lambda ch: _reading(ch.defaults.voltage_limit, "V"),
+    ":READ:RAMP:VOLT?": lambda ch: _reading(ch.ramp_up, "V/s"),
+    ":READ:CURR?": lambda ch: _reading(ch.current_limit, "A"),
+    ":CONF:TRIP:TIME?": lambda ch: _reading(ch.trip_time_ms, "ms"),
+    ":CONF:TRIP:ACTION?": lambda ch: str(ch.trip_action),
+}
+
+
 class SimulatedSupply:
     """A multi-channel EDCP supply with DEA loads on a pty, with fault injection.
 
@@ -234,7 +252,7 @@ class SimulatedSupply:
                 ch.events = ChannelEvent(0)
             return None
         if header.endswith("?"):
-            getter = self._queries().get(header)
+            getter = _QUERIES.get(header)
             if getter is None:
                 raise CommandError(f"unknown query {header}")
             return ",".join(getter(self.plant[i]) for i in self._channel_list(args))
@@ -256,22 +274,6 @@ class SimulatedSupply:
         if not indices or any(i >= len(self.plant) for i in indices):
             raise CommandError(f"channel out of range in {text!r}")
         return indices
-
-    @staticmethod
-    def _queries():
-        def number(value: float, unit: str) -> str:
-            return f"{value:.5E}{unit}"
-        return {
-            ":MEAS:VOLT?": lambda ch: number(ch.measured_voltage, "V"),
-            ":MEAS:CURR?": lambda ch: number(ch.measured_current, "A"),
-            ":READ:CHAN:STATUS?": lambda ch: str(int(ch.status)),
-            ":READ:CHAN:EVENT:STATUS?": lambda ch: str(int(ch.events)),
-            ":READ:VOLT:LIM?": lambda ch: number(ch.defaults.voltage_limit, "V"),
-            ":READ:RAMP:VOLT?": lambda ch: number(ch.ramp_up, "V/s"),
-            ":READ:CURR?": lambda ch: number(ch.current_limit, "A"),
-            ":CONF:TRIP:TIME?": lambda ch: number(ch.trip_time_ms, "ms"),
-            ":CONF:TRIP:ACTION?": lambda ch: str(ch.trip_action),
-        }
 
     @staticmethod
     def _set(header: str, value: str, ch: PlantChannel, now: float) -> None:

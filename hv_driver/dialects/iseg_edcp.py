@@ -79,7 +79,6 @@ class IsegEdcp(Dialect):
     commands = {
         "identify": Command("*IDN?", "text"),
         "reset": Command("*RST", "ack"),
-        "clear_status": Command("*CLS", "ack"),
         "set_voltage": Command(":VOLT {value},{channels}", "ack"),
         "output_on": Command(":VOLT ON,{channels}", "ack"),
         "output_off": Command(":VOLT OFF,{channels}", "ack"),

@@ -119,6 +119,19 @@ def test_faults_stay_latched_until_reset_then_outputs_stay_off_until_enabled(sim
     assert supply.ramp_to("front", 500.0).wait(5.0) and sim.plant[0].output_on
 
 
+def test_device_reset_only_with_outputs_off_and_limits_are_restored(sim, supply):
+    supply.enable("front")
+    with pytest.raises(RuntimeError, match="switch every output off first"):
+        supply.reset_device()
+    supply.disable("front")
+    assert supply.wait_outputs_off(5.0)
+    sim.plant[0].ramp_up = 1.0  # changed behind the driver's back; *RST and reconfiguration restore it
+    supply.reset_device()
+    supply.wait_cycles(3)
+    assert "*RST;*OPC?" in [line for _, line in sim.command_log]
+    assert sim.plant[0].ramp_up == pytest.approx(8000.0 * 1.2) and not supply.snapshot().channel("front").faults
+
+
 def test_estop_while_another_thread_streams_ramps(sim, supply, background, wait_until):
     ramp_both(supply, 800.0)
     refused = []
