@@ -7,6 +7,7 @@ import pytest
 import rclpy
 import yaml
 from action_msgs.msg import GoalStatus
+from geometry_msgs.msg import PoseStamped
 from fake_hv import FakeHv
 from rclpy.action import ActionClient
 from rclpy.parameter import Parameter
@@ -35,10 +36,11 @@ def stack(ros_context, spin, tmp_path_factory):
     hv = FakeHv(CHANNELS, context=ros_context)
     client = rclpy.create_node("sequencer_test_client", context=ros_context)
     events = Inbox(client, SequenceEvent, "sequencer/events", 100)
+    poses = Inbox(client, PoseStamped, "arm/pose", 100)
     action = ActionClient(client, RunSequence, "sequencer/run")
     spin(sequencer, arm, hv, client)
     assert action.wait_for_server(timeout_sec=10.0)
-    return {"dir": directory, "hv": hv, "events": events, "action": action, "arm": arm}
+    return {"dir": directory, "hv": hv, "events": events, "action": action, "poses": poses}
 
 
 @pytest.fixture
@@ -84,7 +86,9 @@ def test_finger_grasp_runs_to_success(stack, hv):
     assert events.sequence == "finger_grasp"
     phases = [(msg.step_index, msg.phase) for msg in stack["events"].messages]
     assert phases == [(i, phase) for i in range(12) for phase in ("started", "succeeded")]
-    assert stack["arm"]._arm.pose.position == pytest.approx((0.45, 0.3, 0.25))
+    stack["poses"].messages.clear()
+    at = stack["poses"].wait().pose.position
+    assert (at.x, at.y, at.z) == pytest.approx((0.45, 0.3, 0.25))  # withdrawn above B
 
 
 def test_hv_fault_mid_sequence_stops_in_the_safe_state(stack, hv):
@@ -111,7 +115,9 @@ def test_cancel_mid_sequence_ramps_down_and_reports_canceled(stack, hv):
     assert status == GoalStatus.STATUS_CANCELED and not result.success
     assert result.message.startswith("canceled during step 'surround_object'")
     assert channels_off(hv) and hv.ramps[-1] == ("back", 0.0)
-    assert not stack["arm"]._arm.moving
+    stack["poses"].messages.clear()
+    wait_for(lambda: len(stack["poses"].messages) >= 2, what="two arm poses")
+    assert stack["poses"].messages[0].pose == stack["poses"].messages[1].pose  # the arm holds
     stack["events"].wait(lambda msg: msg.phase == "canceled")
 
 

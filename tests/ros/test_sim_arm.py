@@ -1,0 +1,88 @@
+"""Simulated arm node through a real rclpy action client: moves with feedback, publishes arm/pose,
+brakes and holds on cancel, a newer goal preempts, bad targets are aborted with the reason."""
+import pytest
+import rclpy
+from action_msgs.msg import GoalStatus
+from geometry_msgs.msg import PoseStamped
+from rclpy.action import ActionClient
+from rclpy.parameter import Parameter
+from ros_testing import Inbox, wait_for
+from softblock_interfaces.action import MoveArm
+
+from softblock_ros.conversions import pose_msg
+from softblock_ros.sim_arm_node import SimArmNode
+
+DOWN = (1.0, 0.0, 0.0, 0.0)
+
+
+@pytest.fixture(scope="module")
+def arm(ros_context, spin):
+    node = SimArmNode(context=ros_context, parameter_overrides=[
+        Parameter("max_speed", value=0.5), Parameter("max_acceleration", value=2.0)])
+    client = rclpy.create_node("sim_arm_test_client", context=ros_context)
+    poses = Inbox(client, PoseStamped, "arm/pose", 100)
+    action = ActionClient(client, MoveArm, "arm/move")
+    spin(node, client)
+    assert action.wait_for_server(timeout_sec=10.0)
+    return action, poses
+
+
+def send(action, position, orientation=DOWN, frame_id="base_link", max_speed=0.0, feedback=None):
+    goal = MoveArm.Goal(target=PoseStamped(pose=pose_msg(position, orientation)), max_speed=max_speed)
+    goal.target.header.frame_id = frame_id
+    future = action.send_goal_async(goal, feedback_callback=feedback)
+    wait_for(future.done, what="the goal response")
+    return future.result()
+
+
+def result_of(handle):
+    future = handle.get_result_async()
+    wait_for(future.done, what="the move result")
+    return future.result().status, future.result().result
+
+
+def test_move_reaches_the_target_with_feedback_and_pose_topic(arm):
+    action, poses = arm
+    feedback = []
+    status, result = result_of(send(action, (0.3, 0.1, 0.2), feedback=lambda msg: feedback.append(msg.feedback)))
+    assert status == GoalStatus.STATUS_SUCCEEDED and result.success and result.message == "reached"
+    final = result.final_pose.position
+    assert (final.x, final.y, final.z) == pytest.approx((0.3, 0.1, 0.2))
+    remaining = [f.distance_remaining for f in feedback]
+    assert remaining and remaining == sorted(remaining, reverse=True)
+    latest = poses.wait(lambda msg: abs(msg.pose.position.x - 0.3) < 1e-6)
+    assert latest.header.frame_id == "base_link"
+
+
+def test_cancel_brakes_and_holds(arm):
+    action, poses = arm
+    handle = send(action, (0.3, 0.1, 0.8), max_speed=0.2)
+    poses.messages.clear()
+    poses.wait(lambda msg: msg.pose.position.z > 0.25)  # under way
+    wait_for(handle.cancel_goal_async().done, what="the cancel response")
+    status, result = result_of(handle)
+    assert status == GoalStatus.STATUS_CANCELED and result.message == "canceled: arm stopped"
+    assert 0.2 < result.final_pose.position.z < 0.8
+    poses.messages.clear()
+    held = poses.wait(lambda msg: True)
+    assert held.pose == result.final_pose  # holds where it stopped
+
+
+def test_newer_goal_preempts(arm):
+    action, _ = arm
+    first = send(action, (0.3, 0.1, 0.9), max_speed=0.1)
+    second = send(action, (0.3, 0.1, 0.3))
+    assert result_of(first)[1].message == "preempted by a newer goal"
+    assert result_of(second)[0] == GoalStatus.STATUS_SUCCEEDED
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"frame_id": "world"}, "target frame 'world' is not the arm frame 'base_link' (no TF here)"),
+    ({"orientation": (0.0, 0.0, 0.0, 2.0)}, "orientation=(0.0, 0.0, 0.0, 2.0): a unit quaternion"),
+    ({"max_speed": -1.0}, "max_speed=-1.0: finite number >= 0"),
+])
+def test_bad_targets_are_aborted_with_the_reason(arm, kwargs, message):
+    action, _ = arm
+    status, result = result_of(send(action, (0.3, 0.0, 0.3), **kwargs))
+    assert status == GoalStatus.STATUS_ABORTED and not result.success
+    assert message in result.message
