@@ -72,6 +72,12 @@ def test_fingers_for_an_image_message(client):
         assert_blocks_from_table(chain, 2)
         assert math.isfinite(cost) and cost >= 0.0
     assert (reply.left.name, reply.right.name) == ("left", "right")
+    # Finger bases sit beside the object (object frame: origin at its top centre, x right, z up),
+    # oriented to grow downward and bend toward it.
+    assert reply.left.base_pose.position.x < 0.0 < reply.right.base_pose.position.x
+    left_q, right_q = reply.left.base_pose.orientation, reply.right.base_pose.orientation
+    assert (left_q.x, left_q.y, left_q.z, left_q.w) == (1.0, 0.0, 0.0, 0.0)
+    assert (right_q.x, right_q.y, right_q.z, right_q.w) == (0.0, 1.0, 0.0, 0.0)
 
 
 def test_fingers_for_a_sample_object_file_with_stiff_top_blocks(client):

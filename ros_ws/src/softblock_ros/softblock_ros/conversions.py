@@ -55,11 +55,14 @@ def chain_msg(chain: Chain, table, calibration: dict[str, float] | None = None) 
     )
 
 
-def designed_chain_msg(name: str, design_ids, table, rotation_steps=None) -> msg.Chain:
-    """A chain message for an optimiser result: blocks by design ID, base at the origin, no HV channel."""
+def designed_chain_msg(name: str, design_ids, table, rotation_steps=None, base_position=(0.0, 0.0, 0.0),
+                       base_orientation=(0.0, 0.0, 0.0, 1.0)) -> msg.Chain:
+    """A chain message for an optimiser result: blocks by design ID, the given base pose, no HV channel."""
     steps = rotation_steps if rotation_steps is not None else [0] * len(design_ids)
     blocks = tuple(PlacedBlock(int(i), int(k)) for i, k in zip(design_ids, steps, strict=True))
-    return chain_msg(Chain(name=name, hv_channel="", blocks=blocks), table)
+    chain = Chain(name=name, hv_channel="", blocks=blocks, base_position=tuple(base_position),
+                  base_orientation=tuple(base_orientation))
+    return chain_msg(chain, table)
 
 
 def assembly_msg(assembly: Assembly, table, calibration: dict[str, float] | None = None) -> msg.Assembly:

@@ -25,6 +25,9 @@ from .paths import resolve_path
 from .runner import run_node
 
 DEFAULT_OPTIMIZER = "exact"
+# Finger base frames in the object frame (x right, z up): the finger grows downward (+z -> -z) and
+# bends toward the object (+x -> +x for the left finger, -x for the right one).
+FINGER_BASE_ORIENTATION = {"left": (1.0, 0.0, 0.0, 0.0), "right": (0.0, 1.0, 0.0, 0.0)}
 
 
 class PlannerNode(Node):
@@ -95,7 +98,10 @@ class PlannerNode(Node):
         for side in ("left", "right"):
             finger = getattr(result, side)
             if finger is not None and len(finger.design_ids):
-                setattr(response, side, designed_chain_msg(side, finger.design_ids, self._table))
+                base_x, base_z = finger.base
+                setattr(response, side, designed_chain_msg(side, finger.design_ids, self._table,
+                                                           base_position=(base_x, 0.0, base_z),
+                                                           base_orientation=FINGER_BASE_ORIENTATION[side]))
                 setattr(response, f"{side}_cost", float(finger.cost))
                 setattr(response, f"{side}_collision", bool(finger.collision))
         self.get_logger().info(f"design_fingers: {result.message} ({result.solve_time:.2f} s)")

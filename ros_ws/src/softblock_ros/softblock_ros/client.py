@@ -1,0 +1,60 @@
+"""Blocking calls from a plain thread to services and actions of nodes spun elsewhere.
+
+For scripts (the demo, command-line clients): the caller's node is spun by an executor in a background
+thread, and these helpers wait on futures without spinning themselves.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+
+from action_msgs.msg import GoalStatus
+
+
+class ClientError(RuntimeError):
+    """A service or action did not answer, refused, or did not finish in time."""
+
+
+def wait_until(predicate: Callable[[], object], timeout: float, what: str):
+    """Poll ``predicate`` until it returns something truthy and return it; ClientError on timeout."""
+    deadline = time.monotonic() + timeout
+    while not (value := predicate()):
+        if time.monotonic() > deadline:
+            raise ClientError(f"timed out after {timeout:g} s waiting for {what}")
+        time.sleep(0.02)
+    return value
+
+
+def _wait_future(future, timeout: float, what: str):
+    done = threading.Event()
+    future.add_done_callback(lambda _: done.set())
+    if not done.wait(timeout):
+        raise ClientError(f"timed out after {timeout:g} s waiting for {what}")
+    return future.result()
+
+
+def call_service(client, request, timeout: float):
+    """Call a service and return its response."""
+    if not client.wait_for_service(timeout_sec=timeout):
+        raise ClientError(f"service {client.srv_name} did not appear within {timeout:g} s")
+    return _wait_future(client.call_async(request), timeout, f"the reply of {client.srv_name}")
+
+
+def run_action(client, goal, timeout: float, feedback: Callable | None = None, server_timeout: float = 10.0):
+    """Send a goal, wait for its result; returns (GoalStatus code, result message)."""
+    name = client._action_name
+    if not client.wait_for_server(timeout_sec=server_timeout):
+        raise ClientError(f"action server {name} did not appear within {server_timeout:g} s")
+    handle = _wait_future(client.send_goal_async(goal, feedback_callback=feedback), server_timeout,
+                          f"{name} to accept the goal")
+    if not handle.accepted:
+        raise ClientError(f"action server {name} rejected the goal")
+    response = _wait_future(handle.get_result_async(), timeout, f"the result of {name}")
+    return response.status, response.result
+
+
+def status_name(status: int) -> str:
+    names = {GoalStatus.STATUS_SUCCEEDED: "succeeded", GoalStatus.STATUS_ABORTED: "aborted",
+             GoalStatus.STATUS_CANCELED: "canceled"}
+    return names.get(status, f"status {status}")
