@@ -29,11 +29,13 @@ class Command:
     reply: "ack" (a setting; the dialect makes the device acknowledge it), "text", "number"
         (one number per channel, with ``unit`` appended by the device) or "integer" (registers).
     unit: unit suffix the device appends to numbers ("V", "A", "V/s", "ms").
+    integer: the value is a code sent as a plain integer, not a number in the dialect's format.
     """
 
     template: str
     reply: str
     unit: str = ""
+    integer: bool = False
 
 
 @dataclass(frozen=True)
@@ -68,7 +70,7 @@ class Dialect(ABC):
         if "{value}" in command.template:
             if value is None:
                 raise ValueError(f"operation {operation!r} needs a value")
-            fields["value"] = self.format_number(value)
+            fields["value"] = str(int(value)) if command.integer else self.format_number(value)
         line = command.template.format(**fields)
         return self.acknowledged(line) if command.reply == "ack" else line
 

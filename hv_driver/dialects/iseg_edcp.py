@@ -97,7 +97,7 @@ class IsegEdcp(Dialect):
         "read_current_limit": Command(":READ:CURR? {channels}", "number", "A"),
         "set_trip_time": Command(":CONF:TRIP:TIME {value},{channels}", "ack"),
         "read_trip_time": Command(":CONF:TRIP:TIME? {channels}", "number", "ms"),
-        "set_trip_action": Command(":CONF:TRIP:ACTION {value},{channels}", "ack"),
+        "set_trip_action": Command(":CONF:TRIP:ACTION {value},{channels}", "ack", integer=True),
     }
     ack_reply = "1"
 

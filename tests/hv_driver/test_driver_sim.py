@@ -35,6 +35,19 @@ def test_open_identifies_and_configures_the_device_side_limits(sim, supply):
     assert supply.snapshot().channel("front").ceiling == 3000.0
 
 
+def test_open_sends_the_documented_sequence(sim, supply):
+    supply.wait_cycles(2)
+    lines = [line for _, line in sim.command_log]
+    per_channel = [[f":CONF:RAMP:VOLT:UP 9.600000E+03,(@{n});*OPC?", f":CONF:RAMP:VOLT:DOWN 9.600000E+03,(@{n});*OPC?",
+                    f":CURR 7.500000E-05,(@{n});*OPC?", f":CONF:TRIP:TIME 1.000000E+02,(@{n});*OPC?",
+                    f":CONF:TRIP:ACTION 2,(@{n});*OPC?", f":READ:RAMP:VOLT? (@{n})", f":READ:CURR? (@{n})",
+                    f":CONF:TRIP:TIME? (@{n})", f":READ:VOLT:LIM? (@{n})"] for n in (0, 1)]
+    expected = (["*IDN?", ":VOLT 0.000000E+00,(@0,1);*OPC?", ":VOLT OFF,(@0,1);*OPC?"] + per_channel[0] + per_channel[1]
+                + [":READ:CHAN:STATUS? (@0,1)", ":READ:CHAN:EVENT:STATUS? (@0,1)", ":MEAS:VOLT? (@0,1)",
+                   ":MEAS:CURR? (@0,1)", ":READ:CHAN:STATUS? (@0,1)", ":READ:CHAN:EVENT:STATUS? (@0,1)"])
+    assert lines[:len(expected)] == expected
+
+
 def test_ramp_to_2400_and_back_follows_on_both_channels(sim, supply, wait_until):
     ramp_both(supply, 2400.0)
     assert all(ch.output_on and ch.voltage_set == 2400.0 for ch in sim.plant)  # sent before "done"
