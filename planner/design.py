@@ -28,7 +28,7 @@ from planner.table import load_table
 DEFAULT_MIN_STIFF_ROD_DIAMETER = 0.62e-3  # [m], the D of ID 57 used for the paper's stiff blocks
 DEFAULT_CONTOUR_SPACING = 1e-3  # [m]
 DEFAULT_BASE_OFFSETS = np.arange(0.0, 12.5e-3, 1e-3)  # outward from touching the bounding box [m]
-PATH_EXACT_OPTIONS = {"max_width": 64}  # 12 rotations x 84 shapes per block: keep the beam narrow
+PATH_EXACT_OPTIONS = {"max_width": 64, "polish_starts": 1}  # 12 rotations x 84 shapes per block: narrow
 METHODS = ("exact", "pso")
 
 

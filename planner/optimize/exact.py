@@ -26,16 +26,18 @@ import numpy as np
 from planner.assembly import ROTATION_STEP
 from planner.kinematics import CAP_LENGTH, DEFAULT_SAMPLES_PER_BLOCK, chain_shape
 from planner.objectives import COLLISION_PENALTY, ShapeTarget
+from planner.optimize.local_search import polish
 from planner.optimize.result import DesignOptimizeResult, RunControl, Status, Stop, make_result
 from planner.optimize.space import DesignSpace
 
 DEFAULT_OPTIONS = {
     "initial_width": 16,  # prefixes kept per level in the first round
     "growth": 8,  # width factor between rounds
-    "max_width": 1024,  # the last round's width; None: widen until certified (unlimited at the end)
+    "max_width": 256,  # the last round's width; None: widen until certified (unlimited at the end)
     "unlimited_after": 200_000,  # widths above this become unlimited when max_width is None
     "samples_per_block": DEFAULT_SAMPLES_PER_BLOCK,
     "chunk_elements": 1_500_000,  # work array size per vectorised step
+    "polish_starts": 8,  # best complete designs (and best per base) of each round improved by local search
 }
 
 
@@ -125,6 +127,7 @@ class PrefixSearch:
         steps = np.linalg.norm(np.diff(target.points, axis=0), axis=1)
         self.target_arc = np.linalg.norm(target.points[0]) + np.concatenate([[0.0], np.cumsum(steps)])
         self.block_arc = space.length + 2 * CAP_LENGTH
+        self.points_per_block = self.block_arc.mean() / max(steps.mean(), 1e-9) if len(steps) else 1.0
 
     def root(self) -> _Prefixes:
         """One empty chain per candidate base position."""
@@ -218,17 +221,25 @@ class PrefixSearch:
         )
 
     def _rank(self, bound, nearest, travelled, rotation, position, level: int) -> np.ndarray:
-        """Beam order of children. Fingers: the bound, plus k when even the least-bent completion collides.
-        Paths: the error of the target points up to the same length along the path, plus the distance
-        from the prefix end to the path point at that length (where the tip should be by now)."""
+        """Beam order of children (a heuristic; pruning uses the bound alone).
+
+        Fingers: the bound, plus the gap between the prefix end's clearance and the block radius (the
+        ideal centerline runs one radius off the object) weighted by the contour points one block covers,
+        plus k when even the least-bent completion collides. Paths: the error of the target points up to
+        the same length along the path, plus the distance from the prefix end to the path point at that
+        length (where the tip should be by now).
+        """
         target = self.target
         if target.clearance is not None:
+            off_track = np.abs(np.minimum(target.clearance(position), 1.0) - target.offset)
+            rank = bound + self.points_per_block * off_track
             tail = self.library.straight_tails[level]
-            if not len(tail):
-                return bound
-            completion = np.einsum("nqij,tj->nqti", rotation, tail) + position[:, :, None, :]
-            doomed = np.any(target.clearance(completion) < target.collision_distance, axis=-1)
-            return bound + COLLISION_PENALTY * doomed
+            if len(tail):
+                completion = np.einsum("nqij,tj->nqti", rotation, tail) + position[:, :, None, :]
+                rank = rank + COLLISION_PENALTY * np.any(
+                    target.clearance(completion) < target.collision_distance, axis=-1
+                )
+            return rank
         covered = self.target_arc <= travelled[..., None]
         passed = np.where(covered, np.abs(nearest - target.offset), 0.0).sum(axis=-1)
         due = np.stack([np.interp(travelled, self.target_arc, target.points[:, k]) for k in range(3)], axis=-1)
@@ -276,6 +287,26 @@ class _Best:
     base: int = 0
 
 
+def _take_best(search: PrefixSearch, leaves: _Prefixes, best: _Best, control: RunControl, stats: dict) -> None:
+    """Update ``best`` with the best complete designs of a round after local search from the top few."""
+    starts = min(search.polish_starts, len(leaves))
+    candidates = [(float(leaves.bound[i]), leaves.shapes[i], leaves.rotations[i], int(leaves.base[i]))
+                  for i in [int(np.argmin(leaves.bound))]]
+    if starts:  # the best few, and the best for each base position, for diversity
+        order = np.argsort(leaves.bound)
+        first_per_base = order[np.unique(leaves.base[order], return_index=True)[1]]
+        top = np.union1d(order[:starts], first_per_base)
+        shapes, rotations, bases, costs, nfev = polish(
+            search.target, search.space, leaves.shapes[top], leaves.rotations[top], leaves.base[top], control,
+            search.samples_per_block,
+        )
+        stats["nfev"] += nfev
+        candidates += [(float(c), s, r, int(b)) for c, s, r, b in zip(costs, shapes, rotations, bases)]
+    cost, shapes, rotations, base = min(candidates, key=lambda c: c[0])
+    if cost < best.cost:
+        best.cost, best.shapes, best.rotations, best.base = cost, shapes, rotations, base
+
+
 def _run_round(search: PrefixSearch, width: int | None, best: _Best, control: RunControl, stats: dict,
                round_fraction) -> float:
     """One level-by-level pass; updates ``best``; returns the smallest bound it dropped for width."""
@@ -310,12 +341,7 @@ def _run_round(search: PrefixSearch, width: int | None, best: _Best, control: Ru
             dropped = min(dropped, level_prefixes.bound[order[width:]].min())
             level_prefixes = level_prefixes.take(order[:width])
         if level == blocks - 1:
-            winner = int(np.argmin(level_prefixes.bound))
-            if level_prefixes.bound[winner] < best.cost:
-                best.cost = float(level_prefixes.bound[winner])
-                best.shapes = level_prefixes.shapes[winner]
-                best.rotations = level_prefixes.rotations[winner]
-                best.base = int(level_prefixes.base[winner])
+            _take_best(search, level_prefixes, best, control, stats)
         control.report(round_fraction(level + 1, blocks), best.cost, stats["nfev"])
     return dropped
 
@@ -333,6 +359,8 @@ def solve_exact(target: ShapeTarget, space: DesignSpace, *, options: dict | None
         raise ValueError("options['growth'] must be > 1")
     control = RunControl(time_budget, callback)
     search = PrefixSearch(target, space, settings["samples_per_block"], settings["chunk_elements"])
+    search.polish_starts = settings["polish_starts"]
+    search.samples_per_block = settings["samples_per_block"]
     best, stats = _Best(), {"nfev": 0}
     lower_bound, status, rounds = -np.inf, Status.FINISHED, 0
     width = settings["initial_width"]

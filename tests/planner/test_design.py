@@ -59,7 +59,7 @@ def test_trunk_path_is_recovered(table):
     theta, length, phi, _ = chain_blocks(chain, table)
     centerline = chain_shape(theta, length, phi).points
     path = np.vstack([centerline[:-1:3], centerline[-1:]])  # every third sample and the tip
-    result = design.design_path(path, 17, table=table, options={"max_width": 8})
+    result = design.design_path(path, 17, table=table, options={"max_width": 8, "polish_starts": 0})
     assert result.success and len(result.design_ids) == 17
     assert result.cost < 0.01 * len(path) * 1e-3  # under 0.01 mm per path point on average
     assert result.design_ids == chain.design_ids

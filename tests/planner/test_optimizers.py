@@ -30,14 +30,9 @@ def target_chain(ids, steps=None):
 
 def brute_force(target, space):
     options = [(s, r) for s in range(len(space.theta)) for r in range(space.rotations)]
-    best = np.inf
-    for combo in itertools.product(options, repeat=space.num_blocks):
-        shapes = np.array([[c[0] for c in combo]])
-        if not all(s in space.choices[i] for i, s in enumerate(shapes[0])):
-            continue
-        rotations = np.array([[c[1] for c in combo]])
-        best = min(best, float(design_costs(target, space, shapes, rotations)[0]))
-    return best
+    combos = np.array([c for c in itertools.product(options, repeat=space.num_blocks)
+                       if all(s in space.choices[i] for i, (s, _) in enumerate(c))])
+    return float(design_costs(target, space, combos[..., 0], combos[..., 1]).min())
 
 
 def test_shapes_merged_and_ties_go_to_the_stiffest():
