@@ -1,0 +1,265 @@
+"""End-to-end demo: the whole stack on the simulated HV supply and the simulated arm.
+
+    python -m softblock_ros.demo --out out/demo          (what `make demo` runs)
+
+1. starts hv_driver (sim backend), assembly_state, planner, sim_arm, sequencer and the MCAP recorder;
+2. asks the planner for the paper's gripper fingers for the asymmetric sample object: front fingers of
+   4 blocks with the top 2 stiff, back fingers of 5 blocks with the top 3 stiff (Figure 5);
+3. loads them into the gripper assembly (assembly/set);
+4. runs the six-step finger grasp (sequencer/run, config/sequences/finger_grasp.yaml);
+5. injects an over-current fault into a live channel and checks that the outputs go off with a named
+   fault, then resets it;
+6. stops the stack, analyses the recording and writes plots and a summary.
+Exit status 0 when every stage did what it should.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import threading
+import time
+from pathlib import Path
+
+import rclpy
+import yaml
+from action_msgs.msg import GoalStatus
+from rclpy.action import ActionClient
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.qos import qos_profile_sensor_data
+from softblock_interfaces.action import RampChannel, RunSequence
+from softblock_interfaces.msg import Assembly, HvState
+from softblock_interfaces.srv import DesignFingers, InjectFault, SetAssembly
+from std_srvs.srv import Trigger
+
+from planner.assembly import load_assembly
+from planner.contours import OBJECTS_CATALOG
+from planner.table import REPO_ROOT, load_table
+
+from .client import ClientError, call_service, run_action, status_name, wait_until
+from .conversions import assembly_msg
+from .demo_plots import plot_fingers
+from .launcher import Stack
+from .recording.analysis import format_summary, load, summarize
+from .recording.analysis_plot import plot as plot_recording
+
+NODE_PARAMETER_FILES = ("config/hv_driver.yaml", "config/sequencer.yaml")
+FINGER_SETS = {  # paper Figure 5: blocks per finger, top blocks forced stiff
+    "front": {"num_blocks": 4, "num_stiff_top": 2},
+    "back": {"num_blocks": 5, "num_stiff_top": 3},
+}
+SERVICE_TIMEOUT = 60.0  # [s] first calls wait for the nodes to start on a loaded machine
+FAULT_CHANNEL, FAULT = "front", "over_current"
+
+
+def say(text: str) -> None:
+    print(f"[demo] {text}", flush=True)
+
+
+def write_parameters(out: Path, recording: Path) -> Path:
+    """One parameter file for the whole stack: the nodes' own files plus the demo's recorder output."""
+    parameters = {}
+    for name in NODE_PARAMETER_FILES:
+        parameters.update(yaml.safe_load((REPO_ROOT / name).read_text()))
+    parameters["recorder"] = {"ros__parameters": {"output": str(recording)}}
+    parameters["assembly_state"] = {"ros__parameters": {"assembly_file": "config/assemblies/gripper.yaml"}}
+    path = out / "params.yaml"
+    path.write_text(yaml.safe_dump(parameters, sort_keys=False))
+    return path
+
+
+class DemoClient:
+    """The demo's ROS side: clients of the stack's services and actions, and the latest hv/state."""
+
+    def __init__(self):
+        self.node = rclpy.create_node("demo")
+        self.hv_state: HvState | None = None
+        self.node.create_subscription(HvState, "hv/state", self._on_hv_state, qos_profile_sensor_data)
+        self.design_fingers = self.node.create_client(DesignFingers, "planner/design_fingers")
+        self.set_assembly = self.node.create_client(SetAssembly, "assembly/set")
+        self.inject_fault = self.node.create_client(InjectFault, "hv/inject_fault")
+        self.reset_faults = self.node.create_client(Trigger, "hv/reset_faults")
+        self.run_sequence = ActionClient(self.node, RunSequence, "sequencer/run")
+        self.ramp = ActionClient(self.node, RampChannel, "hv/ramp")
+        self.executor = MultiThreadedExecutor(num_threads=4)
+        self.executor.add_node(self.node)
+        self._spinner = threading.Thread(target=self.executor.spin, daemon=True)
+        self._spinner.start()
+
+    def _on_hv_state(self, message: HvState) -> None:
+        self.hv_state = message
+
+    def channel(self, name: str):
+        state = self.hv_state
+        return next((c for c in state.channels if c.name == name), None) if state else None
+
+    def close(self) -> None:
+        self.executor.shutdown(timeout_sec=5.0)
+        self._spinner.join(timeout=5.0)
+        self.node.destroy_node()
+
+
+def design_gripper(client: DemoClient, object_name: str) -> tuple[dict, dict]:
+    """Front and back finger designs from the planner node; returns (responses, summary)."""
+    catalog = yaml.safe_load(OBJECTS_CATALOG.read_text())[object_name]
+    responses, summary = {}, {}
+    for finger_set, constraints in FINGER_SETS.items():
+        request = DesignFingers.Request(
+            image_path=str(OBJECTS_CATALOG.parent / catalog["file"]), pixel_size=float(catalog["pixel_size_m"]),
+            min_stiff_rod_diameter=0.62e-3, optimizer="exact", time_budget=60.0, **constraints)
+        response = call_service(client.design_fingers, request, timeout=SERVICE_TIMEOUT + 60.0)
+        if not response.success:
+            raise ClientError(f"planner could not design the {finger_set} fingers: {response.message}")
+        responses[finger_set] = response
+        summary[finger_set] = {
+            side: {"design_ids": [b.design.id for b in getattr(response, side).blocks],
+                   "cost_m": getattr(response, f"{side}_cost"), "collision": getattr(response, f"{side}_collision")}
+            for side in ("left", "right")} | {"optimal": response.optimal, "solve_time_s": response.solve_time}
+        say(f"{finger_set} fingers ({constraints['num_blocks']} blocks, top {constraints['num_stiff_top']} stiff): "
+            f"left {summary[finger_set]['left']['design_ids']}, right {summary[finger_set]['right']['design_ids']}, "
+            f"cost {1e3 * response.left_cost:.1f} / {1e3 * response.right_cost:.1f} mm, "
+            f"{'certified optimal' if response.optimal else 'not certified'}, {response.solve_time:.2f} s")
+    return responses, summary
+
+
+def load_designs_into_gripper(client: DemoClient, responses: dict) -> None:
+    """Replace the gripper's finger blocks with the designs; the chains keep their gripper base poses."""
+    table = load_table()
+    gripper = load_assembly(REPO_ROOT / "config/assemblies/gripper.yaml")
+    designed = assembly_msg(gripper, table)
+    for chain in designed.chains:
+        finger_set, side = chain.name.split("_")
+        chain.blocks = getattr(responses[finger_set], side).blocks
+    response = call_service(client.set_assembly, SetAssembly.Request(assembly=designed), timeout=SERVICE_TIMEOUT)
+    if not response.success:
+        raise ClientError(f"assembly/set refused the designed gripper: {response.message}")
+    say("designed fingers loaded into the gripper assembly")
+
+
+def run_grasp(client: DemoClient) -> dict:
+    def feedback(message):
+        f = message.feedback
+        if f.phase == "running":
+            say(f"  step {f.step_index + 1}/{f.step_count} {f.step_name}: {f.description}")
+
+    say("running the six-step finger grasp (sequencer/run finger_grasp)")
+    status, result = run_action(client.run_sequence, RunSequence.Goal(sequence="finger_grasp"), timeout=300.0,
+                                feedback=feedback, server_timeout=SERVICE_TIMEOUT)
+    say(f"grasp {status_name(status)}: {result.message}")
+    return {"status": status_name(status), "success": status == GoalStatus.STATUS_SUCCEEDED and result.success,
+            "message": result.message, "failed_step": result.failed_step,
+            "steps": dict(zip(result.step_names, result.step_durations))}
+
+
+def fault_drill(client: DemoClient) -> dict:
+    """Ramp a channel, inject an over-current (film breakdown) into the simulated supply mid-ramp,
+    and time how long the driver takes to switch the output off with a named fault."""
+    say(f"fault drill: ramping {FAULT_CHANNEL} toward 1.2 kV, then injecting {FAULT}")
+    outcome = {}
+    ramp = threading.Thread(target=lambda: outcome.setdefault("ramp", run_action(
+        client.ramp, RampChannel.Goal(channel=FAULT_CHANNEL, target=1200.0), timeout=60.0,
+        server_timeout=SERVICE_TIMEOUT)), daemon=True)
+    ramp.start()
+    wait_until(lambda: (c := client.channel(FAULT_CHANNEL)) and c.measured_voltage > 600.0, 30.0,
+               f"{FAULT_CHANNEL} above 600 V")
+    injected = time.monotonic()
+    reply = call_service(client.inject_fault, InjectFault.Request(channel=FAULT_CHANNEL, fault=FAULT), SERVICE_TIMEOUT)
+    if not reply.success:
+        raise ClientError(f"hv/inject_fault refused: {reply.message}")
+    channel = wait_until(lambda: (c := client.channel(FAULT_CHANNEL)) and c.faults and not c.output_enabled and c,
+                         5.0, f"{FAULT_CHANNEL} to switch off with a fault")
+    seen_off = time.monotonic() - injected
+    ramp.join(timeout=30.0)
+    ramp_status = status_name(outcome["ramp"][0]) if "ramp" in outcome else "no result"
+    say(f"  {FAULT_CHANNEL}: output off, fault '{channel.fault_text}' seen on hv/state {1e3 * seen_off:.0f} ms "
+        f"after injection; the ramp action ended {ramp_status}")
+    reset = call_service(client.reset_faults, Trigger.Request(), SERVICE_TIMEOUT)
+    if not reset.success:
+        raise ClientError(f"hv/reset_faults refused: {reset.message}")
+    wait_until(lambda: (c := client.channel(FAULT_CHANNEL)) and not c.faults, 10.0, "the fault to clear")
+    say(f"  faults reset ({reset.message})")
+    return {"channel": FAULT_CHANNEL, "fault": FAULT, "fault_text": channel.fault_text,
+            "output_enabled_after": channel.output_enabled, "seen_off_after_s": seen_off,
+            "ramp_result": ramp_status}
+
+
+def analyse(recording: Path, out: Path) -> dict:
+    data = load(str(recording))
+    summary = summarize(data)
+    plot_recording(data, str(out / "recording.png"), title="finger grasp on the simulated stack")
+    say(f"recording analysed: {out / 'recording.png'}")
+    return summary
+
+
+def run(out: Path, object_name: str) -> int:
+    out.mkdir(parents=True, exist_ok=True)
+    recording = out / "run.mcap"
+    recording.unlink(missing_ok=True)
+    params = write_parameters(out, recording)
+    started = time.monotonic()
+    report: dict = {"object": object_name}
+    with open(out / "stack.log", "w") as log:
+        say(f"starting the stack on the simulated backend (node output: {out / 'stack.log'})")
+        stack = Stack(params=params, output=log).start()
+        rclpy.init()
+        client = DemoClient()
+        try:
+            wait_until(lambda: (s := client.hv_state) and len(s.channels) == 2, SERVICE_TIMEOUT, "hv/state")
+            responses, report["designs"] = design_gripper(client, object_name)
+            plot_fingers(responses, object_name, out / "fingers.png")
+            say(f"finger designs drawn over the object: {out / 'fingers.png'}")
+            load_designs_into_gripper(client, responses)
+            report["grasp"] = run_grasp(client)
+            report["fault_drill"] = fault_drill(client)
+        except ClientError as error:
+            say(f"FAILED: {error}")
+            report["error"] = str(error)
+        finally:
+            client.close()
+            rclpy.try_shutdown()
+            say("stopping the stack")
+            report["exit_codes"] = stack.stop()
+    report["recording"] = analyse(recording, out)
+    report["duration_s"] = time.monotonic() - started
+    (out / "summary.json").write_text(json.dumps(report, indent=2, default=float))
+    print_summary(report, out)
+    ok = "error" not in report and report["grasp"]["success"] and not report["fault_drill"]["output_enabled_after"]
+    return 0 if ok else 1
+
+
+def print_summary(report: dict, out: Path) -> None:
+    print("\n=== demo summary ===")
+    for finger_set, design in report.get("designs", {}).items():
+        for side in ("left", "right"):
+            d = design[side]
+            print(f"{finger_set:>5} {side:<5} IDs {d['design_ids']}  cost {1e3 * d['cost_m']:.1f} mm"
+                  f"{'  COLLISION' if d['collision'] else ''}")
+    grasp = report.get("grasp")
+    if grasp:
+        print(f"grasp: {grasp['status']}")
+        for step, duration in grasp["steps"].items():
+            print(f"  {step:<20} {duration:6.2f} s")
+    for name, channel in report["recording"]["channels"].items():
+        print(f"channel {name}: peak {channel['peak_voltage'] / 1e3:.3f} kV")
+    drill = report.get("fault_drill")
+    if drill:
+        print(f"fault drill: {drill['fault']} on {drill['channel']} -> '{drill['fault_text']}', output off "
+              f"{1e3 * drill['seen_off_after_s']:.0f} ms after injection (as seen on hv/state)")
+    faults = report["recording"]["faults"]
+    print(f"fault events in the recording: {len(faults)}")
+    print(f"recording: {out / 'run.mcap'} ({sum(report['recording']['message_counts'].values())} messages)")
+    print(f"plots: {out / 'fingers.png'}, {out / 'recording.png'}; summary: {out / 'summary.json'}")
+    print(f"total {report['duration_s']:.1f} s")
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m softblock_ros.demo", description=__doc__.split("\n")[0])
+    parser.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder (default out/demo)")
+    parser.add_argument("--object", default="asymmetric", help="sample object (config/objects/objects.yaml)")
+    args = parser.parse_args(argv)
+    return run(args.out.resolve(), args.object)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
