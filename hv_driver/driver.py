@@ -67,6 +67,7 @@ class _Applied:
 
     ramp_id: int = 0
     ramping: bool = False
+    settled: bool = True  # the readback of that cycle within the mismatch tolerance of the setpoint
 
 
 @dataclass
@@ -88,7 +89,7 @@ class RampHandle:
         """The channel, and whether this ramp is over: superseded, faulted, or its end sent and read back."""
         ch = self._supply._supervisor.channel(self.channel)
         applied = self._supply._applied[self.channel]
-        finished = applied.ramp_id == self._ramp_id and not applied.ramping
+        finished = applied.ramp_id == self._ramp_id and not applied.ramping and applied.settled
         return ch, ch.ramp_id != self._ramp_id or bool(ch.faults) or finished
 
     @property
@@ -394,7 +395,7 @@ class HvSupply:
         with self._lock:
             self._stamp = self._clock()
             commands = self._supervisor.step(self._stamp)
-            stepped = {n: _Applied(c.ramp_id, c.ramping) for n, c in self._supervisor.channels.items()}
+            stepped = {n: (c.ramp_id, c.ramping, c.setpoint) for n, c in self._supervisor.channels.items()}
             reconfigure, self._reconfigure = self._reconfigure, False
             device_reset, self._device_reset = self._device_reset, False
             faults_before = {n: c.faults for n, c in self._supervisor.channels.items()}
@@ -426,7 +427,6 @@ class HvSupply:
             now = self._clock()
             self._supervisor.link_ok(now)
             self._link_error = ""
-            self._applied = stepped
             for config, voltage, current, status, event in zip(self.configs, voltages, currents, statuses, events):
                 report = self.dialect.status_report(status, event)
                 sent = self._sent[config.name]
@@ -438,6 +438,9 @@ class HvSupply:
                                                     if sent.output_on else "on although commanded off")
                 self._supervisor.channel(config.name).observe(now, voltage, current, fault, over_current)
                 self._measured[config.name] = (voltage, current)
+                ramp_id, ramping, setpoint = stepped[config.name]
+                self._applied[config.name] = _Applied(ramp_id, ramping,
+                                                      abs(voltage - setpoint) <= config.mismatch_tolerance)
             self._cycles += 1
             self._cycle_done.notify_all()
             return any(c.faults != faults_before[n] for n, c in self._supervisor.channels.items())
