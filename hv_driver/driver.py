@@ -375,8 +375,10 @@ class HvSupply:
                 delay = next_cycle - self._clock()
                 if delay < -self._period:  # fell behind: restart the schedule instead of bursting
                     next_cycle, delay = self._clock(), 0.0
-                if not tripped and self._wake.wait(max(0.0, delay)):
+                if tripped or self._wake.wait(max(0.0, delay)):
+                    # A new fault or a request (e-stop, ramp): run at once and keep the period from there.
                     self._wake.clear()
+                    next_cycle = self._clock()
         except BaseException:
             with self._lock:
                 self._supervisor.trip_all(Fault.DEVICE, "control loop crashed")
