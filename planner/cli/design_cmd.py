@@ -107,9 +107,12 @@ def _draw_fingers(result, mask, pixel_size, path: Path) -> None:
     fig, ax = plt.subplots(figsize=(5, 6))
     for finger, colour in ((result.left, "tab:blue"), (result.right, "tab:red")):
         ax.plot(*finger.contour.T, color="k", lw=1)
-        ax.plot(*finger.centerline.T, color=colour, lw=1.5, label=f"{finger.side} {list(finger.design_ids)}")
-        for point in finger.centerline[::4]:
-            ax.add_patch(plt.Circle(point, BLOCK_RADIUS, color=colour, alpha=0.04))
+        centre = finger.centerline
+        tangent = np.gradient(centre, axis=0)
+        normal = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1) / np.linalg.norm(tangent, axis=1)[:, None]
+        body = np.vstack([centre + BLOCK_RADIUS * normal, (centre - BLOCK_RADIUS * normal)[::-1]])
+        ax.fill(*body.T, color=colour, alpha=0.2)
+        ax.plot(*centre.T, color=colour, lw=1.5, label=f"{finger.side} {list(finger.design_ids)}")
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("z [m]")

@@ -1,4 +1,4 @@
-"""Branch and bound over block prefixes with a widening beam: certified optima for fingers, fast paths.
+"""Branch and bound over block prefixes with a widening beam and local search ("exact" method).
 
 A chain is built from its base. Once blocks 1..k are placed, their centerline samples are fixed, and so is
 each target point's distance ``a`` to them. The remaining blocks start at the prefix end, reach at most
@@ -9,13 +9,14 @@ bounds its error term from below; the tip term is bounded the same way and a pre
 the penalty k. The bound is exact for complete chains.
 
 The search runs level by level (block 1, 2, ...) and drops every prefix whose bound reaches the best
-complete design found. Rounds keep at most ``width`` prefixes per level (the lowest bounds), starting
-narrow for a quick first design and widening by ``growth``; the beam prefers prefixes whose least-bent
-completion does not collide (an ordering only: pruning uses the bound alone). A round that had to drop no prefix whose bound
-was below its best design proves that design optimal; otherwise the smallest dropped bound is a proven
-lower bound. Small spaces (a few blocks, or a long stiff prefix) certify; the bound is weak for contour
-points still ahead of a prefix, so 4-6 block fingers and long 3D paths usually end at ``max_width``
-uncertified, with their proven lower bound in the result.
+complete design found. Rounds keep at most ``width`` prefixes per level, starting narrow and widening by
+``growth`` up to ``max_width``. Which prefixes a round keeps is a heuristic order (``PrefixSearch._rank``);
+the best complete designs of each round are improved by block-by-block local search
+(``planner.optimize.local_search``). Certificate: a round that dropped no prefix whose bound was below
+its best design proves that design optimal (``optimal=True``); otherwise the smallest dropped bound is a
+proven lower bound (``lower_bound``). Small spaces certify (``max_width=None`` widens until they do); for
+4-6 block fingers and long 3D paths the bound is weak (contour points still ahead of a prefix bound to
+about zero), so those runs end uncertified with a proven but loose lower bound.
 """
 from __future__ import annotations
 
@@ -118,9 +119,12 @@ class _Prefixes:
 class PrefixSearch:
     """One design problem: target, design space and precomputed block geometry."""
 
-    def __init__(self, target: ShapeTarget, space: DesignSpace, samples_per_block: int, chunk_elements: int):
+    def __init__(self, target: ShapeTarget, space: DesignSpace, samples_per_block: int = DEFAULT_SAMPLES_PER_BLOCK,
+                 chunk_elements: int = DEFAULT_OPTIONS["chunk_elements"], polish_starts: int = 0):
         self.target = target
+        self.samples_per_block = samples_per_block
         self.chunk_elements = chunk_elements
+        self.polish_starts = polish_starts
         self.space = space
         self.library = block_library(space, samples_per_block)
         self.targets_sq = np.einsum("pk,pk->p", target.points, target.points)
@@ -346,6 +350,18 @@ def _run_round(search: PrefixSearch, width: int | None, best: _Best, control: Ru
     return dropped
 
 
+def _width_schedule(settings: dict) -> list[int | None]:
+    """Beam widths of the rounds: initial_width, times growth, ..., up to max_width (None = unlimited)."""
+    widths, width, limit = [], settings["initial_width"], settings["max_width"]
+    while True:
+        if limit is not None and width >= limit:
+            return widths + [limit]
+        if limit is None and width > settings["unlimited_after"]:
+            return widths + [None]
+        widths.append(width)
+        width *= settings["growth"]
+
+
 def solve_exact(target: ShapeTarget, space: DesignSpace, *, options: dict | None = None, time_budget=None,
                 callback=None) -> DesignOptimizeResult:
     """Minimise the objective of ``target`` over ``space`` by prefix branch and bound (see module doc)."""
@@ -358,32 +374,21 @@ def solve_exact(target: ShapeTarget, space: DesignSpace, *, options: dict | None
     if not settings["growth"] > 1:
         raise ValueError("options['growth'] must be > 1")
     control = RunControl(time_budget, callback)
-    search = PrefixSearch(target, space, settings["samples_per_block"], settings["chunk_elements"])
-    search.polish_starts = settings["polish_starts"]
-    search.samples_per_block = settings["samples_per_block"]
+    search = PrefixSearch(target, space, settings["samples_per_block"], settings["chunk_elements"],
+                          settings["polish_starts"])
     best, stats = _Best(), {"nfev": 0}
     lower_bound, status, rounds = -np.inf, Status.FINISHED, 0
-    width = settings["initial_width"]
+    widths = _width_schedule(settings)
     try:
-        while True:
-            rounds += 1
-            limit = settings["max_width"]
-            if limit is None and width > settings["unlimited_after"]:
-                width = None
-            elif limit is not None:
-                width = min(width, limit)
-            done = rounds - 1
+        for rounds, width in enumerate(widths, start=1):
             dropped = _run_round(
                 search, width, best, control, stats,
-                lambda level, blocks: (done + level / blocks) / (done + 2),
+                lambda level, blocks, done=rounds - 1: (done + level / blocks) / len(widths),
             )
             lower_bound = min(best.cost, dropped)
             if dropped >= best.cost:
                 status = Status.CERTIFIED
                 break
-            if width is None or (limit is not None and width >= limit):
-                break
-            width *= settings["growth"]
     except Stop as stop:
         status = stop.status
     if best.shapes is None:  # stopped before the first complete design: take the first choice everywhere
@@ -391,5 +396,4 @@ def solve_exact(target: ShapeTarget, space: DesignSpace, *, options: dict | None
         best.rotations = np.zeros(space.num_blocks, dtype=np.int64)
         best.cost = np.inf
     return make_result(space, best.shapes, best.rotations, best.cost, status, base=best.base, nit=rounds,
-                       nfev=stats["nfev"],
-                       lower_bound=lower_bound, control=control)
+                       nfev=stats["nfev"], lower_bound=lower_bound, control=control)

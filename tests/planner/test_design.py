@@ -54,6 +54,15 @@ def test_gingerbread_fingers_are_stiff_and_near_identical(table):
         assert np.degrees(table.theta0[index]).sum() < 15  # a flat slab wants straight fingers
 
 
+@pytest.mark.parametrize("name", ["asymmetric", "strawberry", "gingerbread"])
+def test_exact_is_not_worse_than_pso_on_the_sample_objects(name, table):
+    mask, pixel = sample(name)
+    exact = design.design_fingers(mask, pixel, 4, num_stiff_top=2, table=table, options=FAST)
+    for seed in (0, 1, 2):
+        pso = design.design_fingers(mask, pixel, 4, num_stiff_top=2, method="pso", seed=seed, table=table)
+        assert exact.left.cost + exact.right.cost <= pso.left.cost + pso.right.cost + 1e-7
+
+
 def test_trunk_path_is_recovered(table):
     chain = load_assembly("config/assemblies/trunk.yaml").chain("trunk")
     theta, length, phi, _ = chain_blocks(chain, table)
