@@ -5,7 +5,7 @@
 
 Prints each step transition, then the result with the per-step durations. Ctrl-C cancels the
 sequence (the sequencer ramps every channel down) and waits for the canceled result.
-Exit status: 0 succeeded, 1 failed or refused, 2 canceled, 3 no sequencer.
+Exit status: 0 succeeded, 1 failed or refused, 2 canceled, 3 no sequencer (or no reply).
 """
 from __future__ import annotations
 
@@ -37,8 +37,8 @@ def run(sequence: str, server_timeout: float) -> int:
     try:
         return send(ActionClient(node, RunSequence, "sequencer/run"), sequence, server_timeout)
     finally:
-        executor.shutdown()
-        spinner.join()
+        executor.shutdown(timeout_sec=5.0)
+        spinner.join(timeout=5.0)
         node.destroy_node()
 
 
@@ -49,7 +49,9 @@ def send(client: ActionClient, sequence: str, server_timeout: float) -> int:
     done = threading.Event()
     goal_future = client.send_goal_async(RunSequence.Goal(sequence=sequence), feedback_callback=print_feedback)
     goal_future.add_done_callback(lambda _: done.set())
-    done.wait()
+    if not done.wait(server_timeout):
+        print(f"no goal response from sequencer/run within {server_timeout:g} s", file=sys.stderr)
+        return 3
     handle = goal_future.result()
     if not handle.accepted:
         print("goal rejected: another sequence is running (see the sequencer's log)", file=sys.stderr)
