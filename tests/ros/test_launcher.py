@@ -99,3 +99,12 @@ def test_cli_exits_non_zero_when_a_node_fails(tmp_path):
 def test_cli_refuses_unknown_nodes(capsys):
     assert main(["--nodes", "assembly_state,teleporter"]) == 2
     assert "unknown nodes ['teleporter']" in capsys.readouterr().err
+
+
+def test_the_planner_runs_at_lower_priority_than_the_hv_driver(params):
+    import os
+
+    with Stack(nodes=["assembly_state", "planner"], params=params, output=io.StringIO()) as stack:
+        niceness = {name: os.getpriority(os.PRIO_PROCESS, p.pid) for name, p in stack.processes.items()}
+    base = os.getpriority(os.PRIO_PROCESS, 0)
+    assert niceness == {"assembly_state": base, "planner": min(base + 10, 19)}
