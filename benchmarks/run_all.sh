@@ -1,0 +1,22 @@
+#!/usr/bin/env bash
+# Every benchmark of the README, one after the other (`make bench`). Each writes JSON + PNG into
+# docs/figures/. Run inside the project environment (scripts/with_env.sh). Takes about 15-25 minutes.
+set -euo pipefail
+cd "$(dirname "${BASH_SOURCE[0]}")/.."
+benchmarks=(
+    block_model_fidelity.py
+    block_table_overview.py
+    ogden_fit.py
+    kinematics_throughput.py
+    finger_optimizers.py
+    path_optimizers.py
+    hv_loop.py
+    hv_ramp.py
+    recorder_load.py
+    ros_nodes.py
+    sequencer_gait.py
+)
+for i in "${!benchmarks[@]}"; do
+    printf '\n=== [%d/%d] benchmarks/%s ===\n' "$((i + 1))" "${#benchmarks[@]}" "${benchmarks[$i]}"
+    python "benchmarks/${benchmarks[$i]}"
+done
