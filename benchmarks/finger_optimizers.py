@@ -3,6 +3,7 @@ the spread of PSO over 20 seeds. Writes docs/figures/finger_optimizers.{json,png
 
     scripts/with_env.sh python benchmarks/finger_optimizers.py          # ~3 min: 3 objects x 4, 5 blocks
     scripts/with_env.sh python benchmarks/finger_optimizers.py --full   # 4, 5, 6 blocks, 20 seeds everywhere
+    scripts/with_env.sh python benchmarks/finger_optimizers.py --certify  # + certified optima, 4 blocks (~10 min)
 """
 from __future__ import annotations
 
@@ -28,14 +29,14 @@ OBJECTS = ("asymmetric", "strawberry", "gingerbread")
 FAILURE_MARGIN = 0.05  # a run ending more than 5 % above the best known cost failed
 
 
-def run(mask, pixel, blocks, method, seed, table):
+def run(mask, pixel, blocks, method, seed, table, options=None, time_budget=None):
     trace = []
 
     def record(progress):
         trace.append((progress.elapsed, progress.best_cost, progress.fraction))
 
     result = design.design_fingers(mask, pixel, blocks, num_stiff_top=2, method=method, seed=seed, table=table,
-                                   callback=record)
+                                   callback=record, options=options, time_budget=time_budget)
     return {
         "method": method, "seed": seed, "blocks": blocks, "solve_time": result.solve_time,
         "cost": result.left.cost + result.right.cost, "left": list(result.left.design_ids),
@@ -48,6 +49,7 @@ def run(mask, pixel, blocks, method, seed, table):
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--full", action="store_true", help="4, 5, 6 blocks and 20 PSO seeds for every case")
+    parser.add_argument("--certify", action="store_true", help="also prove the 4-block optima (max_width None)")
     args = parser.parse_args()
     table = load_table()
     catalog = yaml.safe_load(OBJECTS_CATALOG.read_text())
@@ -62,7 +64,12 @@ def main() -> None:
             for seed in seeds:
                 runs.append(run(mask, pixel, blocks, "pso", seed, table))
                 print(f"\r{name} {blocks} blocks: PSO seed {seed}", end="", file=sys.stderr, flush=True)
-            best = min(r["cost"] for r in runs)
+            certified = None
+            if args.certify and blocks == 4:
+                certified = run(mask, pixel, blocks, "exact", 0, table, options={"max_width": None}, time_budget=600)
+                print(f"\r{name} {blocks} blocks: certified run {certified['cost']:.4f} m in "
+                      f"{certified['solve_time']:.0f} s, optimal {certified['optimal']}", file=sys.stderr)
+            best = min(r["cost"] for r in runs + ([certified] if certified else []))
             pso = [r for r in runs if r["method"] == "pso"]
             exact = runs[0]
             case = {
@@ -74,6 +81,9 @@ def main() -> None:
                 "pso_collision_rate": float(np.mean([r["collision"] for r in pso])),
                 "traces": {"exact": exact["left_trace"], "pso": pso[0]["left_trace"]},
             }
+            if certified:
+                case["certified"] = {k: certified[k] for k in ("cost", "solve_time", "optimal", "lower_bound", "left",
+                                                               "right")}
             cases.append(case)
             print(f"\r{name} {blocks} blocks: exact {exact['cost']:.4f} m in {exact['solve_time']:.1f} s; PSO median "
                   f"{np.median(case['pso_costs']):.4g} m in {case['pso_median_time']:.1f} s, failure rate "
@@ -102,6 +112,11 @@ def plot(cases) -> None:
     spread_ax.boxplot(ratios, tick_labels=labels)
     spread_ax.scatter(range(1, len(cases) + 1), [c["exact"]["cost"] / c["best_known"] for c in cases],
                       marker="*", color="k", zorder=3, label="exact")
+    proven = [(i + 1, c["certified"]["cost"] / c["best_known"]) for i, c in enumerate(cases)
+              if c.get("certified", {}).get("optimal")]
+    if proven:
+        spread_ax.scatter(*zip(*proven), marker="D", facecolor="none", edgecolor="g", s=60, zorder=4,
+                          label="certified optimum")
     spread_ax.axhline(1 + FAILURE_MARGIN, color="r", lw=0.8, ls="--", label="failure threshold (+5 %)")
     spread_ax.set_ylabel("cost / best known (capped at 3; collisions at 3)")
     spread_ax.set_title("PSO over seeds (left + right finger)")

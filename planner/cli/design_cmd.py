@@ -27,6 +27,8 @@ def register(subparsers) -> None:
                         help="rod diameter a stiff block needs [m] (default %(default)s)")
     _common(finger)
     finger.add_argument("--inventory", type=Path, help="YAML mapping design ID -> blocks on the shelf")
+    finger.add_argument("--certify", action="store_true",
+                        help="exact method: widen the search until the optimum is proven (minutes)")
     finger.add_argument("--png", type=Path, help="draw the fingers over the object into this PNG")
     finger.set_defaults(handler=run_finger)
 
@@ -76,6 +78,7 @@ def run_finger(args) -> int:
         mask, pixel_size, args.blocks, num_stiff_top=args.stiff_top, min_stiff_rod_diameter=args.min_stiff_diameter,
         method=args.method, time_budget=args.time_budget, seed=args.seed,
         inventory=_load_inventory(args.inventory), callback=_progress,
+        options={"max_width": None} if args.certify and args.method == "exact" else None,
     )
     print(file=sys.stderr)
     report = {"success": result.success, "message": result.message, "optimal": result.optimal,

@@ -35,7 +35,7 @@ DEFAULT_OPTIONS = {
     "initial_width": 16,  # prefixes kept per level in the first round
     "growth": 8,  # width factor between rounds
     "max_width": 256,  # the last round's width; None: widen until certified (unlimited at the end)
-    "unlimited_after": 200_000,  # widths above this become unlimited when max_width is None
+    "unlimited_after": 1024,  # with max_width None: after this width the next round is unlimited
     "samples_per_block": DEFAULT_SAMPLES_PER_BLOCK,
     "chunk_elements": 1_500_000,  # work array size per vectorised step
     "polish_starts": 8,  # best complete designs (and best per base) of each round improved by local search
