@@ -161,9 +161,17 @@ def test_legged_gait_pulses_the_legs(stack, hv):
 
 def test_command_line_client_prints_steps_and_result(stack, hv, capsys):
     path = scaled("trunk_flower", stack["dir"], speed=2.0)
-    assert run_sequence.main(["run_sequence", path]) == 0
+    assert run_sequence.main(["run_sequence", path, "--timeout", str(RUN_TIMEOUT)]) == 0
     output = capsys.readouterr().out
     assert "[2/8] open_trunk: running  (ii) actuate the trunk to open)" in output
     assert "sequence 'trunk_flower': all 8 steps succeeded" in output
-    assert run_sequence.main(["run_sequence", "no_such_sequence"]) == 1
+    assert run_sequence.main(["run_sequence", "no_such_sequence", "--timeout", str(RUN_TIMEOUT)]) == 1
     assert "rejected: sequence='no_such_sequence'" in capsys.readouterr().out
+
+
+def test_command_line_client_timeout_cancels_into_the_safe_state(stack, hv, capsys):
+    path = scaled("finger_grasp", stack["dir"], speed=0.05)
+    assert run_sequence.main(["run_sequence", path, "--timeout", "1.5"]) == 2
+    output = capsys.readouterr().out
+    assert "timed out, canceling ..." in output and "canceled during step" in output
+    assert channels_off(hv)

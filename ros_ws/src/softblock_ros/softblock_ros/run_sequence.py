@@ -3,8 +3,8 @@
     python -m softblock_ros.run_sequence finger_grasp        # or a path to a sequence YAML file
     python -m softblock_ros.run_sequence legged_gait --ros-args -r __ns:=/robot1
 
-Prints each step transition, then the result with the per-step durations. Ctrl-C cancels the
-sequence (the sequencer ramps every channel down) and waits for the canceled result.
+Prints each step transition, then the result with the per-step durations. Ctrl-C (or --timeout)
+cancels the sequence (the sequencer ramps every channel down) and waits for the canceled result.
 Exit status: 0 succeeded, 1 failed or refused, 2 canceled, 3 no sequencer (or no reply).
 """
 from __future__ import annotations
@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import sys
 import threading
+import time
 
 import rclpy
 from action_msgs.msg import GoalStatus
@@ -28,21 +29,21 @@ def print_feedback(message) -> None:
           flush=True)
 
 
-def run(sequence: str, server_timeout: float) -> int:
+def run(sequence: str, server_timeout: float, timeout: float = 0.0) -> int:
     node = rclpy.create_node("run_sequence")
     executor = MultiThreadedExecutor(num_threads=2)
     executor.add_node(node)
     spinner = threading.Thread(target=executor.spin, daemon=True)
     spinner.start()
     try:
-        return send(ActionClient(node, RunSequence, "sequencer/run"), sequence, server_timeout)
+        return send(ActionClient(node, RunSequence, "sequencer/run"), sequence, server_timeout, timeout)
     finally:
         executor.shutdown(timeout_sec=5.0)
         spinner.join(timeout=5.0)
         node.destroy_node()
 
 
-def send(client: ActionClient, sequence: str, server_timeout: float) -> int:
+def send(client: ActionClient, sequence: str, server_timeout: float, timeout: float) -> int:
     if not client.wait_for_server(timeout_sec=server_timeout):
         print(f"no sequencer/run server within {server_timeout:g} s", file=sys.stderr)
         return 3
@@ -59,11 +60,13 @@ def send(client: ActionClient, sequence: str, server_timeout: float) -> int:
     done.clear()
     result_future = handle.get_result_async()
     result_future.add_done_callback(lambda _: done.set())
+    deadline = time.monotonic() + timeout if timeout > 0 else float("inf")
     try:
         while not done.wait(0.1):
-            pass
-    except KeyboardInterrupt:
-        print("canceling ...", flush=True)
+            if time.monotonic() > deadline:
+                raise TimeoutError
+    except (KeyboardInterrupt, TimeoutError) as reason:
+        print("timed out, canceling ..." if isinstance(reason, TimeoutError) else "canceling ...", flush=True)
         handle.cancel_goal_async()
         done.wait()
     response = result_future.result()
@@ -81,11 +84,12 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m softblock_ros.run_sequence", description=__doc__.split("\n")[0])
     parser.add_argument("sequence", help="sequence name (config/sequences/<name>.yaml) or path to a YAML file")
     parser.add_argument("--server-timeout", type=float, default=10.0, help="wait for the sequencer [s]")
+    parser.add_argument("--timeout", type=float, default=0.0, help="cancel the sequence after this long [s]; 0 = never")
     args = parser.parse_args(rclpy.utilities.remove_ros_args(argv)[1:])
     # No rclpy signal handler: Ctrl-C must reach run() as KeyboardInterrupt to cancel the goal.
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     try:
-        return run(args.sequence, args.server_timeout)
+        return run(args.sequence, args.server_timeout, args.timeout)
     finally:
         rclpy.try_shutdown()
 
