@@ -265,3 +265,15 @@ def test_a_failed_edge_stops_the_train_and_names_it():
     assert "edge of 'front' to 600 V failed: superseded by a later request" in result.message
     assert len(robot.ramps("front")) == 3  # on, off, refused on: the channel is off, nothing to ramp down
     assert channels_safe(robot)
+
+
+def test_unexpected_backend_error_still_ends_in_the_safe_state():
+    def broken_arm(robot, call):
+        if call[0] == "move_arm" and call[1][2] == 0.12:
+            raise KeyError("controller vanished")
+
+    robot = FakeRobot(FINGER_GRASP.channels, broken_arm)
+    with pytest.raises(KeyError, match="controller vanished"):
+        run(FINGER_GRASP, robot)
+    assert ("stop_arm",) in robot.calls and channels_safe(robot)
+    assert robot.ramps()[-1][1:3] == ("back", 0.0)

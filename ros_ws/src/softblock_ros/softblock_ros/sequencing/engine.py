@@ -168,6 +168,9 @@ class SequenceEngine:
                 emit("failed", f"{failure}; {reaction}")
                 return RunResult(False, f"step {step.name!r} failed: {failure}; {reaction}", False, step.name,
                                  names, durations)
+            except Exception:
+                self._safe_stop(sequence)  # an unexpected error still leaves the robot safe
+                raise
         return RunResult(True, f"sequence {sequence.name!r}: all {count} steps succeeded", False, "",
                          names, durations)
 
