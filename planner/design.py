@@ -72,7 +72,8 @@ class PathDesignResult:
 
 
 def _check_common(num_blocks, method: str) -> None:
-    if not isinstance(num_blocks, (int, np.integer)) or isinstance(num_blocks, bool) or not 1 <= num_blocks <= MAX_BLOCKS:
+    whole = isinstance(num_blocks, (int, np.integer)) and not isinstance(num_blocks, bool)
+    if not whole or not 1 <= num_blocks <= MAX_BLOCKS:
         raise ValueError(f"num_blocks must be an integer 1..{MAX_BLOCKS}, got {num_blocks!r}")
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
@@ -129,7 +130,9 @@ def design_fingers(
     [m]. ``inventory`` (design ID -> blocks on the shelf) is shared by both fingers: when their separate
     optima do not fit together, the right finger is redesigned from what the left one leaves (the pair is
     then not certified). ``callback(progress)`` gets a ``planner.optimize.Progress`` and may raise
-    StopIteration to cancel. ``time_budget`` [s] covers both fingers.
+    StopIteration to cancel. ``time_budget`` [s] covers both fingers. ``options`` go to the optimiser
+    (``planner.optimize.exact.DEFAULT_OPTIONS`` or ``planner.optimize.pso.DEFAULT_OPTIONS``; e.g.
+    ``{"max_width": None}`` makes the exact method widen until it proves the optimum).
     """
     _check_common(num_blocks, method)
     if not isinstance(num_stiff_top, (int, np.integer)) or not 0 <= num_stiff_top <= num_blocks:

@@ -163,8 +163,9 @@ class PrefixSearch:
         rotations = np.tile(np.arange(self.space.rotations), len(self.space.choices[level]))
         return shapes, rotations
 
-    def expand(self, parents: _Prefixes, level: int) -> _Prefixes:
-        """All allowed children of ``parents`` with their bounds (inventory-breaking children omitted)."""
+    def expand(self, parents: _Prefixes, level: int, ranked: bool = True) -> _Prefixes:
+        """All allowed children of ``parents`` with their bounds (inventory-breaking children omitted);
+        ``ranked`` False skips the beam order (unlimited rounds keep every child anyway)."""
         target, library = self.target, self.library
         shapes, rotations = self.options(level)
         n, q = len(parents), len(shapes)
@@ -193,7 +194,7 @@ class PrefixSearch:
         end_position = position[:, None] + np.einsum("nij,qj->nqi", rotation, library.end_position[shapes, rotations])
         bound = self._bound(nearest, collided, end_rotation, end_position, level)
         travelled = parents.travelled[:, None] + self.block_arc[shapes]
-        rank = self._rank(bound, nearest, travelled, end_rotation, end_position, level)
+        rank = self._rank(bound, nearest, travelled, end_rotation, end_position, level) if ranked else bound
 
         keep = np.ones((n, q), dtype=bool)
         counts = stiff_counts = None
@@ -325,7 +326,7 @@ def _run_round(search: PrefixSearch, width: int | None, best: _Best, control: Ru
         held = 0
         for start in range(0, len(level_prefixes), chunk):
             control.check_time()
-            children = search.expand(level_prefixes.take(slice(start, start + chunk)), level)
+            children = search.expand(level_prefixes.take(slice(start, start + chunk)), level, width is not None)
             stats["nfev"] += len(children)
             children = children.take(children.bound < best.cost)
             if not len(children):

@@ -1,8 +1,8 @@
 """Particle swarm optimisation of a chain design, as in the paper (section 2.3, ref. 43).
 
 Each particle holds one continuous coordinate per block in [0, number of allowed shapes), when rotations
-are allowed one per block in [0, 12), and one for the choice among the target's base positions; flooring decodes it to a shape and a snap-fit rotation. Velocities
-follow the standard inertia-weight update ``v = w v + c1 r1 (p_best - x) + c2 r2 (g_best - x)``. Blocks
+are allowed one per block in [0, 12), and one for the choice among the target's base positions; flooring
+decodes them to shapes, snap-fit rotations and a base. Velocities follow the standard inertia-weight update ``v = w v + c1 r1 (p_best - x) + c2 r2 (g_best - x)``. Blocks
 beyond the inventory cost the penalty k each, like a collision. A heuristic: never certified optimal.
 """
 from __future__ import annotations
@@ -31,8 +31,9 @@ def design_costs(target: ShapeTarget, space: DesignSpace, shapes: np.ndarray, ro
     inventory penalty included."""
     shape = chain_shape(space.theta[shapes], space.length[shapes], rotations * ROTATION_STEP,
                         samples_per_block=samples_per_block)
-    offset = target.bases[base][..., None, :]
-    cost = evaluate(target, shape.points + offset, shape.rotations[..., -1, :, :], shape.positions[..., -1, :] + offset[..., 0, :])
+    offset = target.bases[base]
+    cost = evaluate(target, shape.points + offset[..., None, :], shape.rotations[..., -1, :, :],
+                    shape.positions[..., -1, :] + offset)
     return cost.total + COLLISION_PENALTY * space.excess(shapes)
 
 
