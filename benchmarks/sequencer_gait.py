@@ -206,7 +206,8 @@ def main() -> int:
     faults = [run for run in faults if "failed" not in run]
     summary = {
         "command": "scripts/with_env.sh python benchmarks/sequencer_gait.py",
-        "gait_cycles": CYCLES, "repeats": REPEATS, "pulse_train": gait_document(1.0)["steps"][0]["parallel"][0]["pulse_train"],
+        "gait_cycles": CYCLES, "repeats": REPEATS,
+        "pulse_train": gait_document(1.0)["steps"][0]["parallel"][0]["pulse_train"],
         "gait": gait, "failed_runs": failed_runs,
         "gait_median": {f"{f:g}": {key: float(np.median([g[key] for g in gait if g["requested_hz"] == f]))
                                    for key in ("achieved_hz", "jitter_ms", "pair_phase")}
