@@ -311,7 +311,7 @@ class HvSupply:
 
     def ramp_to(self, channel: str, target_v: float, slew_rate: float | None = None) -> RampHandle:
         """Start a smooth ramp; a target above the ceiling raises LimitError naming the limit."""
-        ramp_id = self._change(lambda now: self._supervisor.channel(channel).ramp_to(now, target_v, slew_rate))
+        ramp_id = self._change(lambda now: self._supervisor.ramp_to(channel, now, target_v, slew_rate))
         return RampHandle(self, channel, ramp_id, float(target_v))
 
     def heartbeat(self) -> None:

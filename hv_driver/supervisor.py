@@ -282,6 +282,12 @@ class Supervisor:
         # Enabling counts as a sign of life, so the heartbeat timeout runs from here.
         self._last_heartbeat = self._now(now)
 
+    def ramp_to(self, name: str, now: float, target: float, slew_rate: float | None = None) -> int:
+        """Start a ramp on one channel; a request from the client counts as a sign of life."""
+        ramp_id = self.channel(name).ramp_to(now, target, slew_rate)
+        self._last_heartbeat = self._now(now)
+        return ramp_id
+
     def set_safe_voltage(self, voltage: float | None) -> None:
         for channel in self.channels.values():
             channel.set_safe_voltage(voltage)
@@ -307,8 +313,9 @@ class Supervisor:
         if now - self._last_link_ok > self.link_timeout:
             self.trip_all(Fault.LINK, f"no valid reply from the supply for more than {self.link_timeout:g} s")
         if (self.heartbeat_timeout is not None and now - self._last_heartbeat > self.heartbeat_timeout):
+            # Only energised outputs need a live client: an output idling at 0 V holds no charge.
             for channel in self.channels.values():
-                if channel.output_enabled:
+                if channel.output_enabled and (channel.setpoint > 0.0 or channel.target > 0.0):
                     channel.trip(Fault.HEARTBEAT, f"no heartbeat from the controlling client for more "
                                                   f"than {self.heartbeat_timeout:g} s")
         return {name: channel.step(now) for name, channel in self.channels.items()}

@@ -163,6 +163,20 @@ def test_lost_heartbeat_ramps_down_then_switches_off():
     assert commands[-1] == ChannelCommand(0.0, False, False)
 
 
+def test_heartbeat_is_needed_only_while_an_output_is_energised():
+    supervisor = Supervisor([CONFIG], link_timeout=100.0, heartbeat_timeout=0.5)
+    supervisor.enable("front", 0.0)
+    front = supervisor.channel("front")
+    for t in (1.0, 5.0, 10.0):  # idle at 0 V with no client: nothing to protect
+        supervisor.step(t)
+    assert not front.faults and front.output_enabled
+    supervisor.ramp_to("front", 10.0, 500.0)  # the request itself is a sign of life
+    supervisor.step(10.4)
+    assert not front.faults and front.setpoint > 0.0
+    supervisor.step(10.6)  # energised and silent for more than 0.5 s
+    assert front.faults == Fault.HEARTBEAT
+
+
 def test_unknown_channel_names_the_choices():
     with pytest.raises(ValueError, match=r"channel='left': unknown, configured are \['front'\]"):
         Supervisor([CONFIG], link_timeout=1.0).channel("left")
@@ -217,7 +231,7 @@ class SupervisorMachine(RuleBasedStateMachine):
 
     @rule(name=st.sampled_from(NAMES), volts=absurd_floats, slew=st.one_of(st.none(), absurd_floats))
     def ramp(self, name, volts, slew):
-        self._try(lambda: self.sup.channel(name).ramp_to(self.now, volts, slew))
+        self._try(lambda: self.sup.ramp_to(name, self.now, volts, slew))
 
     @rule(name=st.sampled_from(NAMES))
     def disable(self, name):

@@ -31,6 +31,7 @@ from rclpy.qos import qos_profile_sensor_data
 from softblock_interfaces.action import RampChannel, RunSequence
 from softblock_interfaces.msg import Assembly, HvState
 from softblock_interfaces.srv import DesignFingers, InjectFault, SetAssembly
+from std_msgs.msg import Empty
 from std_srvs.srv import Trigger
 
 from planner.assembly import load_assembly
@@ -82,6 +83,10 @@ class DemoClient:
         self.reset_faults = self.node.create_client(Trigger, "hv/reset_faults")
         self.run_sequence = ActionClient(self.node, RunSequence, "sequencer/run")
         self.ramp = ActionClient(self.node, RampChannel, "hv/ramp")
+        # The demo is the controlling client of the HV driver: without this sign of life an energised
+        # output ramps down (heartbeat_timeout in config/hv_driver.yaml).
+        heartbeat = self.node.create_publisher(Empty, "hv/heartbeat", 10)
+        self.node.create_timer(0.1, lambda: heartbeat.publish(Empty()))
         self.executor = MultiThreadedExecutor(num_threads=4)
         self.executor.add_node(self.node)
         self._spinner = threading.Thread(target=self.executor.spin, daemon=True)
