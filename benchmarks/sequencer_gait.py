@@ -30,13 +30,13 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import rclpy  # noqa: E402
 import yaml  # noqa: E402
-from rclpy.action import ActionClient  # noqa: E402
 from rclpy.executors import MultiThreadedExecutor  # noqa: E402
 from softblock_interfaces.action import RunSequence  # noqa: E402
 from softblock_interfaces.msg import HvState, SequenceEvent  # noqa: E402
 from softblock_interfaces.srv import InjectFault  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
+from softblock_ros.client import ActionClient  # noqa: E402
 from softblock_ros.launcher import Stack  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -419,6 +419,7 @@ class HvSupply:
             events = self._link.query("read_event_status", indices)
         except (LinkError, ProtocolError, ConfigurationError) as error:
             with self._cycle_done:
+                self._supervisor.link_failed(self._clock())
                 self._link_error = str(error)
                 self._reconfigure |= reconfigure
                 self._device_reset |= device_reset

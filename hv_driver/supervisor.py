@@ -255,7 +255,11 @@ class Supervisor:
         self.heartbeat_timeout = heartbeat_timeout
         self._clock = float(now) if _finite(now) else 0.0
         self.channels = {c.name: ChannelSupervisor(c, self._clock) for c in configs}
-        self._last_link_ok = self._last_heartbeat = self._clock
+        self._last_heartbeat = self._clock
+        # Start of the current run of failed exchanges (None while the link answers). Timing the
+        # failures, not the gap since the last success, keeps a host that was merely descheduled (a
+        # loaded machine) from tripping while a supply that stops answering still trips on time.
+        self._link_failing_since: float | None = None
         self.estop_latched = False
 
     def _now(self, now: float) -> float:
@@ -271,7 +275,14 @@ class Supervisor:
 
     def link_ok(self, now: float) -> None:
         """A complete, valid exchange with the supply finished at ``now``."""
-        self._last_link_ok = self._now(now)
+        self._now(now)
+        self._link_failing_since = None
+
+    def link_failed(self, now: float) -> None:
+        """An exchange with the supply failed at ``now`` (no, partial, garbled or wrong answer)."""
+        now = self._now(now)
+        if self._link_failing_since is None:
+            self._link_failing_since = now
 
     def heartbeat(self, now: float) -> None:
         self._last_heartbeat = self._now(now)
@@ -310,7 +321,7 @@ class Supervisor:
 
     def step(self, now: float) -> dict[str, ChannelCommand]:
         now = self._now(now)
-        if now - self._last_link_ok > self.link_timeout:
+        if self._link_failing_since is not None and now - self._link_failing_since > self.link_timeout:
             self.trip_all(Fault.LINK, f"no valid reply from the supply for more than {self.link_timeout:g} s")
         if (self.heartbeat_timeout is not None and now - self._last_heartbeat > self.heartbeat_timeout):
             # Only energised outputs need a live client: an output idling at 0 V holds no charge.

@@ -139,10 +139,23 @@ def test_link_timeout_trips_every_channel():
     back = ChannelConfig("back", 1, max_voltage=3000.0)
     supervisor = Supervisor([CONFIG, back], link_timeout=0.2)
     supervisor.link_ok(0.0)
-    supervisor.step(0.2)
+    supervisor.link_failed(0.05)
+    supervisor.link_failed(0.1)  # the run of failures started at 0.05
+    supervisor.step(0.25)
     assert not supervisor.channel("back").faults
-    supervisor.step(0.21)
+    supervisor.step(0.26)
     assert all(c.faults == Fault.LINK for c in supervisor.channels.values())
+
+
+def test_a_stalled_host_with_a_healthy_link_does_not_trip():
+    supervisor = Supervisor([CONFIG], link_timeout=0.2)
+    supervisor.link_ok(0.0)
+    supervisor.step(5.0)  # the loop thread was descheduled for 5 s; no exchange failed
+    supervisor.link_ok(5.0)
+    supervisor.link_failed(5.1)
+    supervisor.link_ok(5.2)  # one bad answer followed by a good one ends the run of failures
+    supervisor.step(5.5)
+    assert not supervisor.channel("front").faults
 
 
 def test_lost_heartbeat_ramps_down_then_switches_off():
@@ -260,6 +273,10 @@ class SupervisorMachine(RuleBasedStateMachine):
     @rule()
     def link_ok(self):
         self.sup.link_ok(self.now)
+
+    @rule()
+    def link_failed(self):
+        self.sup.link_failed(self.now)
 
     @rule(name=st.sampled_from(NAMES), fault=st.sampled_from(list(Fault)))
     def trip(self, name, fault):

@@ -18,7 +18,7 @@ from planner.assembly import Assembly as CoreAssembly
 from planner.assembly import Chain, PlacedBlock, load_assembly
 from planner.table import load_table
 from softblock_ros.assembly_state_node import AssemblyStateNode
-from softblock_ros.conversions import assembly_msg, safe_voltage
+from softblock_ros.conversions import assembly_msg
 from softblock_ros.paths import resolve_path
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)

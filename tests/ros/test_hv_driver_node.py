@@ -8,7 +8,6 @@ from action_msgs.msg import GoalStatus
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from lifecycle_msgs.msg import State, Transition
 from lifecycle_msgs.srv import ChangeState, GetState
-from rclpy.action import ActionClient
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile
 from ros_testing import Inbox, call, wait_for
@@ -18,6 +17,7 @@ from softblock_interfaces.srv import InjectFault
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
+from softblock_ros.client import ActionClient
 from softblock_ros.hv_driver_node import HvDriverNode
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)

@@ -9,7 +9,6 @@ import yaml
 from action_msgs.msg import GoalStatus
 from geometry_msgs.msg import PoseStamped
 from fake_hv import FakeHv
-from rclpy.action import ActionClient
 from rclpy.parameter import Parameter
 from ros_testing import Inbox, wait_for
 from sequence_files import SEQUENCES, scaled
@@ -17,6 +16,7 @@ from softblock_interfaces.action import RunSequence
 from softblock_interfaces.msg import SequenceEvent
 
 from softblock_ros import run_sequence
+from softblock_ros.client import ActionClient
 from softblock_ros.sequencer_node import SequencerNode
 from softblock_ros.sim_arm_node import SimArmNode
 

@@ -4,7 +4,6 @@ and an over-current injected through `hv/inject_fault` mid-sequence ends in the 
 import pytest
 import rclpy
 from action_msgs.msg import GoalStatus
-from rclpy.action import ActionClient
 from rclpy.lifecycle import TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from ros_testing import Inbox, call, wait_for
@@ -14,6 +13,7 @@ from softblock_interfaces.msg import HvState, SequenceEvent
 from softblock_interfaces.srv import InjectFault
 from std_srvs.srv import Trigger
 
+from softblock_ros.client import ActionClient
 from softblock_ros.hv_driver_node import HvDriverNode
 from softblock_ros.sequencer_node import SequencerNode
 from softblock_ros.sim_arm_node import SimArmNode

@@ -4,11 +4,11 @@ import pytest
 import rclpy
 from action_msgs.msg import GoalStatus
 from geometry_msgs.msg import PoseStamped
-from rclpy.action import ActionClient
 from rclpy.parameter import Parameter
 from ros_testing import Inbox, wait_for
 from softblock_interfaces.action import MoveArm
 
+from softblock_ros.client import ActionClient
 from softblock_ros.conversions import pose_msg
 from softblock_ros.sim_arm_node import SimArmNode
 

@@ -7,7 +7,6 @@ import io
 import numpy as np
 import pytest
 import rclpy
-from rclpy.action import ActionClient
 from rclpy.qos import DurabilityPolicy, QoSProfile
 from ros_testing import Inbox, call, wait_for
 from softblock_interfaces.action import RampChannel
@@ -17,6 +16,7 @@ from std_msgs.msg import Float64
 
 from planner.assembly import Assembly, Chain, PlacedBlock, load_assembly
 from planner.table import load_table
+from softblock_ros.client import ActionClient
 from softblock_ros.conversions import assembly_msg, safe_voltage
 from softblock_ros.launcher import Stack
 from softblock_ros.paths import resolve_path

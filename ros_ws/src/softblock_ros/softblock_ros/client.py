@@ -9,7 +9,38 @@ import threading
 import time
 from collections.abc import Callable
 
+import rclpy.action
 from action_msgs.msg import GoalStatus
+
+
+class ActionClient(rclpy.action.ActionClient):
+    """rclpy's ActionClient without the lost-response race of ros2/rclpy#1123.
+
+    rclpy 7.1.6 sends a goal, cancel or result request first and registers its future afterwards; an
+    executor thread that takes the response in between drops it ("Ignoring unexpected goal response")
+    and the future never completes. Sending + registering and taking responses under one lock closes
+    that window (the approach of the upstream fix, ros2/rclpy#1308).
+    """
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._request_lock = threading.RLock()
+
+    def take_data(self):
+        with self._request_lock:
+            return super().take_data()
+
+    def send_goal_async(self, *args, **kwargs):
+        with self._request_lock:
+            return super().send_goal_async(*args, **kwargs)
+
+    def _cancel_goal_async(self, goal_handle):
+        with self._request_lock:
+            return super()._cancel_goal_async(goal_handle)
+
+    def _get_result_async(self, goal_handle):
+        with self._request_lock:
+            return super()._get_result_async(goal_handle)
 
 
 class ClientError(RuntimeError):

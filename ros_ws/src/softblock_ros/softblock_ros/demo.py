@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import threading
 import time
@@ -25,11 +24,10 @@ from pathlib import Path
 import rclpy
 import yaml
 from action_msgs.msg import GoalStatus
-from rclpy.action import ActionClient
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.qos import qos_profile_sensor_data
 from softblock_interfaces.action import RampChannel, RunSequence
-from softblock_interfaces.msg import Assembly, HvState
+from softblock_interfaces.msg import HvState
 from softblock_interfaces.srv import DesignFingers, InjectFault, SetAssembly
 from std_msgs.msg import Empty
 from std_srvs.srv import Trigger
@@ -38,11 +36,11 @@ from planner.assembly import load_assembly
 from planner.contours import OBJECTS_CATALOG
 from planner.table import REPO_ROOT, load_table
 
-from .client import ClientError, call_service, run_action, status_name, wait_until
+from .client import ActionClient, ClientError, call_service, run_action, status_name, wait_until
 from .conversions import assembly_msg
 from .demo_plots import plot_fingers
 from .launcher import Stack
-from .recording.analysis import format_summary, load, summarize
+from .recording.analysis import load, summarize
 from .recording.analysis_plot import plot as plot_recording
 
 NODE_PARAMETER_FILES = ("config/hv_driver.yaml", "config/sequencer.yaml")
@@ -179,6 +177,11 @@ def fault_drill(client: DemoClient) -> dict:
     ramp_status = status_name(outcome["ramp"][0]) if "ramp" in outcome else "no result"
     say(f"  {FAULT_CHANNEL}: output off, fault '{channel.fault_text}' seen on hv/state {1e3 * seen_off:.0f} ms "
         f"after injection; the ramp action ended {ramp_status}")
+    # Remove the cause (in the lab: replace the broken block), then reset on purpose.
+    cleared = call_service(client.inject_fault, InjectFault.Request(channel=FAULT_CHANNEL, fault="clear"),
+                           SERVICE_TIMEOUT)
+    if not cleared.success:
+        raise ClientError(f"hv/inject_fault could not clear the fault: {cleared.message}")
     reset = call_service(client.reset_faults, Trigger.Request(), SERVICE_TIMEOUT)
     if not reset.success:
         raise ClientError(f"hv/reset_faults refused: {reset.message}")

@@ -10,7 +10,7 @@ import time
 
 from action_msgs.msg import GoalStatus
 from geometry_msgs.msg import PoseStamped
-from rclpy.action import ActionClient
+from .client import ActionClient
 from rclpy.node import Node
 from softblock_interfaces.action import MoveArm, RampChannel
 from softblock_interfaces.msg import HvChannelState, HvState

@@ -16,7 +16,7 @@ import time
 
 import rclpy
 from action_msgs.msg import GoalStatus
-from rclpy.action import ActionClient
+from .client import ActionClient
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 from softblock_interfaces.action import RunSequence

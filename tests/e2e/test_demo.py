@@ -1,0 +1,95 @@
+"""The README's main job end to end: `python -m softblock_ros.demo` on the simulated backend, then its
+recording replayed into a fresh ROS graph and recorded again, with the same analysis."""
+import json
+import subprocess
+import sys
+import threading
+
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+
+from softblock_ros.client import wait_until
+from softblock_ros.recording.analysis import analyze
+from softblock_ros.recording.playback import PlaybackOptions
+from softblock_ros.recording.player_node import PlayerNode
+from softblock_ros.recording.recorder_node import RecorderNode
+
+DEMO_TIMEOUT = 240.0  # [s] liveness bound only; the demo takes about a minute on an idle 2-core machine
+FINGER_GRASP_STEPS = ["above_object", "open_back", "surround_object", "close_back", "grip_front", "lift_object",
+                      "carry_object", "lower_object", "release_front", "open_back_release", "withdraw",
+                      "close_back_rest"]
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    out = tmp_path_factory.mktemp("demo")
+    run = subprocess.run([sys.executable, "-m", "softblock_ros.demo", "--out", str(out)], capture_output=True,
+                         text=True, timeout=DEMO_TIMEOUT)
+    return run, out
+
+
+def test_demo_exits_zero_and_writes_its_outputs(demo):
+    run, out = demo
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    for name in ("fingers.png", "recording.png", "run.mcap", "summary.json", "stack.log"):
+        assert (out / name).stat().st_size > 0, name
+    assert "=== demo summary ===" in run.stdout
+
+
+def test_demo_designs_the_papers_gripper_and_runs_the_six_step_grasp(demo):
+    _, out = demo
+    summary = json.loads((out / "summary.json").read_text())
+    designs = summary["designs"]
+    assert [len(designs["front"][side]["design_ids"]) for side in ("left", "right")] == [4, 4]
+    assert [len(designs["back"][side]["design_ids"]) for side in ("left", "right")] == [5, 5]
+    assert not any(designs[s][side]["collision"] for s in designs for side in ("left", "right"))
+    grasp = summary["grasp"]
+    assert grasp["success"], grasp["message"]
+    assert list(grasp["steps"]) == FINGER_GRASP_STEPS
+    channels = summary["recording"]["channels"]
+    assert channels["front"]["peak_voltage"] == pytest.approx(2400.0, abs=30.0)
+    assert channels["back"]["peak_voltage"] == pytest.approx(2400.0, abs=30.0)
+
+
+def test_demo_fault_drill_switches_the_output_off_with_a_named_fault(demo):
+    _, out = demo
+    summary = json.loads((out / "summary.json").read_text())
+    drill = summary["fault_drill"]
+    assert drill["fault_text"].startswith("over_current")
+    assert drill["output_enabled_after"] is False
+    recorded = [fault for fault in summary["recording"]["faults"] if fault["event"] == "raised"]
+    assert any(f["channel"] == "front" and "over_current" in f["faults"] for f in recorded), recorded
+
+
+def test_demo_recording_replayed_and_recorded_again_gives_the_same_analysis(demo, tmp_path):
+    _, out = demo
+    original = str(out / "run.mcap")
+    replayed = str(tmp_path / "replayed.mcap")
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    player = PlayerNode(original, PlaybackOptions(rate=4.0), context=context)
+    recorder = RecorderNode(replayed, context=context, parameter_overrides=[Parameter("discovery_period", value=0.1)])
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(player)
+    executor.add_node(recorder)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    try:
+        replayed_topics = {c.topic for c in player.recording.channels if c.id in player.publishers_by_channel}
+        wait_until(lambda: set(recorder.recorded_topics) >= replayed_topics, 30.0,
+                   "the recorder to subscribe to every replayed topic")
+        for publisher in player.publishers_by_channel.values():
+            wait_until(lambda: publisher.get_subscription_count() >= 1, 30.0, "the recorder to match")
+        player.start()
+        wait_until(player.finished.is_set, 120.0, "the end of the replay")
+        wait_until(lambda: sum(recorder.writer.message_counts.values()) == player.published, 30.0,
+                   "every replayed message to be recorded")
+    finally:
+        executor.shutdown()
+        spinner.join()
+        player.destroy_node()
+        recorder.destroy_node()
+        rclpy.try_shutdown(context=context)
+    assert analyze(replayed) == analyze(original)
