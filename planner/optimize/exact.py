@@ -171,7 +171,7 @@ class PrefixSearch:
         n, q = len(parents), len(shapes)
         local = library.samples[shapes, rotations]  # (Q, M, 3)
         rotation, position = parents.frame_rotation, parents.frame_position
-        world = np.einsum("nij,qmj->nqmi", rotation, local) + position[:, None, None, :]
+        world = (local.reshape(-1, 3) @ rotation.transpose(0, 2, 1)).reshape(n, q, -1, 3) + position[:, None, None, :]
 
         collided = np.repeat(parents.collided[:, None], q, axis=1)
         if target.clearance is not None:
@@ -181,17 +181,13 @@ class PrefixSearch:
         to_end = np.linalg.norm(target.points[None] - position[:, None, :], axis=-1)
         active = np.flatnonzero(np.any(to_end - library.reach < parents.nearest, axis=0))
         if active.size:
-            points = target.points[active]
-            squared = (
-                np.einsum("nqmk,nqmk->nqm", world, world)[..., None]
-                - 2.0 * world @ points.T
-                + self.targets_sq[active]
-            )
-            new = np.sqrt(np.maximum(squared.min(axis=-2), 0.0))
+            squared = world @ (-2.0 * target.points[active].T)  # |w|^2 - 2 w.p + |p|^2, in place
+            squared += np.einsum("nqmk,nqmk->nqm", world, world)[..., None]
+            new = np.sqrt(np.maximum(squared.min(axis=-2) + self.targets_sq[active], 0.0))
             nearest[..., active] = np.minimum(nearest[..., active], new)
 
         end_rotation = rotation[:, None] @ library.end_rotation[shapes, rotations][None]
-        end_position = position[:, None] + np.einsum("nij,qj->nqi", rotation, library.end_position[shapes, rotations])
+        end_position = position[:, None] + library.end_position[shapes, rotations] @ rotation.transpose(0, 2, 1)
         bound = self._bound(nearest, collided, end_rotation, end_position, level)
         travelled = parents.travelled[:, None] + self.block_arc[shapes]
         rank = self._rank(bound, nearest, travelled, end_rotation, end_position, level) if ranked else bound
@@ -251,21 +247,22 @@ class PrefixSearch:
         return passed + np.linalg.norm(position - due, axis=-1)
 
     def _region_distance(self, points, rotation, position, level: int) -> np.ndarray:
-        """Lower bound on the distance from points (..., P, 3) to the blocks after ``level``.
+        """Lower bound on the distance from points (P, 3) to the blocks after ``level`` -> (..., P).
 
         Those blocks lie within ``remaining_length`` of the prefix end. While their total bend stays below
         90 degrees their tangents keep a non-negative component along the end tangent, so they lie ahead
-        of the end; planar chains that only bend toward +x also stay on its +x side.
+        of the end; planar chains that only bend toward +x also stay on its +x side. (Dot products as
+        matrix products with the points: no (..., P, 3) temporaries.)
         """
-        relative = points - position[..., None, :]
-        distance = np.sqrt(np.einsum("...pk,...pk->...p", relative, relative))
-        bound = np.maximum(distance - self.library.remaining_length[level], 0.0)
+        along = lambda axis: axis @ points.T - np.einsum("...k,...k->...", axis, position)[..., None]  # noqa: E731
+        squared = (np.einsum("pk,pk->p", points, points) - 2.0 * position @ points.T
+                   + np.einsum("...k,...k->...", position, position)[..., None])
+        bound = np.maximum(np.sqrt(np.maximum(squared, 0.0)) - self.library.remaining_length[level], 0.0)
         least, most = self.library.remaining_turn[level]
         if max(abs(least), abs(most)) <= np.pi / 2:
-            behind = np.maximum(-np.einsum("...pk,...k->...p", relative, rotation[..., :, 2]), 0.0)
+            behind = np.maximum(-along(rotation[..., :, 2]), 0.0)
             if self.space.rotations == 1 and least >= 0:
-                outside = np.maximum(-np.einsum("...pk,...k->...p", relative, rotation[..., :, 0]), 0.0)
-                behind = np.hypot(behind, outside)
+                behind = np.hypot(behind, np.maximum(-along(rotation[..., :, 0]), 0.0))
             bound = np.maximum(bound, behind)
         return bound
 
