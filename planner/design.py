@@ -21,7 +21,7 @@ from planner.assembly import ROTATION_STEP
 from planner.contours import extract_contours
 from planner.kinematics import BLOCK_RADIUS, chain_shape
 from planner.objectives import ClearanceMap, ShapeTarget, evaluate, finger_target, path_target
-from planner.optimize import DesignOptimizeResult, DesignSpace, design_space, solve_exact, solve_pso
+from planner.optimize import DesignOptimizeResult, DesignSpace, Status, design_space, solve_exact, solve_pso
 from planner.optimize.space import MAX_BLOCKS
 from planner.table import load_table
 
@@ -107,6 +107,10 @@ def _scaled_callback(callback, start: float, share: float):
     return scaled
 
 
+def _cancel(progress) -> None:
+    raise StopIteration
+
+
 def design_fingers(
     mask: np.ndarray,
     pixel_size: float,
@@ -165,8 +169,11 @@ def design_fingers(
     results = {}
     for index, side in enumerate(("left", "right")):
         budget = None if time_budget is None else max(time_budget - (time.perf_counter() - started), 1e-3) / (2 - index)
+        progress = _scaled_callback(callback, 0.5 * index, 0.5)
+        if index and results["left"].status == Status.CANCELLED:
+            progress = _cancel  # a cancelled request stops both fingers, even if the callback raised only once
         results[side] = _optimise(problems[side][0], space, method, seed=seed, time_budget=budget,
-                                  callback=_scaled_callback(callback, 0.5 * index, 0.5), options=options)
+                                  callback=progress, options=options)
     shared_stock_ok = True
     if inventory is not None:
         used: dict[int, int] = {}

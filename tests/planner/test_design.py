@@ -96,12 +96,14 @@ def test_cancel_and_time_budget_give_unsuccessful_results(table):
     mask, pixel = sample("gingerbread")
     calls = []
 
-    def cancel(progress):
+    def cancel_once(progress):
         calls.append(progress.fraction)
-        raise StopIteration
+        if len(calls) == 1:
+            raise StopIteration
 
-    cancelled = design.design_fingers(mask, pixel, 4, table=table, callback=cancel)
-    assert not cancelled.success and "cancelled" in cancelled.message and calls
+    cancelled = design.design_fingers(mask, pixel, 4, table=table, callback=cancel_once)
+    assert not cancelled.success and len(calls) == 1
+    assert "left: cancelled" in cancelled.message and "right: cancelled" in cancelled.message
     late = design.design_path(np.array([[0, 0, 0], [0, 0, 0.05]]), 3, table=table, time_budget=1e-9)
     assert not late.success and "time budget" in late.message
 
