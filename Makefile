@@ -9,7 +9,7 @@ demo: setup
 	scripts/with_env.sh python -m softblock_ros.demo --out out/demo
 
 test: setup
-	scripts/with_env.sh python -m pytest -n 2 tests
+	scripts/with_env.sh python -m pytest -n 2 --dist loadfile tests
 
 bench: setup
 	scripts/with_env.sh bash benchmarks/run_all.sh

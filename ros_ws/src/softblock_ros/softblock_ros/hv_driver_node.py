@@ -19,7 +19,7 @@ from std_msgs.msg import Empty, Float64
 from std_srvs.srv import Trigger
 
 from hv_driver import HvSupply
-from sim_fallback.hv_supply import SimulatedSupply
+from sim_fallback.hv_supply_process import SimulatedSupplyProcess
 
 from .hv_conversions import diagnostics_msg, hv_state_msg
 from .hv_parameters import channel_configs, declare_parameters
@@ -49,7 +49,7 @@ class HvDriverNode(LifecycleNode):
         try:
             channels = channel_configs(self)
             if backend == "sim":
-                self._sim = SimulatedSupply(channels=max(c.index for c in channels) + 1).start()
+                self._sim = SimulatedSupplyProcess(channels=max(c.index for c in channels) + 1).start()
                 port = self._sim.port
             elif backend != "serial" or not port:
                 raise ValueError(f"backend={backend!r}, port={port!r}: use 'sim', or 'serial' with a port")
@@ -169,7 +169,7 @@ class HvDriverNode(LifecycleNode):
                     raise ValueError(f"channel={request.channel!r}: unknown, configured are {sorted(self._index)}")
                 self._sim.inject(request.fault, channel)
             response.success, response.message = True, f"injected {request.fault} on {request.channel or 'the device'}"
-        except ValueError as error:
+        except DRIVER_ERRORS as error:
             response.success, response.message = False, str(error)
         return response
 
