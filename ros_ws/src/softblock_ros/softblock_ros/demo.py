@@ -50,6 +50,7 @@ FINGER_SETS = {  # paper Figure 5: blocks per finger, top blocks forced stiff
 }
 SERVICE_TIMEOUT = 60.0  # [s] first calls wait for the nodes to start on a loaded machine
 FAULT_CHANNEL, FAULT = "front", "over_current"
+RESET_CURRENT = 1e-6  # [A] the fault drill resets only once the readback shows no arc current
 
 
 def say(text: str) -> None:
@@ -182,6 +183,9 @@ def fault_drill(client: DemoClient) -> dict:
                            SERVICE_TIMEOUT)
     if not cleared.success:
         raise ClientError(f"hv/inject_fault could not clear the fault: {cleared.message}")
+    # A reset while the arc current still shows in the readback would trip again at once.
+    wait_until(lambda: (c := client.channel(FAULT_CHANNEL)) and abs(c.measured_current) < RESET_CURRENT, 10.0,
+               f"the {FAULT_CHANNEL} current to decay below {RESET_CURRENT * 1e6:g} µA")
     reset = call_service(client.reset_faults, Trigger.Request(), SERVICE_TIMEOUT)
     if not reset.success:
         raise ClientError(f"hv/reset_faults refused: {reset.message}")
