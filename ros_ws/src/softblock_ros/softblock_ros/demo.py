@@ -122,7 +122,7 @@ def design_gripper(client: DemoClient, object_name: str) -> tuple[dict, dict]:
             for side in ("left", "right")} | {"optimal": response.optimal, "solve_time_s": response.solve_time}
         say(f"{finger_set} fingers ({constraints['num_blocks']} blocks, top {constraints['num_stiff_top']} stiff): "
             f"left {summary[finger_set]['left']['design_ids']}, right {summary[finger_set]['right']['design_ids']}, "
-            f"cost {1e3 * response.left_cost:.1f} / {1e3 * response.right_cost:.1f} mm, "
+            f"objective {response.left_cost:.3f} / {response.right_cost:.3f} m, "
             f"{'certified optimal' if response.optimal else 'not certified'}, {response.solve_time:.2f} s")
     return responses, summary
 
@@ -245,7 +245,7 @@ def print_summary(report: dict, out: Path) -> None:
     for finger_set, design in report.get("designs", {}).items():
         for side in ("left", "right"):
             d = design[side]
-            print(f"{finger_set:>5} {side:<5} IDs {d['design_ids']}  cost {1e3 * d['cost_m']:.1f} mm"
+            print(f"{finger_set:>5} {side:<5} IDs {d['design_ids']}  objective {d['cost_m']:.3f} m"
                   f"{'  COLLISION' if d['collision'] else ''}")
     grasp = report.get("grasp")
     if grasp:

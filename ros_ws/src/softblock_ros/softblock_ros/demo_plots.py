@@ -49,8 +49,8 @@ def plot_fingers(responses: dict, object_name: str, path: Path) -> None:
                 axis.add_patch(plt.Circle(1e3 * point, 1e3 * BLOCK_RADIUS, color=colour, alpha=0.05))
         for contour in (contours.left, contours.right):
             axis.plot(*(1e3 * contour.T), color="k", lw=1)
-        axis.set_title(f"{finger_set} fingers (cost {1e3 * response.left_cost:.1f} / "
-                       f"{1e3 * response.right_cost:.1f} mm)", fontsize=9)
+        axis.set_title(f"{finger_set} fingers (objective {response.left_cost:.3f} / "
+                       f"{response.right_cost:.3f} m)", fontsize=9)
         axis.set_aspect("equal")
         axis.set_xlabel("x [mm]")
         axis.set_ylabel("z [mm]")
