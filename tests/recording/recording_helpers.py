@@ -1,6 +1,5 @@
 """Shared pieces of the recording tests: the stack's messages, waiting, spinning, reading back."""
 import threading
-import time
 
 import rclpy
 from mcap.reader import make_reader
@@ -11,6 +10,7 @@ from rclpy.serialization import serialize_message
 from softblock_interfaces.msg import (Assembly, AssemblyState, Chain, ChainState, HvChannelState,
                                       HvState, SequenceEvent)
 
+from softblock_ros.client import wait_until
 from softblock_ros.recording.mcap_file import RecordingWriter
 from softblock_ros.recording.qos_metadata import offered_qos_yaml
 
@@ -19,13 +19,8 @@ TIMEOUT = 30.0  # [s] liveness deadline only: the suite shares two loaded cores
 
 
 def wait_for(predicate, what: str, timeout: float = TIMEOUT):
-    """Polls `predicate` until truthy and returns its value; TimeoutError names `what`."""
-    deadline = time.monotonic() + timeout
-    while not (value := predicate()):
-        if time.monotonic() > deadline:
-            raise TimeoutError(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(0.01)
-    return value
+    """Polls `predicate` until truthy and returns its value; ClientError names `what` on timeout."""
+    return wait_until(predicate, timeout, what)
 
 
 class Spinner:

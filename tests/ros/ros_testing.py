@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import threading
-import time
 from collections.abc import Callable
 
 import rclpy
@@ -10,28 +9,19 @@ from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 
+from softblock_ros.client import call_service, wait_until
+
 DEFAULT_TIMEOUT = 15.0  # [s] generous: the suite runs on two loaded cores
 
 
 def wait_for(predicate: Callable[[], object], timeout: float = DEFAULT_TIMEOUT, what: str = "condition"):
-    """Poll ``predicate`` until it returns something truthy and return that; TimeoutError otherwise."""
-    deadline = time.monotonic() + timeout
-    while True:
-        value = predicate()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise TimeoutError(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(0.01)
+    """Poll ``predicate`` until it returns something truthy and return that; ClientError on timeout."""
+    return wait_until(predicate, timeout, what)
 
 
 def call(client, request, timeout: float = DEFAULT_TIMEOUT):
     """Call a service from a node that is being spun and return the response."""
-    if not client.wait_for_service(timeout_sec=timeout):
-        raise TimeoutError(f"service {client.srv_name} did not appear within {timeout} s")
-    future = client.call_async(request)
-    wait_for(future.done, timeout, what=f"the reply of {client.srv_name}")
-    return future.result()
+    return call_service(client, request, timeout)
 
 
 class Inbox:
