@@ -29,6 +29,7 @@ NODE_COMMANDS = {
     "recorder": ("softblock_ros.recording", "record"),
 }
 DEFAULT_STOP_TIMEOUT = 10.0  # [s] per node, before SIGKILL
+PUMP_DRAIN_TIMEOUT = 10.0  # [s] to copy a stopped node's last output (bounded: a grandchild may hold the pipe)
 # Batch work yields the CPU so the HV driver's control loop keeps its deadlines on a loaded machine.
 NODE_NICENESS = {"planner": 10}
 
@@ -114,7 +115,7 @@ class Stack:
                     process.kill()
                     process.wait()
         for pump in self._pumps:
-            pump.join(timeout=1.0)
+            pump.join(timeout=PUMP_DRAIN_TIMEOUT)
         return {name: p.returncode for name, p in self.processes.items()}
 
     def _say(self, name: str, text: str) -> None:
