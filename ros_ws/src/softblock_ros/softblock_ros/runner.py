@@ -20,6 +20,11 @@ def run_node(make_node: Callable[[], Node], name: str, executor: Callable[[], Ex
         spinner.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RuntimeError:
+        # Ctrl-C / SIGTERM shut the context down while the executor was taking a message; rclpy then
+        # raises from the half-destroyed handle. That is the stop that was asked for, not a failure.
+        if rclpy.ok():
+            raise
     except (ValueError, OSError) as error:
         if node is not None:
             raise
