@@ -24,14 +24,22 @@ def wait_for(predicate, what: str, timeout: float = TIMEOUT):
 
 
 class Spinner:
-    """Spins nodes in a background thread until closed."""
+    """Spins nodes in a background thread until closed; an exception there is kept in `error` and printed."""
 
     def __init__(self, context, *nodes):
         self.executor = SingleThreadedExecutor(context=context)
         for node in nodes:
             self.executor.add_node(node)
-        self._thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.error: BaseException | None = None
+        self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
+
+    def _spin(self):
+        try:
+            self.executor.spin()
+        except BaseException as error:  # reported by the waits, not lost with the thread
+            self.error = error
+            raise
 
     def close(self):
         self.executor.shutdown()
