@@ -19,7 +19,7 @@ import numpy as np
 
 from planner.assembly import ROTATION_STEP
 from planner.contours import extract_contours
-from planner.kinematics import BLOCK_RADIUS, chain_shape
+from planner.kinematics import BLOCK_RADIUS, chain_shape, design_parameters
 from planner.objectives import ClearanceMap, ShapeTarget, evaluate, finger_target, path_target
 from planner.optimize import DesignOptimizeResult, DesignSpace, Status, design_space, solve_exact, solve_pso
 from planner.optimize.space import MAX_BLOCKS
@@ -203,9 +203,8 @@ def design_fingers(
 
 
 def _finger(side, result, target, clearance, contour, table) -> FingerDesign:
-    ids = np.array(result.design_ids)
-    index = table.index_of(ids)
-    shape = chain_shape(np.asarray(table.theta0)[index], np.asarray(table.rod_length)[index], 0.0)
+    theta, length, _ = design_parameters(table, np.array(result.design_ids))
+    shape = chain_shape(theta, length, 0.0)
     base = target.bases[result.base]
     cost = evaluate(target, shape.points + base, shape.rotations[-1], shape.positions[-1] + base)
     return FingerDesign(
@@ -247,9 +246,8 @@ def design_path(
     if method == "exact":
         options = PATH_EXACT_OPTIONS | (options or {})
     result = _optimise(target, space, method, seed=seed, time_budget=time_budget, callback=callback, options=options)
-    index = table.index_of(np.array(result.design_ids))
-    shape = chain_shape(np.asarray(table.theta0)[index], np.asarray(table.rod_length)[index],
-                        np.array(result.rotation_steps) * ROTATION_STEP)
+    theta, length, _ = design_parameters(table, np.array(result.design_ids))
+    shape = chain_shape(theta, length, np.array(result.rotation_steps) * ROTATION_STEP)
     cost = evaluate(target, shape.points, shape.rotations[-1], shape.positions[-1])
     return PathDesignResult(
         design_ids=result.design_ids,
