@@ -56,6 +56,8 @@ def recording(tmp_path_factory):
                                   else message)
         counts = recorder.writer.message_counts
         wait_for(lambda: all(counts[t] == COUNT for t in STREAMED), "every message recorded")
+        # Latched samples arrive whenever their reader matches, which may be after the stream.
+        wait_for(lambda: all(counts[t] == 1 for t in LATCHED_TOPICS), "latched samples recorded")
     finally:
         spinner.close()
         recorder.close_recording()
