@@ -24,7 +24,7 @@ def wait_for(predicate, what: str, timeout: float = TIMEOUT):
 
 
 class Spinner:
-    """Spins nodes in a background thread until closed; an exception there is kept in `error` and printed."""
+    """Spins nodes in a background thread until closed; an exception there is kept and raised by close()."""
 
     def __init__(self, context, *nodes):
         self.executor = SingleThreadedExecutor(context=context)
@@ -37,13 +37,16 @@ class Spinner:
     def _spin(self):
         try:
             self.executor.spin()
-        except BaseException as error:  # reported by the waits, not lost with the thread
+        except BaseException as error:  # raised again by close(), not lost with the thread
             self.error = error
             raise
 
     def close(self):
+        """Stops spinning; raises if spinning had ended with an exception (naming it)."""
         self.executor.shutdown()
         self._thread.join()
+        if self.error is not None:
+            raise RuntimeError(f"the spin thread died: {self.error!r}") from self.error
 
 
 def stamp(node_or_ns, message):
