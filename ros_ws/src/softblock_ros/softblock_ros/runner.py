@@ -1,6 +1,7 @@
 """The main() of every node: init, spin until Ctrl-C / SIGTERM / external shutdown, clean up."""
 from __future__ import annotations
 
+import signal
 from collections.abc import Callable
 
 import rclpy
@@ -8,10 +9,27 @@ from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedE
 from rclpy.node import Node
 
 
+def _stop_quietly(signum, frame) -> None:
+    """Python's part of Ctrl-C / SIGTERM: nothing. rclpy's handler, installed over this one by
+    rclpy.init and chaining to it, shuts the context down and wakes the executor; spin then ends.
+
+    Python's default KeyboardInterrupt would land at an arbitrary line instead, e.g. between a thread
+    pool starting a callback worker and registering it, after which the interpreter waits for that
+    worker forever at exit.
+    """
+
+
+def init(args=None) -> None:
+    """rclpy.init for a node process, with Ctrl-C / SIGTERM ending spin instead of raising anywhere."""
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, _stop_quietly)
+    rclpy.init(args=args)
+
+
 def run_node(make_node: Callable[[], Node], name: str, executor: Callable[[], Executor] = SingleThreadedExecutor,
              args=None) -> int:
     """Spin the node built by ``make_node``; exit status 1 when it cannot start (bad configuration or file)."""
-    rclpy.init(args=args)
+    init(args)
     node = None
     try:
         node = make_node()

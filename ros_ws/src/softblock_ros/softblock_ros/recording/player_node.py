@@ -15,6 +15,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rosgraph_msgs.msg import Clock
 
+from ..runner import init
 from .message_types import UnknownMessageTypeError, import_message_type
 from .playback import PlaybackClock, PlaybackOptions, Recording, play
 from .qos_metadata import parse_offered_qos, playback_qos
@@ -87,7 +88,7 @@ class PlayerNode(Node):
 
 def run(path: str, options: PlaybackOptions, keep_alive: bool = False, ros_args=None) -> int:
     """Plays `path` to the end (or until SIGINT/SIGTERM); keep_alive keeps latched topics up."""
-    rclpy.init(args=ros_args)
+    init(ros_args)
     node = None
     try:
         node = PlayerNode(path, options)
