@@ -167,6 +167,8 @@ class SimulatedSupply:
         dt, self._last_step = now - self._last_step, now
         for ch in self.plant:
             ch.step(now, dt)
+
+    def _check_watchdog(self, now: float) -> None:
         if self.watchdog_s is not None and now - self._last_command > self.watchdog_s:
             for ch in self.plant:
                 if ch.output_on:
@@ -190,9 +192,13 @@ class SimulatedSupply:
                 except OSError:
                     data = b""
             with self._lock:
-                self._step(time.monotonic())
+                now = time.monotonic()
+                self._step(now)
                 if data:
                     self._receive(data)
+                # After the bytes that waited in the pty: a simulator descheduled on a loaded host
+                # must not read its own delay as a silent host (a device sees bytes as they arrive).
+                self._check_watchdog(now)
 
     def _receive(self, data: bytes) -> None:
         for byte in data:

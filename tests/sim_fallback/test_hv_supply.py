@@ -92,6 +92,22 @@ def test_watchdog_cuts_the_outputs_without_traffic():
     assert not sim.plant[0].output_on and sim.plant[0].emergency
 
 
+def test_a_descheduled_simulator_does_not_read_its_own_delay_as_host_silence():
+    """Commands that waited in the pty while the simulator could not run count as traffic."""
+    with SimulatedSupply(channels=1, watchdog_s=0.2) as sim:
+        with serial.serial_for_url(sim.port, timeout=2.0) as link:
+            exchange(link, ":VOLT ON,(@0);*OPC?")
+            with sim._lock:  # the simulator's loop stalls here, as on a starved host
+                stalled, sent = time.monotonic(), 0
+                while time.monotonic() - stalled < 0.6:  # three watchdog periods of host traffic
+                    link.write(b"*IDN?\r\n")
+                    sent += 1
+                    time.sleep(0.05)
+            replies = [link.readline().decode().rstrip("\r\n") for _ in range(2 * sent)]
+            assert replies == ["*IDN?", sim_identity()] * sent
+            assert sim.plant[0].output_on and not sim.plant[0].emergency
+
+
 @pytest.mark.parametrize("fault, check", [
     ("no_reply", lambda link, echo, answer: (echo, answer) == ("", "")),
     ("partial", lambda link, echo, answer: echo == "*IDN?" and not answer.endswith("\n")),
