@@ -168,8 +168,9 @@ class SimulatedSupply:
         for ch in self.plant:
             ch.step(now, dt)
 
-    def _check_watchdog(self, now: float) -> None:
-        if self.watchdog_s is not None and now - self._last_command > self.watchdog_s:
+    def _check_watchdog(self, silent_until: float, now: float) -> None:
+        """Emergency off when no command arrived from the last one until ``silent_until`` (watchdog_s)."""
+        if self.watchdog_s is not None and silent_until - self._last_command > self.watchdog_s:
             for ch in self.plant:
                 if ch.output_on:
                     ch.switch_off(now, emergency=True)
@@ -177,6 +178,7 @@ class SimulatedSupply:
     def _serve(self) -> None:
         while self._running:
             master = self._master
+            waited_from = time.monotonic()
             readable = []
             if master is not None:
                 try:
@@ -196,9 +198,10 @@ class SimulatedSupply:
                 self._step(now)
                 if data:
                     self._receive(data)
-                # After the bytes that waited in the pty: a simulator descheduled on a loaded host
-                # must not read its own delay as a silent host (a device sees bytes as they arrive).
-                self._check_watchdog(now)
+                # A simulator descheduled on a loaded host must not read its own delay as a silent host
+                # (a device sees bytes as they arrive): bytes that waited in the pty were received above,
+                # and an empty wait proves silence only up to when it began.
+                self._check_watchdog(waited_from, now)
 
     def _receive(self, data: bytes) -> None:
         for byte in data:
