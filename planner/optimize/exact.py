@@ -9,8 +9,10 @@ bounds its error term from below; the tip term is bounded the same way and a pre
 the penalty k. The bound is exact for complete chains.
 
 The search runs level by level (block 1, 2, ...) and drops every prefix whose bound reaches the best
-complete design found. Rounds keep at most ``width`` prefixes per level, starting narrow and widening by
-``growth`` up to ``max_width``. Which prefixes a round keeps is a heuristic order (``PrefixSearch._rank``);
+complete design found. Rounds keep the ``width`` best prefixes per level and also the ``width // bases``
+best of each candidate base position (so one base cannot crowd out the others: fingers whose best base
+ranks low early were missed otherwise), starting narrow and widening by ``growth`` up to ``max_width``.
+Which prefixes are best is a heuristic order (``PrefixSearch._rank``);
 the best complete designs of each round are improved by block-by-block local search
 (``planner.optimize.local_search``). Certificate: a round that dropped no prefix whose bound was below
 its best design proves that design optimal (``optimal=True``); otherwise the smallest dropped bound is a
@@ -32,7 +34,7 @@ from planner.optimize.result import DesignOptimizeResult, RunControl, Status, St
 from planner.optimize.space import DesignSpace
 
 DEFAULT_OPTIONS = {
-    "initial_width": 16,  # prefixes kept per level in the first round
+    "initial_width": 16,  # best prefixes kept per level in the first round (plus the best per base)
     "growth": 8,  # width factor between rounds
     "max_width": 256,  # the last round's width; None: widen until certified (unlimited at the end)
     "unlimited_after": 1024,  # with max_width None: after this width the next round is unlimited
@@ -309,11 +311,24 @@ def _take_best(search: PrefixSearch, leaves: _Prefixes, best: _Best, control: Ru
         best.cost, best.shapes, best.rotations, best.base = cost, shapes, rotations, base
 
 
+def _beam(prefixes: _Prefixes, width: int, bases: int) -> np.ndarray:
+    """Mask of the prefixes a round keeps: the ``width`` best-ranked ones, and also the best
+    ``width // bases`` of each base position, so that no base is crowded out by the others."""
+    keep = np.zeros(len(prefixes), dtype=bool)
+    keep[np.argpartition(prefixes.rank, min(width, len(prefixes) - 1))[:width]] = True
+    order = np.lexsort((prefixes.rank, prefixes.base))
+    grouped = prefixes.base[order]
+    first = np.searchsorted(grouped, grouped)  # start of each prefix's base group in ``order``
+    keep[order[np.arange(len(order)) - first < max(width // bases, 1)]] = True
+    return keep
+
+
 def _run_round(search: PrefixSearch, width: int | None, best: _Best, control: RunControl, stats: dict,
                round_fraction) -> float:
     """One level-by-level pass; updates ``best``; returns the smallest bound it dropped for width."""
     dropped = np.inf
     level_prefixes = search.root()
+    bases = len(level_prefixes)
     blocks = search.space.num_blocks
     q_max = max(len(search.options(k)[0]) for k in range(blocks))
     per_child = q_max * search.library.samples.shape[-2] * len(search.target.points)
@@ -330,18 +345,19 @@ def _run_round(search: PrefixSearch, width: int | None, best: _Best, control: Ru
                 continue
             kept.append(children)
             held += len(children)
-            if width is not None and held > 2 * width:
+            if width is not None and held > 4 * width:
                 merged = _Prefixes.concat(kept)
-                order = np.argpartition(merged.rank, width)
-                dropped = min(dropped, merged.bound[order[width:]].min())
-                kept, held = [merged.take(order[:width])], width
+                keep = _beam(merged, width, bases)
+                dropped = min(dropped, merged.bound[~keep].min(initial=np.inf))
+                kept = [merged.take(keep)]
+                held = len(kept[0])
         if not kept:
             return dropped
         level_prefixes = _Prefixes.concat(kept)
         if width is not None and len(level_prefixes) > width:
-            order = np.argpartition(level_prefixes.rank, width)
-            dropped = min(dropped, level_prefixes.bound[order[width:]].min())
-            level_prefixes = level_prefixes.take(order[:width])
+            keep = _beam(level_prefixes, width, bases)
+            dropped = min(dropped, level_prefixes.bound[~keep].min(initial=np.inf))
+            level_prefixes = level_prefixes.take(keep)
         if level == blocks - 1:
             _take_best(search, level_prefixes, best, control, stats)
         control.report(round_fraction(level + 1, blocks), best.cost, stats["nfev"])

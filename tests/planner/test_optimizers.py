@@ -8,6 +8,7 @@ import pytest
 from planner.kinematics import chain_shape
 from planner.objectives import COLLISION_PENALTY, path_target
 from planner.optimize import Status, design_costs, design_space, solve_exact, solve_pso
+from planner.optimize.exact import _beam, _Prefixes
 
 
 def small_table():
@@ -148,3 +149,14 @@ def test_bad_options_are_rejected():
         solve_exact(target, space, options={"growth": 1})
     with pytest.raises(ValueError, match="time_budget"):
         solve_exact(target, space, time_budget=-1.0)
+
+
+def test_beam_keeps_the_global_best_and_the_best_of_every_base():
+    rank = np.array([0.1, 0.2, 0.3, 0.4, 5.0, 6.0, 7.0, 8.0, 0.5, 9.0])
+    base = np.array([0, 0, 0, 0, 1, 1, 1, 1, 0, 2])
+    fields = {name: np.zeros(len(rank)) for name in _Prefixes.__dataclass_fields__}
+    prefixes = _Prefixes(**(fields | {"rank": rank, "base": base, "counts": None, "stiff_counts": None}))
+    keep = _beam(prefixes, width=3, bases=3)
+    # global top 3 all come from base 0; bases 1 and 2 still keep their best (width // bases = 1)
+    assert np.flatnonzero(keep).tolist() == [0, 1, 2, 4, 9]
+    assert _beam(prefixes, width=20, bases=3).all()
