@@ -1,5 +1,7 @@
 """Simulated arm node through a real rclpy action client: moves with feedback, publishes arm/pose,
 brakes and holds on cancel, a newer goal preempts, bad targets are aborted with the reason."""
+import threading
+
 import pytest
 import rclpy
 from action_msgs.msg import GoalStatus
@@ -86,3 +88,23 @@ def test_bad_targets_are_aborted_with_the_reason(arm, kwargs, message):
     status, result = result_of(send(action, (0.3, 0.0, 0.3), **kwargs))
     assert status == GoalStatus.STATUS_ABORTED and not result.success
     assert message in result.message
+
+
+def test_simulation_steps_from_several_threads_never_see_time_run_backwards(ros_context):
+    node = SimArmNode(context=ros_context)
+    errors = []
+
+    def step_many():
+        try:
+            for _ in range(300):
+                node._on_timer()
+        except Exception as error:  # noqa: BLE001 - collected and asserted below
+            errors.append(error)
+
+    threads = [threading.Thread(target=step_many) for _ in range(4)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    node.destroy_node()
+    assert errors == []

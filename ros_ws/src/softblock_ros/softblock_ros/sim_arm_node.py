@@ -64,13 +64,13 @@ class SimArmNode(Node):
         self._last_step = time.monotonic()
         group = ReentrantCallbackGroup()
         self._pose_pub = self.create_publisher(PoseStamped, "arm/pose", 10)
-        self.create_timer(1.0 / value("publish_rate"), self._on_timer, callback_group=group)
+        self.create_timer(1.0 / value("publish_rate"), self._on_timer)  # default group: one step at a time
         self._server = ActionServer(self, MoveArm, "arm/move", execute_callback=self._execute,
                                     cancel_callback=lambda _: CancelResponse.ACCEPT, callback_group=group)
 
     def _on_timer(self) -> None:
-        now = time.monotonic()
-        with self._lock:
+        with self._lock:  # the clock is read under the lock: concurrent steps never see time run backwards
+            now = time.monotonic()
             pose = self._arm.step(now - self._last_step)
             self._last_step = now
             self._stepped.notify_all()
