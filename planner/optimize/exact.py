@@ -328,7 +328,7 @@ def _run_round(search: PrefixSearch, width: int | None, best: _Best, control: Ru
     """One level-by-level pass; updates ``best``; returns the smallest bound it dropped for width."""
     dropped = np.inf
     level_prefixes = search.root()
-    bases = len(level_prefixes)
+    bases = len(search.target.bases)
     blocks = search.space.num_blocks
     q_max = max(len(search.options(k)[0]) for k in range(blocks))
     per_child = q_max * search.library.samples.shape[-2] * len(search.target.points)
