@@ -10,7 +10,12 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 
 # Parallel runs never cross-talk: worker w of an n-worker pytest-xdist run gives its m-th module the
 # domain slot w + n*m, counted from an offset derived from the run's id (a plain run: from its pid).
-# 90 slots: distinct while no worker runs more than 90/n modules.
+# Slots: domains 10-99 by default, distinct while no worker runs more than 90/n modules. Suites that
+# run at the same time on one machine (two checkouts) each take their own range:
+# SOFTBLOCK_TEST_DOMAINS=100-160.
+_FIRST, _LAST = (int(bound) for bound in os.environ.get("SOFTBLOCK_TEST_DOMAINS", "10-99").split("-"))
+if not 0 <= _FIRST <= _LAST <= 232:
+    raise ValueError(f"SOFTBLOCK_TEST_DOMAINS={_FIRST}-{_LAST}: a range within 0-232 (Fast DDS's port limit)")
 _RUN = os.environ.get("PYTEST_XDIST_TESTRUNUID", str(os.getpid()))
 _OFFSET = int(hashlib.sha256(_RUN.encode()).hexdigest(), 16)
 _WORKER = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw"))
@@ -19,7 +24,7 @@ _MODULES = itertools.count()
 
 
 def _domain(module_index: int) -> str:
-    return str(10 + (_OFFSET + _WORKER + _WORKERS * module_index) % 90)
+    return str(_FIRST + (_OFFSET + _WORKER + _WORKERS * module_index) % (_LAST - _FIRST + 1))
 
 
 os.environ["ROS_DOMAIN_ID"] = _domain(next(_MODULES))
