@@ -18,10 +18,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from planner.assembly import ROTATION_STEP
+from planner.clearance import FingerBody, ObjectDistance
 from planner.contours import extract_contours
 from planner.kinematics import BLOCK_RADIUS, chain_shape, design_parameters
-from planner.objectives import ClearanceMap, ShapeTarget, evaluate, finger_target, path_target
-from planner.optimize import DesignOptimizeResult, DesignSpace, Status, design_space, solve_exact, solve_pso
+from planner.objectives import ShapeTarget, evaluate, finger_target, path_target
+from planner.optimize import (DesignOptimizeResult, DesignSpace, Status, design_space, solve_exact, solve_finger,
+                              solve_pso)
 from planner.optimize.space import MAX_BLOCKS
 from planner.table import load_table
 
@@ -40,9 +42,11 @@ class FingerDesign:
     design_ids: tuple[int, ...]  # base (top) first
     cost: float  # eq. (3) [m], including k = 1e11 if colliding
     collision: bool
+    min_clearance: float  # smallest distance between the finger body and the object [m]; negative: overlap
     optimal: bool  # certified optimum for this finger
+    lower_bound: float  # proven lower bound on this finger's optimum [m] (= cost when optimal)
     contour: np.ndarray  # (n, 2) the resampled target contour
-    centerline: np.ndarray  # (m, 2) the finger's centerline, base first
+    centerline: np.ndarray  # (m, 2) the finger's centerline samples, base first
     base: np.ndarray  # (2,) base centerline point
     result: DesignOptimizeResult
 
@@ -83,7 +87,8 @@ def _optimise(target: ShapeTarget, space: DesignSpace, method: str, *, seed, tim
     if method == "pso":
         return solve_pso(target, space, rng=np.random.default_rng(seed), options=options,
                          time_budget=time_budget, callback=callback)
-    return solve_exact(target, space, options=options, time_budget=time_budget, callback=callback)
+    solve = solve_exact if target.body is None else solve_finger
+    return solve(target, space, options=options, time_budget=time_budget, callback=callback)
 
 
 def resample_polyline(points: np.ndarray, spacing: float) -> np.ndarray:
@@ -127,6 +132,7 @@ def design_fingers(
     options: dict | None = None,
     contour_spacing: float = DEFAULT_CONTOUR_SPACING,
     base_offsets=DEFAULT_BASE_OFFSETS,
+    contact_tolerance: float = 0.0,
 ) -> FingerDesignResult:
     """Design a left and a right finger of ``num_blocks`` conforming to the object in ``mask`` (eq. 3).
 
@@ -134,9 +140,11 @@ def design_fingers(
     [m]. ``inventory`` (design ID -> blocks on the shelf) is shared by both fingers: when their separate
     optima do not fit together, the right finger is redesigned from what the left one leaves (the pair is
     then not certified). ``callback(progress)`` gets a ``planner.optimize.Progress`` and may raise
-    StopIteration to cancel. ``time_budget`` [s] covers both fingers. ``options`` go to the optimiser
-    (``planner.optimize.exact.DEFAULT_OPTIONS`` or ``planner.optimize.pso.DEFAULT_OPTIONS``; e.g.
-    ``{"max_width": None}`` makes the exact method widen until it proves the optimum).
+    StopIteration to cancel. ``time_budget`` [s] covers both fingers; the exact method certifies its result
+    unless the budget ends it first (it then says so and reports a proven lower bound). ``options`` go to the
+    optimiser (``planner.optimize.finger_search.DEFAULT_OPTIONS`` or ``planner.optimize.pso.DEFAULT_OPTIONS``).
+    ``contact_tolerance`` [m]: how far the finger body may enter the object before it counts as a collision
+    (0: touching only).
     """
     _check_common(num_blocks, method)
     if not isinstance(num_stiff_top, (int, np.integer)) or not 0 <= num_stiff_top <= num_blocks:
@@ -150,8 +158,11 @@ def design_fingers(
         raise ValueError(f"inventory holds {sum(inventory.values())} blocks; two fingers need {2 * num_blocks}")
     if time_budget is not None and not (np.isfinite(time_budget) and time_budget > 0):
         raise ValueError(f"time_budget must be a positive number of seconds or None, got {time_budget!r}")
+    if not (np.isfinite(contact_tolerance) and 0.0 <= contact_tolerance < BLOCK_RADIUS):
+        raise ValueError(f"contact_tolerance must be a length in [0, {BLOCK_RADIUS}) m, got {contact_tolerance!r}")
     table = load_table() if table is None else table
     contours = extract_contours(mask, pixel_size)
+    distance = ObjectDistance.from_contours(contours)
     space_for = lambda stock: design_space(  # noqa: E731
         table, num_blocks, stiff_positions=range(num_stiff_top), min_stiff_rod_diameter=min_stiff_rod_diameter,
         inventory=stock,
@@ -160,10 +171,10 @@ def design_fingers(
     problems = {}
     for side, contour, sign in (("left", contours.left, 1.0), ("right", contours.right, -1.0)):
         base_x = -sign * (contours.width / 2 + BLOCK_RADIUS)
-        clearance = ClearanceMap.from_contours(contours, base_x, sign)
+        body = FingerBody(distance, base_x, sign, contact_tolerance=float(contact_tolerance))
         resampled = resample_polyline(contour, contour_spacing)
         finger_frame = np.stack([sign * (resampled[:, 0] - base_x), np.zeros(len(resampled)), -resampled[:, 1]], 1)
-        problems[side] = (finger_target(finger_frame, clearance, base_offsets), clearance, resampled)
+        problems[side] = (finger_target(finger_frame, body, base_offsets), resampled)
 
     started = time.perf_counter()
     results = {}
@@ -202,20 +213,23 @@ def design_fingers(
     )
 
 
-def _finger(side, result, target, clearance, contour, table) -> FingerDesign:
+def _finger(side, result, target, contour, table) -> FingerDesign:
     theta, length, _ = design_parameters(table, np.array(result.design_ids))
     shape = chain_shape(theta, length, 0.0)
     base = target.bases[result.base]
-    cost = evaluate(target, shape.points + base, shape.rotations[-1], shape.positions[-1] + base)
+    cost = evaluate(target, shape.points + base, shape.rotations[-1], shape.positions[-1] + base,
+                    (theta, length, base[0]))
     return FingerDesign(
         side=side,
         design_ids=result.design_ids,
         cost=float(cost.total),
         collision=bool(cost.collision),
+        min_clearance=float(target.body.clearance(theta, length, base[0])),
         optimal=result.optimal,
+        lower_bound=result.lower_bound,
         contour=contour,
-        centerline=clearance.to_object(shape.points + base),
-        base=clearance.to_object(base),
+        centerline=target.body.to_object(shape.points + base),
+        base=target.body.to_object(base),
         result=result,
     )
 
