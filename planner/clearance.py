@@ -12,8 +12,9 @@ Distances come from two exact sources:
   to a lattice node is itself a lattice node (clamping a multiple of 1/f into [i, i + 1] keeps it one), so
   the Euclidean distance transform of the nodes the object covers is exact at every node, and anywhere
   else the distance lies within the nearest node's distance +- the offset to that node (1-Lipschitz);
-- the object's boundary edges (pixel sides between object and background), which give the exact
-  distance of any point where the lattice cannot decide.
+- per pixel row, the nearest object column left and right of every column, which give the exact
+  distance of any point (nearest square row by row, outward until the rows are farther than the best)
+  where the lattice cannot decide.
 
 Along the centreline the distance changes by at most the arc length travelled, so a stretch of arc
 length ds whose end distances are at least a and b stays at least (a + b - ds) / 2 away. A block's
@@ -49,7 +50,8 @@ class ObjectDistance:
     x0: float
     z0: float
     reach: float
-    edges: np.ndarray  # (E, 4) boundary pixel sides x0, z0, x1, z1 [m]
+    left: np.ndarray  # (rows, cols) int: nearest object column <= this one in the row, -1 if none
+    right: np.ndarray  # (rows, cols) int: nearest object column >= this one in the row, cols if none
     mask: np.ndarray  # (rows, cols) bool, the object's pixels
     pixel_size: float
     origin_pixel: tuple[float, float]  # (column, row) of the object-frame origin in pixel-edge units
@@ -75,7 +77,8 @@ class ObjectDistance:
             x0=(-pad - column0) * pixel,
             z0=(row0 + pad) * pixel,
             reach=(pad - 1) * pixel,
-            edges=_boundary_edges(mask, pixel, contours.origin_pixel),
+            left=_nearest_columns(mask, from_left=True),
+            right=_nearest_columns(mask, from_left=False),
             mask=mask,
             pixel_size=pixel,
             origin_pixel=(float(column0), float(row0)),
@@ -84,8 +87,8 @@ class ObjectDistance:
     @property
     def kernel_args(self) -> tuple:
         """The fields in the order the compiled kernels take them."""
-        return (self.lattice, self.spacing, self.x0, self.z0, self.reach, self.edges, self.mask, self.pixel_size,
-                self.origin_pixel[0], self.origin_pixel[1])
+        return (self.lattice, self.spacing, self.x0, self.z0, self.reach, self.left, self.right, self.mask,
+                self.pixel_size, self.origin_pixel[0], self.origin_pixel[1])
 
     def exact(self, points) -> np.ndarray:
         """Exact distance [m] of object-frame points (..., 2) to the object (0 inside)."""
@@ -96,42 +99,42 @@ class ObjectDistance:
         return out.reshape(points.shape[:-1])
 
 
-def _boundary_edges(mask: np.ndarray, pixel: float, origin) -> np.ndarray:
-    """Pixel sides between an object pixel and a background pixel, in object-frame metres."""
-    padded = np.pad(mask, 1)
-    column0, row0 = origin
-    edges = []
-    vertical = padded[1:-1, 1:] != padded[1:-1, :-1]  # side at column edge i between pixels i-1 and i
-    rows, columns = np.nonzero(vertical)
-    edges.append(np.stack([columns, rows, columns, rows + 1], axis=1))
-    horizontal = padded[1:, 1:-1] != padded[:-1, 1:-1]  # side at row edge j between pixels j-1 and j
-    rows, columns = np.nonzero(horizontal)
-    edges.append(np.stack([columns, rows, columns + 1, rows], axis=1))
-    u0, v0, u1, v1 = np.concatenate(edges).astype(float).T
-    return np.stack([(u0 - column0) * pixel, (row0 - v0) * pixel, (u1 - column0) * pixel, (row0 - v1) * pixel],
-                    axis=1)
+def _nearest_columns(mask: np.ndarray, from_left: bool) -> np.ndarray:
+    """Per row, the nearest object column at or left of (``from_left``) / right of each column."""
+    columns = np.arange(mask.shape[1])
+    if from_left:
+        return np.maximum.accumulate(np.where(mask, columns, -1), axis=1)
+    flipped = np.where(mask, columns, mask.shape[1])[:, ::-1]
+    return np.minimum.accumulate(flipped, axis=1)[:, ::-1]
 
 
 # ------------------------------------------------------------------------------------------ kernels
 @njit(cache=True)
 def exact_distance(field, x, z):
     """Exact distance of one object-frame point to the pixel squares (0 inside one)."""
-    edges, mask, pixel, column0, row0 = field[5], field[6], field[7], field[8], field[9]
-    column = int(np.floor(x / pixel + column0))
-    row = int(np.floor(row0 - z / pixel))
-    if 0 <= row < mask.shape[0] and 0 <= column < mask.shape[1] and mask[row, column]:
-        return 0.0
-    best = np.inf
-    for k in range(edges.shape[0]):
-        ax, az, bx, bz = edges[k, 0], edges[k, 1], edges[k, 2], edges[k, 3]
-        dx, dz = bx - ax, bz - az
-        t = ((x - ax) * dx + (z - az) * dz) / (dx * dx + dz * dz)
-        t = min(max(t, 0.0), 1.0)
-        ex, ez = ax + t * dx - x, az + t * dz - z
-        squared = ex * ex + ez * ez
-        if squared < best:
-            best = squared
-    return np.sqrt(best)
+    left, right, mask, pixel, column0, row0 = field[5], field[6], field[7], field[8], field[9], field[10]
+    rows, cols = mask.shape
+    u = x / pixel + column0  # pixel-edge units: column i spans [i, i + 1], row j spans [j, j + 1]
+    v = row0 - z / pixel
+    column = min(max(int(np.floor(u)), 0), cols - 1)
+    start = min(max(int(np.floor(v)), 0), rows - 1)
+    best = np.inf  # squared, in pixels
+    for direction in (1, -1):
+        j = start if direction == 1 else start - 1
+        while 0 <= j < rows:
+            dv = max(j - v, v - (j + 1), 0.0)
+            if dv * dv >= best:
+                break
+            du = np.inf
+            before, after = left[j, column], right[j, column]
+            if before >= 0:
+                du = max(u - (before + 1), before - u, 0.0) if before == column else u - (before + 1)
+            if after < cols:
+                du = min(du, max(after - u, u - (after + 1), 0.0) if after == column else after - u)
+            du = max(du, 0.0)
+            best = min(best, du * du + dv * dv)
+            j += direction
+    return np.sqrt(best) * pixel
 
 
 @njit(cache=True)
