@@ -21,8 +21,11 @@ the smallest bound of the children not yet visited.
 """
 from __future__ import annotations
 
+import hashlib
+import os
 from dataclasses import dataclass
 from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 from numba import njit
@@ -31,6 +34,7 @@ from scipy import ndimage
 from planner.clearance import RESOLUTION, block_min_distance
 from planner.kinematics import DEFAULT_SAMPLES_PER_BLOCK, chain_shape
 from planner.objectives import COLLISION_PENALTY, ShapeTarget
+from planner.optimize.local_search import polish
 from planner.optimize.pso import design_costs
 from planner.optimize.result import DesignOptimizeResult, RunControl, Status, Stop, make_result
 from planner.optimize.space import DesignSpace
@@ -40,9 +44,12 @@ DEFAULT_OPTIONS = {
     "region_spacing": 2e-4,  # grid step of the suffix regions they are built from [m]
     "expansions_per_check": 2000,  # nodes expanded between time-budget / callback checks
     "ceiling_growth": 1.3,  # factor between the cost ceilings of successive rounds
+    "beam_width": 16,  # collision-free prefixes per level of the beam that finds the first finger
+    "polish": True,  # improve the beam's finger by block-by-block local search before the search starts
 }
 SAMPLES_PER_BLOCK = DEFAULT_SAMPLES_PER_BLOCK  # the objective's centerline samples (planner.kinematics)
 FLOAT32_MARGIN = 1e-7  # [m] subtracted before storing bounds as float32, so rounding never raises them
+FIELDS_VERSION = 1  # bump when the way the fields are built changes (names the cache files)
 
 
 # ---------------------------------------------------------------------------------------- geometry
@@ -144,7 +151,6 @@ class LookaheadFields:
     layout: np.ndarray  # (N, 7) float64: offset, rows, cols, x0, z0, reach of the samples that follow, spacing
 
 
-@lru_cache(maxsize=8)
 def _lookahead_fields(key, field_spacing: float, region_spacing: float) -> LookaheadFields:
     samples, ends, radius, choices = key
     samples = np.array(samples).reshape(-1, SAMPLES_PER_BLOCK, 2)
@@ -204,10 +210,37 @@ def _lookahead_fields(key, field_spacing: float, region_spacing: float) -> Looka
 
 def lookahead_fields(shapes: BlockShapes, space: DesignSpace, radius: float, field_spacing: float,
                      region_spacing: float) -> LookaheadFields:
-    """The lookahead fields of ``space`` (cached per block geometry, radius and per-position choices)."""
+    """The lookahead fields of ``space``: they depend only on the block geometry, the radius and the
+    per-position choices, so they are kept in memory and in ``cache_directory()`` (building them takes
+    seconds; loading them, a fraction of one)."""
     key = (tuple(np.round(shapes.samples, 12).ravel()), tuple(np.round(shapes.ends, 12).ravel()), float(radius),
            tuple(tuple(int(s) for s in c) for c in space.choices))
-    return _lookahead_fields(key, float(field_spacing), float(region_spacing))
+    return _cached_fields(key, float(field_spacing), float(region_spacing))
+
+
+def cache_directory() -> Path:
+    """Where lookahead fields are kept: $SOFTBLOCK_CACHE, else ~/.cache/softblock."""
+    return Path(os.environ.get("SOFTBLOCK_CACHE") or Path.home() / ".cache" / "softblock")
+
+
+@lru_cache(maxsize=4)
+def _cached_fields(key, field_spacing: float, region_spacing: float) -> LookaheadFields:
+    digest = hashlib.sha256(repr((FIELDS_VERSION, key, field_spacing, region_spacing)).encode()).hexdigest()[:24]
+    path = cache_directory() / f"lookahead-{digest}.npz"
+    try:
+        with np.load(path) as stored:
+            return LookaheadFields(*(stored[name] for name in LookaheadFields.__dataclass_fields__))
+    except (OSError, KeyError, ValueError):
+        pass  # not built yet (or unreadable): build and store
+    fields = _lookahead_fields(key, field_spacing, region_spacing)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        temporary = path.with_suffix(f".{os.getpid()}.tmp.npz")
+        np.savez(temporary, **{name: getattr(fields, name) for name in LookaheadFields.__dataclass_fields__})
+        temporary.replace(path)  # atomic: concurrent processes never read a half-written file
+    except OSError:
+        pass  # a read-only home still works, only slower
+    return fields
 
 
 # ------------------------------------------------------------------------------------------ search
@@ -477,6 +510,63 @@ def _fraction(state) -> float:
     return min((max(pointer[0] - 1, 0) + inner) / count[0], 1.0)
 
 
+def _collides(problem, pose, s) -> bool:
+    field, frame, threshold, cap, theta, length = problem[16:22]
+    distance = block_min_distance(field, frame, pose[0], pose[1], pose[2], theta[s], length[s], cap, threshold, False)
+    return distance < threshold - RESOLUTION
+
+
+def _moved(problem, pose, s) -> np.ndarray:
+    x, z = _place(pose, problem[6][s, 0], problem[6][s, 1])
+    return np.array([x, z, pose[2] + problem[6][s, 2]])
+
+
+def _beam(problem, space: DesignSpace, width: int):
+    """A good collision-free finger to start from (cost, [base, shapes...]) or None: a beam over the same
+    tree that keeps, per level, the ``width`` collision-free children with the lowest bounds, those whose
+    straightest completion also stays clear first."""
+    contour, choices, n_choices, base_x = problem[0], problem[3], problem[4], problem[22]
+    blocks = space.num_blocks
+    straightest = [int(c[np.argmin(np.abs(space.theta[c]))]) for c in space.choices]
+    size = max(len(base_x) * n_choices[0], n_choices.max())
+    out_bound, out_shape, out_base = np.zeros(size), np.zeros(size, np.int64), np.zeros(size, np.int64)
+    out_pose, acc, scratch = np.zeros((size, 3)), np.zeros(n_choices.max()), np.zeros(len(contour))
+    limits = np.array([np.inf, np.inf])
+    beam = [(np.array([x, 0.0, 0.0]), np.hypot(contour[:, 0] - x, contour[:, 1]), [b]) for b, x in enumerate(base_x)]
+    for depth in range(blocks):
+        candidates = []
+        for pose, alpha, path in beam:
+            path_array = np.array(path + [-1] * (blocks + 1 - len(path)), dtype=np.int64)
+            counts = np.bincount(path_array[1:][path_array[1:] >= 0], minlength=len(space.theta)).astype(np.int64)
+            n = _expand(problem, depth, pose, alpha, np.inf, limits, out_bound, out_shape, out_base, out_pose, 0,
+                        path[0], path_array, counts, acc, scratch)
+            candidates += [(out_bound[j], int(out_shape[j]), pose, alpha, path) for j in range(n)]
+        candidates.sort(key=lambda c: c[0])
+        kept, clear = [], 0
+        for bound, s, pose, alpha, path in candidates:
+            child_alpha = np.empty(len(contour))
+            _block_update(problem, pose, alpha, s, child_alpha)
+            if _too_close(problem, child_alpha) or _collides(problem, pose, s):
+                continue
+            tail_pose, doomed = _moved(problem, pose, s), False
+            for t in straightest[depth + 1:]:
+                if _collides(problem, tail_pose, t):
+                    doomed = True
+                    break
+                tail_pose = _moved(problem, tail_pose, t)
+            kept.append((doomed, bound, _moved(problem, pose, s), child_alpha, path + [s]))
+            clear += not doomed
+            if clear >= width:
+                break
+        if not kept:
+            return None
+        kept.sort(key=lambda k: (k[0], k[1]))
+        beam = [(pose, alpha, path) for _, _, pose, alpha, path in kept[:width]]
+        if depth == blocks - 1:
+            return kept[0][1], kept[0][4]
+    return None
+
+
 def _check_options(options) -> dict:
     unknown = set(options or {}) - set(DEFAULT_OPTIONS)
     if unknown:
@@ -489,6 +579,8 @@ def _check_options(options) -> dict:
         raise ValueError("options['expansions_per_check'] must be an integer >= 1")
     if not (np.isfinite(settings["ceiling_growth"]) and settings["ceiling_growth"] > 1):
         raise ValueError("options['ceiling_growth'] must be > 1")
+    if not (isinstance(settings["beam_width"], (int, np.integer)) and settings["beam_width"] >= 1):
+        raise ValueError("options['beam_width'] must be an integer >= 1")
     return settings
 
 
@@ -532,10 +624,20 @@ def solve_finger(target: ShapeTarget, space: DesignSpace, *, options: dict | Non
         np.zeros(n_choices.max()), np.zeros(len(contour)),
     )
     best, limits, stats = state[12], state[15], state[14]
-    _start(problem, state)  # ceiling inf: every root child, to set the first ceiling
-    limits[0] = state[4][0, state[3][0, 0]] * settings["ceiling_growth"] if state[2][0] else np.inf
     status, nit, proven = Status.FINISHED, 0, -np.inf
     try:
+        found = _beam(problem, space, settings["beam_width"])
+        if found is not None:
+            best[0], state[13][:] = found[0], found[1]
+            if settings["polish"]:
+                shapes_, _, bases_, costs_, _ = polish(target, space, np.array([found[1][1:]]),
+                                                      np.zeros((1, blocks), np.int64), np.array([found[1][0]]),
+                                                      control, SAMPLES_PER_BLOCK)
+                if costs_[0] < best[0]:
+                    best[0], state[13][:] = costs_[0], [bases_[0], *shapes_[0]]
+        _start(problem, state)  # with a finger in hand the ceiling stays off; without, it starts low and grows
+        if found is None:
+            limits[0] = state[4][0, state[3][0, 0]] * settings["ceiling_growth"] if state[2][0] else np.inf
         while True:
             nit += 1
             done = _search(problem, state, settings["expansions_per_check"])
