@@ -24,6 +24,8 @@ from planner.kinematics import BLOCK_RADIUS, chain_shape, design_parameters
 from planner.objectives import ShapeTarget, evaluate, finger_target, path_target
 from planner.optimize import (DesignOptimizeResult, DesignSpace, Status, design_space, solve_exact, solve_finger,
                               solve_pso)
+from planner.optimize.finger_search import DEFAULT_OPTIONS as FINGER_OPTIONS
+from planner.optimize.finger_search import block_shapes, lookahead_fields
 from planner.optimize.space import MAX_BLOCKS
 from planner.table import load_table
 
@@ -31,6 +33,7 @@ DEFAULT_MIN_STIFF_ROD_DIAMETER = 0.62e-3  # [m], the D of ID 57 used for the pap
 DEFAULT_CONTOUR_SPACING = 1e-3  # [m]
 DEFAULT_BASE_OFFSETS = np.arange(0.0, 12.5e-3, 1e-3)  # outward from touching the bounding box [m]
 PATH_EXACT_OPTIONS = {"max_width": 64, "polish_starts": 1}  # 12 rotations x 84 shapes per block: narrow
+PREPARED_CONFIGURATIONS = ((4, 2), (5, 3), (5, 2))  # (blocks, stiff top) of the gripper and the benchmarks
 METHODS = ("exact", "pso")
 
 
@@ -211,6 +214,20 @@ def design_fingers(
         left=fingers["left"], right=fingers["right"], success=success, message=message, optimal=optimal,
         solve_time=time.perf_counter() - started,
     )
+
+
+def prepare_finger_search(configurations=PREPARED_CONFIGURATIONS, table=None) -> None:
+    """Compile the finger search and build (or load) its lookahead fields for each (num_blocks,
+    num_stiff_top), so that later requests start at once; both are kept on disk (numba's cache and
+    ``planner.optimize.finger_search.cache_directory()``)."""
+    table = load_table() if table is None else table
+    rows, columns = np.mgrid[:60, :40]
+    ellipse = ((rows - 30) / 24.0) ** 2 + ((columns - 20) / 12.0) ** 2 < 1.0
+    design_fingers(ellipse, 5e-4, 2, table=table)  # compiles every kernel on a small problem
+    for blocks, stiff in configurations:
+        space = design_space(table, blocks, stiff_positions=range(stiff))
+        lookahead_fields(block_shapes(space), space, BLOCK_RADIUS, FINGER_OPTIONS["field_spacing"],
+                         FINGER_OPTIONS["region_spacing"])
 
 
 def _finger(side, result, target, contour, table) -> FingerDesign:

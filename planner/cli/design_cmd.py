@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -27,10 +28,14 @@ def register(subparsers) -> None:
                         help="rod diameter a stiff block needs [m] (default %(default)s)")
     _common(finger)
     finger.add_argument("--inventory", type=Path, help="YAML mapping design ID -> blocks on the shelf")
-    finger.add_argument("--certify", action="store_true",
-                        help="exact method: widen the search until the optimum is proven (minutes)")
+    finger.add_argument("--contact-tolerance", type=float, default=0.0,
+                        help="how far a finger body may enter the object before it collides [m] (default 0)")
     finger.add_argument("--png", type=Path, help="draw the fingers over the object into this PNG")
     finger.set_defaults(handler=run_finger)
+
+    prepare = subparsers.add_parser("prepare-design", help="compile the finger search and build its lookahead "
+                                    "fields for the usual block counts (set-up runs this once)")
+    prepare.set_defaults(handler=run_prepare)
 
     path = subparsers.add_parser("design-path", help="design a chain (with rotations) following a 3D path")
     path.add_argument("points", type=Path, help="CSV of x,y,z [m] per line, base first (header line allowed)")
@@ -77,20 +82,24 @@ def run_finger(args) -> int:
     result = design.design_fingers(
         mask, pixel_size, args.blocks, num_stiff_top=args.stiff_top, min_stiff_rod_diameter=args.min_stiff_diameter,
         method=args.method, time_budget=args.time_budget, seed=args.seed,
-        inventory=_load_inventory(args.inventory), callback=_progress,
-        options={"max_width": None} if args.certify and args.method == "exact" else None,
+        inventory=_load_inventory(args.inventory), callback=_progress, contact_tolerance=args.contact_tolerance,
     )
     print(file=sys.stderr)
     report = {"success": result.success, "message": result.message, "optimal": result.optimal,
-              "solve_time": result.solve_time}
+              "solve_time": result.solve_time, "contact_tolerance": args.contact_tolerance,
+              "frame": "object frame: origin at the top centre of the object's bounding box, x right, z up [m]"}
     for finger in (result.left, result.right):
         report[finger.side] = {
             "design_ids": list(finger.design_ids), "cost": finger.cost, "collision": finger.collision,
-            "optimal": finger.optimal, "base": finger.base.tolist(), "solve_time": finger.result.solve_time,
+            "min_clearance": finger.min_clearance, "optimal": finger.optimal,
+            "lower_bound": finger.lower_bound if np.isfinite(finger.lower_bound) else None,
+            "base": finger.base.tolist(), "centerline": finger.centerline.tolist(),
+            "solve_time": finger.result.solve_time,
         }
+        bound = "certified optimal" if finger.optimal else f"not certified (lower bound {finger.lower_bound:.4f} m)"
         print(f"{finger.side:5s} IDs {list(finger.design_ids)}  cost {finger.cost:.4f} m  "
-              f"base x {1e3 * finger.base[0]:.1f} mm  collision {finger.collision}  "
-              f"{'certified optimal' if finger.optimal else 'not certified'}  {finger.result.solve_time:.2f} s")
+              f"base x {1e3 * finger.base[0]:.1f} mm  clearance {1e3 * finger.min_clearance:.3f} mm  "
+              f"collision {finger.collision}  {bound}  {finger.result.solve_time:.2f} s")
     print(result.message)
     if args.json:
         args.json.write_text(json.dumps(report, indent=2))
@@ -123,6 +132,15 @@ def _draw_fingers(result, mask, pixel_size, path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def run_prepare(args) -> int:
+    started = time.perf_counter()
+    print(f"preparing the finger search for (blocks, stiff top) {list(design.PREPARED_CONFIGURATIONS)} ...",
+          file=sys.stderr, flush=True)
+    design.prepare_finger_search()
+    print(f"finger search ready ({time.perf_counter() - started:.1f} s)", file=sys.stderr)
+    return 0
 
 
 def run_path(args) -> int:

@@ -92,7 +92,8 @@ class PlannerNode(Node):
         result = design.design_fingers(
             mask, request.pixel_size, request.num_blocks, num_stiff_top=request.num_stiff_top,
             min_stiff_rod_diameter=request.min_stiff_rod_diameter or design.DEFAULT_MIN_STIFF_ROD_DIAMETER,
-            inventory=inventory_from_lists(request.inventory_ids, request.inventory_counts), **options)
+            inventory=inventory_from_lists(request.inventory_ids, request.inventory_counts),
+            contact_tolerance=request.contact_tolerance, **options)
         response.success, response.message = result.success, result.message
         response.optimal, response.solve_time = result.optimal, result.solve_time
         for side in ("left", "right"):
@@ -104,6 +105,8 @@ class PlannerNode(Node):
                                                            base_orientation=FINGER_BASE_ORIENTATION[side]))
                 setattr(response, f"{side}_cost", float(finger.cost))
                 setattr(response, f"{side}_collision", bool(finger.collision))
+                setattr(response, f"{side}_min_clearance", float(finger.min_clearance))
+                setattr(response, f"{side}_lower_bound", float(finger.lower_bound))
         self.get_logger().info(f"design_fingers: {result.message} ({result.solve_time:.2f} s)")
 
     def _design_path(self, request, response) -> None:
