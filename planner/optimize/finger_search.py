@@ -624,7 +624,7 @@ def solve_finger(target: ShapeTarget, space: DesignSpace, *, options: dict | Non
         np.zeros(n_choices.max()), np.zeros(len(contour)),
     )
     best, limits, stats = state[12], state[15], state[14]
-    status, nit, proven = Status.FINISHED, 0, -np.inf
+    status, nit, proven, searching = Status.FINISHED, 0, 0.0, False  # every objective is >= 0
     try:
         found = _beam(problem, space, settings["beam_width"])
         if found is not None:
@@ -636,6 +636,7 @@ def solve_finger(target: ShapeTarget, space: DesignSpace, *, options: dict | Non
                 if costs_[0] < best[0]:
                     best[0], state[13][:] = costs_[0], [bases_[0], *shapes_[0]]
         _start(problem, state)  # with a finger in hand the ceiling stays off; without, it starts low and grows
+        searching = True
         if found is None:
             limits[0] = state[4][0, state[3][0, 0]] * settings["ceiling_growth"] if state[2][0] else np.inf
         while True:
@@ -652,7 +653,7 @@ def solve_finger(target: ShapeTarget, space: DesignSpace, *, options: dict | Non
     except Stop as stop:
         status = stop.status
     cost, best_path = float(best[0]), state[13]
-    lower_bound = cost if status == Status.CERTIFIED else max(proven, _lower_bound(state))
+    lower_bound = cost if status == Status.CERTIFIED else max(proven, _lower_bound(state) if searching else 0.0)
     if not np.isfinite(cost):  # nothing collision-free: report the least bad first-choice finger
         chosen, base_index = np.array([c[0] for c in space.choices]), 0
         cost = float(design_costs(target, space, chosen[None], np.zeros((1, blocks), np.int64),

@@ -108,7 +108,9 @@ class RunControl:
 
 def make_result(space, shapes, rotations, cost, status: Status, *, base, nit, nfev, lower_bound,
                 control) -> DesignOptimizeResult:
-    """Assemble a result; the success flag follows the status, the message adds the numbers."""
+    """Assemble a result; the message adds the numbers. ``success``: a usable design (collision-free, within
+    the inventory) is returned, also when the time budget ended the run; ``optimal`` says whether it is
+    proven best."""
     shapes = np.asarray(shapes, dtype=np.int64)
     ids = space.design_ids(shapes)
     x = np.stack([np.array(ids, dtype=np.int64), np.asarray(rotations, dtype=np.int64)], axis=1)
@@ -122,7 +124,7 @@ def make_result(space, shapes, rotations, cost, status: Status, *, base, nit, nf
     return DesignOptimizeResult(
         x=x,
         fun=float(cost),
-        success=status in (Status.CERTIFIED, Status.FINISHED),
+        success=status in (Status.CERTIFIED, Status.FINISHED) or status == Status.TIME_BUDGET and cost < COLLISION_PENALTY,
         status=status,
         message=message,
         nit=nit,
