@@ -119,6 +119,21 @@ def _cancel(progress) -> None:
     raise StopIteration
 
 
+def finger_problems(contours, base_offsets=DEFAULT_BASE_OFFSETS, contour_spacing: float = DEFAULT_CONTOUR_SPACING,
+                    contact_tolerance: float = 0.0) -> dict[str, tuple[ShapeTarget, np.ndarray]]:
+    """The eq. (3) target of each finger ("left", "right") of an object (``planner.contours.ObjectContours``)
+    and its resampled contour in the object frame, placed as the module docstring says."""
+    distance = ObjectDistance.from_contours(contours)
+    problems = {}
+    for side, contour, sign in (("left", contours.left, 1.0), ("right", contours.right, -1.0)):
+        base_x = -sign * (contours.width / 2 + BLOCK_RADIUS)
+        body = FingerBody(distance, base_x, sign, contact_tolerance=float(contact_tolerance))
+        resampled = resample_polyline(contour, contour_spacing)
+        finger_frame = np.stack([sign * (resampled[:, 0] - base_x), np.zeros(len(resampled)), -resampled[:, 1]], 1)
+        problems[side] = (finger_target(finger_frame, body, base_offsets), resampled)
+    return problems
+
+
 def design_fingers(
     mask: np.ndarray,
     pixel_size: float,
@@ -165,19 +180,12 @@ def design_fingers(
         raise ValueError(f"contact_tolerance must be a length in [0, {BLOCK_RADIUS}) m, got {contact_tolerance!r}")
     table = load_table() if table is None else table
     contours = extract_contours(mask, pixel_size)
-    distance = ObjectDistance.from_contours(contours)
     space_for = lambda stock: design_space(  # noqa: E731
         table, num_blocks, stiff_positions=range(num_stiff_top), min_stiff_rod_diameter=min_stiff_rod_diameter,
         inventory=stock,
     )
     space = space_for(inventory)
-    problems = {}
-    for side, contour, sign in (("left", contours.left, 1.0), ("right", contours.right, -1.0)):
-        base_x = -sign * (contours.width / 2 + BLOCK_RADIUS)
-        body = FingerBody(distance, base_x, sign, contact_tolerance=float(contact_tolerance))
-        resampled = resample_polyline(contour, contour_spacing)
-        finger_frame = np.stack([sign * (resampled[:, 0] - base_x), np.zeros(len(resampled)), -resampled[:, 1]], 1)
-        problems[side] = (finger_target(finger_frame, body, base_offsets), resampled)
+    problems = finger_problems(contours, base_offsets, contour_spacing, contact_tolerance)
 
     started = time.perf_counter()
     results = {}
