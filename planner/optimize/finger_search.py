@@ -584,6 +584,29 @@ def _check_options(options) -> dict:
     return settings
 
 
+def search_problem(target: ShapeTarget, space: DesignSpace, settings: dict | None = None) -> tuple:
+    """Everything the compiled search reads, as one tuple (see the kernels for the order)."""
+    settings = settings or DEFAULT_OPTIONS
+    body = target.body
+    shapes = block_shapes(space)
+    fields = lookahead_fields(shapes, space, body.radius, settings["field_spacing"], settings["region_spacing"])
+    choices = np.full((space.num_blocks, max(len(c) for c in space.choices)), -1, dtype=np.int64)
+    for k, c in enumerate(space.choices):
+        choices[k, : len(c)] = c
+    n_choices = np.array([len(c) for c in space.choices], dtype=np.int64)
+    contour = np.ascontiguousarray(target.points[:, [0, 2]])
+    limited = space.stock is not None
+    stock = np.asarray(space.stock if limited else np.zeros(len(space.theta)), np.int64)
+    stiff_stock = np.asarray(space.stiff_stock if limited else stock, np.int64)
+    return (
+        contour, np.asarray(target.end_point[[0, 2]], float), float(body.radius), choices, n_choices,
+        shapes.samples, shapes.ends, shapes.disc, fields.body, fields.tip, fields.layout, fields.discs,
+        stock, stiff_stock, np.asarray(space.stiff_positions, bool), limited,
+        body.distance.kernel_args, body.frame, float(body.threshold), float(body.cap_length), shapes.theta,
+        shapes.length, np.ascontiguousarray(target.bases[:, 0]), body.distance.exact(body.to_object(contour)),
+    )
+
+
 def solve_finger(target: ShapeTarget, space: DesignSpace, *, options: dict | None = None, time_budget=None,
                  callback=None) -> DesignOptimizeResult:
     """Minimise the finger objective of ``target`` (eq. 3, with a body) over the planar ``space``; certified
@@ -594,26 +617,8 @@ def solve_finger(target: ShapeTarget, space: DesignSpace, *, options: dict | Non
     if space.rotations != 1:
         raise ValueError("finger designs are planar: the design space must not allow rotations")
     control = RunControl(time_budget, callback)
-    body = target.body
-    shapes = block_shapes(space)
-    fields = lookahead_fields(shapes, space, body.radius, settings["field_spacing"], settings["region_spacing"])
-    blocks = space.num_blocks
-    choices = np.full((blocks, max(len(c) for c in space.choices)), -1, dtype=np.int64)
-    for k, c in enumerate(space.choices):
-        choices[k, : len(c)] = c
-    n_choices = np.array([len(c) for c in space.choices], dtype=np.int64)
-    contour = np.ascontiguousarray(target.points[:, [0, 2]])
-    base_x = np.ascontiguousarray(target.bases[:, 0])
-    limited = space.stock is not None
-    stock = np.asarray(space.stock if limited else np.zeros(len(space.theta)), np.int64)
-    stiff_stock = np.asarray(space.stiff_stock if limited else stock, np.int64)
-    problem = (
-        contour, np.asarray(target.end_point[[0, 2]], float), float(body.radius), choices, n_choices,
-        shapes.samples, shapes.ends, shapes.disc, fields.body, fields.tip, fields.layout, fields.discs,
-        stock, stiff_stock, np.asarray(space.stiff_positions, bool), limited,
-        body.distance.kernel_args, body.frame, float(body.threshold), float(body.cap_length), shapes.theta,
-        shapes.length, base_x, body.distance.exact(body.to_object(contour)),
-    )
+    problem = search_problem(target, space, settings)
+    blocks, contour, n_choices, base_x = space.num_blocks, problem[0], problem[4], problem[22]
     width = max(len(base_x) * n_choices[0], n_choices.max())
     state = (
         np.zeros(1, np.int64), np.zeros(blocks, np.int64), np.zeros(blocks, np.int64),

@@ -9,27 +9,14 @@ from hypothesis import strategies as st
 
 from planner import design
 from planner.contours import extract_contours, load_catalog_object
+from planner.generated_objects import PIXEL_SIZE, lumpy_object
 from planner.kinematics import chain_shape, design_parameters
 from planner.optimize import Status, design_costs, design_space, solve_finger
 from planner.table import load_table
 
 TABLE = load_table()
-PIXEL = 2.5e-4
 # a shelf of 12 distinct designs (3 stiff) keeps brute force small; each may be used up to 3 times
 SHELF = {i: 3 for i in (2, 8, 14, 19, 27, 33, 40, 45, 61, 64, 71, 78)}
-
-
-def asymmetric_object(seed: int) -> np.ndarray:
-    """A lumpy object, different left and right: the union of a few random ellipses, padded."""
-    rng = np.random.default_rng(seed)
-    rows, cols = np.mgrid[:320, :200]
-    mask = np.zeros(rows.shape, dtype=bool)
-    centre_row = 110
-    for _ in range(4):
-        row, col = centre_row + rng.uniform(-20, 60), 100 + rng.uniform(-25, 25)
-        half_h, half_w = rng.uniform(35, 70), rng.uniform(20, 45)
-        mask |= ((rows - row) / half_h) ** 2 + ((cols - col) / half_w) ** 2 < 1.0
-    return mask
 
 
 def brute_force(target, space):
@@ -48,7 +35,7 @@ OBJECTS = [("strawberry", None), ("gingerbread", None), ("generated", 1), ("gene
 @pytest.mark.parametrize("blocks, stiff", [(2, 0), (3, 1)])
 @pytest.mark.parametrize("name, seed", OBJECTS)
 def test_certified_search_equals_brute_force(name, seed, blocks, stiff):
-    contours = (load_catalog_object(name) if seed is None else extract_contours(asymmetric_object(seed), PIXEL))
+    contours = (load_catalog_object(name) if seed is None else extract_contours(lumpy_object(seed), PIXEL_SIZE))
     offsets = np.arange(0.0, 6.5e-3, 2e-3)
     problems = design.finger_problems(contours, base_offsets=offsets)
     space = design_space(TABLE, blocks, stiff_positions=range(stiff), inventory=SHELF)
@@ -63,7 +50,7 @@ def test_certified_search_equals_brute_force(name, seed, blocks, stiff):
 
 
 def test_stopped_search_reports_a_proven_lower_bound():
-    contours = extract_contours(asymmetric_object(3), PIXEL)
+    contours = extract_contours(lumpy_object(3), PIXEL_SIZE)
     target = design.finger_problems(contours, base_offsets=[0.0, 4e-3])["left"][0]
     space = design_space(TABLE, 3, inventory=SHELF)
     optimum = solve_finger(target, space).fun
@@ -112,7 +99,7 @@ def body_enters_object(contours, body, theta, length, base_x) -> bool:
 @given(seed=st.integers(0, 50), ids=st.lists(st.sampled_from(TABLE.ids.tolist()), min_size=1, max_size=4),
        offset=st.floats(0.0, 0.012), side=st.sampled_from(["left", "right"]))
 def test_collision_free_designs_never_enter_the_object(seed, ids, offset, side):
-    contours = extract_contours(asymmetric_object(seed), PIXEL)
+    contours = extract_contours(lumpy_object(seed), PIXEL_SIZE)
     body = design.finger_problems(contours)[side][0].body
     theta, length, _ = design_parameters(TABLE, np.array(ids))
     clearance = float(body.clearance(theta, length, -offset))
@@ -126,7 +113,7 @@ def test_collision_free_designs_never_enter_the_object(seed, ids, offset, side):
 
 @pytest.mark.parametrize("name, seed", OBJECTS)
 def test_certified_fingers_touch_but_never_enter(name, seed):
-    contours = load_catalog_object(name) if seed is None else extract_contours(asymmetric_object(seed), PIXEL)
+    contours = load_catalog_object(name) if seed is None else extract_contours(lumpy_object(seed), PIXEL_SIZE)
     problems = design.finger_problems(contours)
     space = design_space(TABLE, 3, stiff_positions=[0], inventory=SHELF)
     for side in ("left", "right"):
@@ -139,13 +126,13 @@ def test_certified_fingers_touch_but_never_enter(name, seed):
 
 
 def test_exact_distance_equals_distance_to_the_pixel_squares():
-    contours = extract_contours(asymmetric_object(5), PIXEL)
+    contours = extract_contours(lumpy_object(5), PIXEL_SIZE)
     distance = design.finger_problems(contours)["left"][0].body.distance
     rng = np.random.default_rng(0)
     points = rng.uniform([-0.04, -0.09], [0.04, 0.01], (400, 2))
     rows, cols = np.nonzero(contours.mask)
     column0, row0 = contours.origin_pixel
-    x0, z1 = (cols - column0) * PIXEL, (row0 - rows) * PIXEL
-    dx = np.maximum(np.maximum(x0[None] - points[:, :1], points[:, :1] - (x0[None] + PIXEL)), 0)
-    dz = np.maximum(np.maximum((z1[None] - PIXEL) - points[:, 1:], points[:, 1:] - z1[None]), 0)
+    x0, z1 = (cols - column0) * PIXEL_SIZE, (row0 - rows) * PIXEL_SIZE
+    dx = np.maximum(np.maximum(x0[None] - points[:, :1], points[:, :1] - (x0[None] + PIXEL_SIZE)), 0)
+    dz = np.maximum(np.maximum((z1[None] - PIXEL_SIZE) - points[:, 1:], points[:, 1:] - z1[None]), 0)
     assert np.allclose(distance.exact(points), np.sqrt(dx**2 + dz**2).min(axis=1), atol=1e-12)
