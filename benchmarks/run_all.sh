@@ -9,6 +9,7 @@ benchmarks=(
     ogden_fit.py
     kinematics_throughput.py
     finger_optimizers.py
+    gripper_design.py
     path_optimizers.py
     hv_loop.py
     hv_ramp.py
