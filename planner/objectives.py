@@ -21,8 +21,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+
 from planner.clearance import FingerBody
-from planner.kinematics import BLOCK_RADIUS
 
 COLLISION_PENALTY = 1e11  # k of eq. (3)
 

@@ -453,17 +453,11 @@ def _search(problem, state, max_expansions):
                       acc, scratch)
         count[depth + 1] = end
         pointer[depth + 1] = 0
-        stats[1] += n_choices_at(problem, depth + 1)
-        stats[2 + depth + 1] += 1
+        stats[1] += problem[4][depth + 1]
         order[depth + 1, :end] = np.argsort(bound[depth + 1, :end], kind="mergesort")
         expansions += 1
         if expansions >= max_expansions:
             return 0
-
-
-@njit(cache=True)
-def n_choices_at(problem, depth):
-    return problem[4][depth]
 
 
 @njit(cache=True)
@@ -484,7 +478,7 @@ def _start(problem, state):
         root_pose[0] = base_x[b]
         n = _expand(problem, 0, root_pose, root_alpha, best[0], limits, bound[0], shape[0], base[0], pose[0], n, b, path,
                     counts, acc, scratch)
-        stats[1] += n_choices_at(problem, 0)
+        stats[1] += problem[4][0]
     count[0] = n
     pointer[0] = 0
     depth_box[0] = 0
@@ -521,10 +515,10 @@ def _moved(problem, pose, s) -> np.ndarray:
     return np.array([x, z, pose[2] + problem[6][s, 2]])
 
 
-def _beam(problem, space: DesignSpace, width: int):
+def _beam(problem, space: DesignSpace, width: int, control: RunControl):
     """A good collision-free finger to start from (cost, [base, shapes...]) or None: a beam over the same
     tree that keeps, per level, the ``width`` collision-free children with the lowest bounds, those whose
-    straightest completion also stays clear first."""
+    straightest completion also stays clear first. The callback hears from it once per level."""
     contour, choices, n_choices, base_x = problem[0], problem[3], problem[4], problem[22]
     blocks = space.num_blocks
     straightest = [int(c[np.argmin(np.abs(space.theta[c]))]) for c in space.choices]
@@ -534,6 +528,7 @@ def _beam(problem, space: DesignSpace, width: int):
     limits = np.array([np.inf, np.inf])
     beam = [(np.array([x, 0.0, 0.0]), np.hypot(contour[:, 0] - x, contour[:, 1]), [b]) for b, x in enumerate(base_x)]
     for depth in range(blocks):
+        control.report(0.0, np.inf, 0)
         candidates = []
         for pose, alpha, path in beam:
             path_array = np.array(path + [-1] * (blocks + 1 - len(path)), dtype=np.int64)
@@ -620,18 +615,22 @@ def solve_finger(target: ShapeTarget, space: DesignSpace, *, options: dict | Non
     problem = search_problem(target, space, settings)
     blocks, contour, n_choices, base_x = space.num_blocks, problem[0], problem[4], problem[22]
     width = max(len(base_x) * n_choices[0], n_choices.max())
+    # depth, then per depth: next child, child count, child order, child bounds, shapes, bases, end poses;
+    # the current node's pose and contour distances per depth; the path (base, shapes), shapes used; best
+    # cost and path; counters (collision checks, block placements evaluated); ceiling and smallest bound it
+    # cut; scratch for the lookahead sums and contour distances
     state = (
         np.zeros(1, np.int64), np.zeros(blocks, np.int64), np.zeros(blocks, np.int64),
         np.zeros((blocks, width), np.int64), np.zeros((blocks, width)), np.zeros((blocks, width), np.int64),
         np.zeros((blocks, width), np.int64), np.zeros((blocks, width, 3)), np.zeros((blocks, 3)),
         np.zeros((blocks, len(contour))), np.full(blocks + 1, -1, np.int64), np.zeros(len(space.theta), np.int64),
-        np.array([np.inf]), np.full(blocks + 1, -1, np.int64), np.zeros(2 + blocks, np.int64), np.array([np.inf, np.inf]),
+        np.array([np.inf]), np.full(blocks + 1, -1, np.int64), np.zeros(2, np.int64), np.array([np.inf, np.inf]),
         np.zeros(n_choices.max()), np.zeros(len(contour)),
     )
     best, limits, stats = state[12], state[15], state[14]
     status, nit, proven, searching = Status.FINISHED, 0, 0.0, False  # every objective is >= 0
     try:
-        found = _beam(problem, space, settings["beam_width"])
+        found = _beam(problem, space, settings["beam_width"], control)
         if found is not None:
             best[0], state[13][:] = found[0], found[1]
             if settings["polish"]:
