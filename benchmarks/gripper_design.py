@@ -30,7 +30,7 @@ from softblock_ros.planner_node import PlannerNode  # noqa: E402
 
 FIGURES = REPO_ROOT / "docs" / "figures"
 REPEATS = 5
-CAP = 120.0  # [s] budget of the "until certified" requests
+CAP = 60.0  # [s] budget of the "until certified" requests
 
 
 def design_gripper(service, budget: float) -> dict:

@@ -44,7 +44,7 @@ DEFAULT_OPTIONS = {
     "region_spacing": 2e-4,  # grid step of the suffix regions they are built from [m]
     "expansions_per_check": 2000,  # nodes expanded between time-budget / callback checks
     "ceiling_growth": 1.3,  # factor between the cost ceilings of successive rounds
-    "beam_width": 16,  # collision-free prefixes per level of the beam that finds the first finger
+    "beam_width": 128,  # collision-free prefixes per level of the beam that finds the first finger
     "polish": True,  # improve the beam's finger by block-by-block local search before the search starts
 }
 SAMPLES_PER_BLOCK = DEFAULT_SAMPLES_PER_BLOCK  # the objective's centerline samples (planner.kinematics)
@@ -518,7 +518,8 @@ def _moved(problem, pose, s) -> np.ndarray:
 def _beam(problem, space: DesignSpace, width: int, control: RunControl):
     """A good collision-free finger to start from (cost, [base, shapes...]) or None: a beam over the same
     tree that keeps, per level, the ``width`` collision-free children with the lowest bounds, those whose
-    straightest completion also stays clear first. The callback hears from it once per level."""
+    straightest completion also stays clear first. The callback hears from it once per level (it runs to
+    the end whatever the time budget: a run returns a finger)."""
     contour, choices, n_choices, base_x = problem[0], problem[3], problem[4], problem[22]
     blocks = space.num_blocks
     straightest = [int(c[np.argmin(np.abs(space.theta[c]))]) for c in space.choices]
@@ -528,7 +529,7 @@ def _beam(problem, space: DesignSpace, width: int, control: RunControl):
     limits = np.array([np.inf, np.inf])
     beam = [(np.array([x, 0.0, 0.0]), np.hypot(contour[:, 0] - x, contour[:, 1]), [b]) for b, x in enumerate(base_x)]
     for depth in range(blocks):
-        control.report(0.0, np.inf, 0)
+        control.report(0.0, np.inf, 0, timed=False)  # the first finger is worth its time; a cancel is not
         candidates = []
         for pose, alpha, path in beam:
             path_array = np.array(path + [-1] * (blocks + 1 - len(path)), dtype=np.int64)

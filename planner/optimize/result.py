@@ -96,9 +96,11 @@ class RunControl:
         if self.time_budget is not None and self.elapsed > self.time_budget:
             raise Stop(Status.TIME_BUDGET)
 
-    def report(self, fraction: float, best_cost: float, nfev: int) -> None:
-        """Give the callback a Progress; StopIteration from it cancels the run."""
-        self.check_time()
+    def report(self, fraction: float, best_cost: float, nfev: int, timed: bool = True) -> None:
+        """Give the callback a Progress; StopIteration from it cancels the run. ``timed`` False: the time
+        budget is not checked (a step that must finish once begun)."""
+        if timed:
+            self.check_time()
         if self.callback is not None:
             try:
                 self.callback(Progress(min(max(fraction, 0.0), 1.0), float(best_cost), nfev, self.elapsed))

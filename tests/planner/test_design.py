@@ -38,7 +38,7 @@ def test_asymmetric_object_gets_four_non_identical_fingers(table):
     assert len({f.design_ids for f in fingers}) == 4
     for finger, top in zip(fingers, (2, 2, 3, 3)):
         assert all(stiff(table, finger.design_ids[:top]))
-        assert not finger.collision and finger.cost < 2.0 and finger.min_clearance >= -1e-6
+        assert not finger.collision and finger.cost < 2.0 and finger.min_clearance >= -2e-6
         assert finger.lower_bound <= finger.cost
         assert finger.centerline.shape[1] == 2 and finger.contour.shape[1] == 2
     # fingers sit outside the object on their own side
@@ -142,7 +142,7 @@ def test_cli_design_finger_and_path(tmp_path, capsys):
     assert len(report["left"]["design_ids"]) == 3 and isinstance(report["right"]["collision"], bool)
     centerline = np.array(report["left"]["centerline"])
     assert centerline.shape == (31, 2) and np.allclose(centerline[0], report["left"]["base"])
-    assert report["left"]["min_clearance"] >= -1e-6 and report["contact_tolerance"] == 0.0
+    assert report["left"]["min_clearance"] >= -2e-6 and report["contact_tolerance"] == 0.0
     points = tmp_path / "path.csv"
     points.write_text("x,y,z\n0,0,0\n0.002,0,0.02\n0.008,0.001,0.04\n")
     assembly = tmp_path / "chain.yaml"
