@@ -44,11 +44,12 @@ DEFAULT_OPTIONS = {
     "region_spacing": 2e-4,  # grid step of the suffix regions they are built from [m]
     "expansions_per_check": 2000,  # nodes expanded between time-budget / callback checks
     "ceiling_growth": 1.3,  # factor between the cost ceilings of successive rounds
-    "beam_width": 128,  # collision-free prefixes per level of the beam that finds the first finger
+    "beam_width": 128,  # collision-free prefixes per level of the second beam (the first keeps 16)
     "polish": True,  # improve the beam's finger by block-by-block local search before the search starts
 }
 SAMPLES_PER_BLOCK = DEFAULT_SAMPLES_PER_BLOCK  # the objective's centerline samples (planner.kinematics)
 FLOAT32_MARGIN = 1e-7  # [m] subtracted before storing bounds as float32, so rounding never raises them
+FIRST_BEAM_WIDTH = 16  # the beam that always runs to the end, so that every run returns a finger
 FIELDS_VERSION = 1  # bump when the way the fields are built changes (names the cache files)
 
 
@@ -515,11 +516,11 @@ def _moved(problem, pose, s) -> np.ndarray:
     return np.array([x, z, pose[2] + problem[6][s, 2]])
 
 
-def _beam(problem, space: DesignSpace, width: int, control: RunControl):
+def _beam(problem, space: DesignSpace, width: int, control: RunControl, timed: bool):
     """A good collision-free finger to start from (cost, [base, shapes...]) or None: a beam over the same
     tree that keeps, per level, the ``width`` collision-free children with the lowest bounds, those whose
-    straightest completion also stays clear first. The callback hears from it once per level (it runs to
-    the end whatever the time budget: a run returns a finger)."""
+    straightest completion also stays clear first. The callback hears from it once per level; ``timed``
+    False: it runs to the end whatever the time budget."""
     contour, choices, n_choices, base_x = problem[0], problem[3], problem[4], problem[22]
     blocks = space.num_blocks
     straightest = [int(c[np.argmin(np.abs(space.theta[c]))]) for c in space.choices]
@@ -529,7 +530,7 @@ def _beam(problem, space: DesignSpace, width: int, control: RunControl):
     limits = np.array([np.inf, np.inf])
     beam = [(np.array([x, 0.0, 0.0]), np.hypot(contour[:, 0] - x, contour[:, 1]), [b]) for b, x in enumerate(base_x)]
     for depth in range(blocks):
-        control.report(0.0, np.inf, 0, timed=False)  # the first finger is worth its time; a cancel is not
+        control.report(0.0, np.inf, 0, timed=timed)
         candidates = []
         for pose, alpha, path in beam:
             path_array = np.array(path + [-1] * (blocks + 1 - len(path)), dtype=np.int64)
@@ -631,9 +632,13 @@ def solve_finger(target: ShapeTarget, space: DesignSpace, *, options: dict | Non
     best, limits, stats = state[12], state[15], state[14]
     status, nit, proven, searching = Status.FINISHED, 0, 0.0, False  # every objective is >= 0
     try:
-        found = _beam(problem, space, settings["beam_width"], control)
+        found = None
+        for width, timed in ((FIRST_BEAM_WIDTH, False), (settings["beam_width"], True)):  # narrow: a finger
+            beam = _beam(problem, space, width, control, timed)  # at once; wide: a better one if time allows
+            if beam is not None and beam[0] < best[0]:
+                found = beam
+                best[0], state[13][:] = beam[0], beam[1]
         if found is not None:
-            best[0], state[13][:] = found[0], found[1]
             if settings["polish"]:
                 shapes_, _, bases_, costs_, _ = polish(target, space, np.array([found[1][1:]]),
                                                       np.zeros((1, blocks), np.int64), np.array([found[1][0]]),
