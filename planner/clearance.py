@@ -34,7 +34,7 @@ from planner.kinematics import BLOCK_RADIUS, CAP_LENGTH
 SUBDIVISION = 2  # lattice nodes per pixel side
 DENSE_SAMPLES = 48  # centreline points per block checked against the lattice before any refinement
 RESOLUTION = 1e-6  # [m] the rule is decided to within this (overlaps smaller than 1 um count as touching)
-_STACK = 256  # pending stretches per block check (bisection depth x 2 is far below this)
+_STACK = 256  # pending stretches per block check (twice the halving depth, about 20, is far below this)
 
 
 @dataclass(frozen=True)
@@ -234,8 +234,10 @@ def block_min_distance(field, frame, pose_x, pose_z, heading, theta, length, cap
                     return best
                 top += 1
                 continue
-            if s_b - s_a <= RESOLUTION or top + 2 > _STACK:
+            if s_b - s_a <= RESOLUTION:
                 continue
+            if top + 2 > _STACK:  # cannot happen (depth-first halving); if it did, never call it clear
+                return best if report else min(best, threshold - 2.0 * RESOLUTION)
             middle = 0.5 * (s_a + s_b)
             x, z = block_point(theta, length, cap, middle)
             ox, oz = _to_object(frame, pose_x, pose_z, heading, x, z)
