@@ -12,9 +12,11 @@ tip field. Summed, this bounds every finger that continues the prefix with that 
 blocks in one vectorised pass per node; a complete finger is bounded by its objective.
 
 The search visits children in the order of their bounds and drops every child whose bound reaches the
-best collision-free finger found, so when it ends that finger is the optimum (``Status.CERTIFIED``). To
-find a good finger early, rounds search below a cost ceiling that grows by ``ceiling_growth`` until a
-finger is found under it (a round without one proves the optimum is at least the smallest bound it cut).
+best collision-free finger found, so when it ends that finger is the optimum (``Status.CERTIFIED``). The
+first finger comes from two beams over the same tree (16 prefixes per level, always run to the end, then
+``beam_width`` while the budget allows) improved by local search; should they find none, rounds search
+below a cost ceiling that grows by ``ceiling_growth`` until a finger is found under it (a round without one
+proves the optimum is at least the smallest bound it cut).
 Collision is the exact rule of ``planner.clearance``, checked for a block when the search enters it.
 Stopped early (time budget, callback), the run returns the best finger so far and a proven lower bound:
 the smallest bound of the children not yet visited.
