@@ -7,8 +7,8 @@ from fake_robot import FakeMotion, FakeRobot
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from softblock_ros.sequencing.engine import ChannelReading, Outcome, RobotError, RunOptions, SequenceEngine
-from softblock_ros.sequencing.schema import load_sequence, parse_sequence
+from sequencing.engine import ChannelReading, Outcome, RobotError, RunOptions, SequenceEngine
+from sequencing.schema import load_sequence, parse_sequence
 
 SEQUENCES = Path(__file__).resolve().parents[2] / "config" / "sequences"
 FAST = RunOptions(poll_period=0.002, settle_time=0.02, safe_stop_timeout=0.5)

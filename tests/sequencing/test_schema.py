@@ -4,7 +4,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from softblock_ros.sequencing.schema import (
+from sequencing.schema import (
     Limits, MoveArmStep, ParallelStep, PulseTrainStep, RampStep, SequenceError, WaitStep, load_sequence,
     parse_sequence)
 

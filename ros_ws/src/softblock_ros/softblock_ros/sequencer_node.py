@@ -16,11 +16,12 @@ from softblock_interfaces.action import RunSequence
 from softblock_interfaces.msg import SequenceEvent
 from std_msgs.msg import Empty
 
+from sequencing.engine import RunOptions, SequenceEngine, StepEvent
+from sequencing.schema import Limits, SequenceError, load_sequence
+
 from .paths import resolve_path
 from .ros_robot import RosRobot
 from .runner import run_node
-from .sequencing.engine import RunOptions, SequenceEngine, StepEvent
-from .sequencing.schema import Limits, SequenceError, load_sequence
 
 FEEDBACK_PHASES = {"precondition", "running", "succeeded"}
 EVENT_PHASES = {"running": "started", "succeeded": "succeeded", "failed": "failed", "canceled": "canceled"}
