@@ -11,8 +11,8 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
 from softblock_ros.client import wait_until
-from softblock_ros.recording.analysis import analyze
-from softblock_ros.recording.playback import PlaybackOptions
+from recording.analysis import analyze
+from recording.playback import PlaybackOptions
 from softblock_ros.recording.player_node import PlayerNode
 from softblock_ros.recording.recorder_node import RecorderNode
 

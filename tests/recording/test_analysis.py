@@ -11,8 +11,8 @@ from recording_helpers import (Spinner, assembly_state, hv_state, sequence_event
                                write_recording)
 from softblock_interfaces.msg import HvChannelState
 
-from softblock_ros.recording.analysis import analyze, fault_names
-from softblock_ros.recording.playback import PlaybackOptions
+from recording.analysis import analyze, fault_names
+from recording.playback import PlaybackOptions
 from softblock_ros.recording.player_node import PlayerNode
 from softblock_ros.recording.recorder_node import RecorderNode
 

@@ -13,8 +13,8 @@ from rosgraph_msgs.msg import Clock
 from softblock_interfaces.msg import Assembly, HvState
 
 from softblock_ros.recording.message_types import UnknownMessageTypeError
-from softblock_ros.recording.mcap_file import RecordingWriter
-from softblock_ros.recording.playback import PlaybackOptions
+from recording.mcap_file import RecordingWriter
+from recording.playback import PlaybackOptions
 from softblock_ros.recording.player_node import PlayerNode
 from softblock_ros.recording.qos_metadata import (offered_qos_yaml, parse_offered_qos,
                                                   playback_qos)

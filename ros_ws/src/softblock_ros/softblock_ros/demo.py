@@ -40,8 +40,8 @@ from .client import ActionClient, ClientError, call_service, run_action, status_
 from .conversions import assembly_msg
 from .demo_plots import plot_fingers
 from .launcher import Stack
-from .recording.analysis import load, summarize
-from .recording.analysis_plot import plot as plot_recording
+from recording.analysis import load, summarize
+from recording.analysis_plot import plot as plot_recording
 
 NODE_PARAMETER_FILES = ("config/hv_driver.yaml", "config/sequencer.yaml")
 FINGER_SETS = {  # paper Figure 5: blocks per finger, top blocks forced stiff

@@ -11,7 +11,7 @@ import sys
 
 from mcap.exceptions import McapError
 
-from .mcap_file import COMPRESSIONS, DEFAULT_CHUNK_SIZE, describe, recover
+from recording.mcap_file import COMPRESSIONS, DEFAULT_CHUNK_SIZE, describe, recover
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -76,7 +76,7 @@ def _record(args, ros_args) -> int:
 
 
 def _play(args, ros_args) -> int:
-    from .playback import PlaybackOptions
+    from recording.playback import PlaybackOptions
     from .player_node import run
     options = PlaybackOptions(rate=args.rate, loop=args.loop, include=args.include,
                               exclude=args.exclude, start_offset=args.start_offset,
@@ -106,8 +106,8 @@ def _recover(args) -> int:
 
 
 def _analyze(args) -> int:
-    from .analysis import format_summary, load, summarize
-    from .analysis_plot import plot
+    from recording.analysis import format_summary, load, summarize
+    from recording.analysis_plot import plot
     stem = os.path.splitext(os.path.basename(args.recording))[0]
     out_dir = args.out_dir or os.path.dirname(os.path.abspath(args.recording))
     os.makedirs(out_dir, exist_ok=True)

@@ -17,7 +17,7 @@ from rosgraph_msgs.msg import Clock
 
 from ..runner import init
 from .message_types import UnknownMessageTypeError, import_message_type
-from .playback import PlaybackClock, PlaybackOptions, Recording, play
+from recording.playback import PlaybackClock, PlaybackOptions, Recording, play
 from .qos_metadata import parse_offered_qos, playback_qos
 
 
