@@ -39,14 +39,14 @@ from planner.ogden import biaxial_cauchy_stress, biaxial_cauchy_stress_slope
 
 @dataclass(frozen=True)
 class ModelConstants:
-    """Constants the paper does not give; fitted by planner.calibration to its published points."""
+    """Constants the paper does not give; fitted by planner.model_calibration to its published points."""
 
     film_thickness: float  # effective unstretched film thickness t0 [m]
     rod_modulus: float  # NiTi Young's modulus [Pa]
     membrane_half_angle: float  # active membrane covers |psi| <= this, psi from the cap top [rad]
 
 
-# Output of `python -m planner calibrate` (planner/calibration.py); a test re-runs the fit.
+# Output of `python -m planner calibrate` (planner/model_calibration.py); a test re-runs the fit.
 CALIBRATED_CONSTANTS = ModelConstants(
     film_thickness=8.9346e-05,
     rod_modulus=2.2630e10,

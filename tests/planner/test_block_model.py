@@ -94,7 +94,7 @@ def test_fidelities_agree_with_the_reference():
 
 
 def test_calibration_reproduces_the_shipped_constants():
-    from planner.calibration import calibrate
+    from planner.model_calibration import calibrate
 
     result = calibrate()
     assert result.success

@@ -34,14 +34,14 @@ from std_srvs.srv import Trigger
 
 from planner.assembly import load_assembly
 from planner.contours import OBJECTS_CATALOG
+from planner.finger_plot import plot_fingers
 from planner.table import REPO_ROOT, load_table
+from recording.analysis import load, summarize
+from recording.analysis_plot import plot as plot_recording
 
 from .client import ActionClient, ClientError, call_service, run_action, status_name, wait_until
 from .conversions import assembly_msg
-from .demo_plots import plot_fingers
 from .launcher import Stack
-from recording.analysis import load, summarize
-from recording.analysis_plot import plot as plot_recording
 
 NODE_PARAMETER_FILES = ("config/hv_driver.yaml", "config/sequencer.yaml")
 FINGER_SETS = {  # paper Figure 5: blocks per finger, top blocks forced stiff

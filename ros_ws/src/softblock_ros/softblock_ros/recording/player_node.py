@@ -15,9 +15,10 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rosgraph_msgs.msg import Clock
 
+from recording.playback import PlaybackClock, PlaybackOptions, Recording, play
+
 from ..runner import init
 from .message_types import UnknownMessageTypeError, import_message_type
-from recording.playback import PlaybackClock, PlaybackOptions, Recording, play
 from .qos_metadata import parse_offered_qos, playback_qos
 
 

@@ -10,9 +10,10 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from ..runner import run_node
 from recording.mcap_file import COMPRESSIONS, DEFAULT_CHUNK_SIZE, RecordingWriter
 from recording.message_definitions import DefinitionNotFoundError
+
+from ..runner import run_node
 from .message_types import UnknownMessageTypeError, import_message_type
 from .qos_metadata import offered_qos_yaml, recording_qos
 
