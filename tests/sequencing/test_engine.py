@@ -7,7 +7,8 @@ from fake_robot import FakeMotion, FakeRobot
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sequencing.engine import ChannelReading, Outcome, RobotError, RunOptions, SequenceEngine
+from sequencing.engine import SequenceEngine
+from sequencing.ports import ChannelReading, Outcome, RobotError, RunOptions
 from sequencing.schema import load_sequence, parse_sequence
 
 SEQUENCES = Path(__file__).resolve().parents[2] / "config" / "sequences"

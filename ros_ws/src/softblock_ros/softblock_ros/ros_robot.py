@@ -16,7 +16,7 @@ from softblock_interfaces.action import MoveArm, RampChannel
 from softblock_interfaces.msg import HvChannelState, HvState
 from std_srvs.srv import Trigger
 
-from sequencing.engine import ChannelReading, Outcome, RobotError
+from sequencing.ports import ChannelReading, Outcome, RobotError
 
 from .conversions import pose_msg
 

@@ -16,7 +16,8 @@ from softblock_interfaces.action import RunSequence
 from softblock_interfaces.msg import SequenceEvent
 from std_msgs.msg import Empty
 
-from sequencing.engine import RunOptions, SequenceEngine, StepEvent
+from sequencing.engine import SequenceEngine, StepEvent
+from sequencing.ports import RunOptions
 from sequencing.schema import Limits, SequenceError, load_sequence
 
 from .paths import resolve_path
