@@ -18,8 +18,9 @@ import numpy as np
 import yaml
 from PIL import Image
 from scipy import ndimage
+from softblock_config import config_file
 
-OBJECTS_CATALOG = Path(__file__).resolve().parent.parent / "config" / "objects" / "objects.yaml"
+OBJECTS_CATALOG = config_file("objects/objects.yaml")
 DEFAULT_SPECK_FRACTION = 0.01
 GREY_MODES = ("1", "L", "I", "I;16", "F")  # Pillow modes read as they are
 

@@ -35,15 +35,16 @@ from std_srvs.srv import Trigger
 from planner.assembly import load_assembly
 from planner.contours import OBJECTS_CATALOG
 from planner.finger_plot import plot_fingers
-from planner.table import REPO_ROOT, load_table
+from planner.table import load_table
 from recording.analysis import load, summarize
 from recording.analysis_plot import plot as plot_recording
+from softblock_config import config_file
 
 from .client import ActionClient, ClientError, call_service, run_action, status_name, wait_until
 from .conversions import assembly_msg
 from .launcher import Stack
 
-NODE_PARAMETER_FILES = ("config/hv_driver.yaml", "config/sequencer.yaml")
+DEMO_ASSEMBLY = "assemblies/gripper.yaml"
 FINGER_SETS = {  # paper Figure 5: blocks per finger, top blocks forced stiff
     "front": {"num_blocks": 4, "num_stiff_top": 2},
     "back": {"num_blocks": 5, "num_stiff_top": 3},
@@ -58,12 +59,10 @@ def say(text: str) -> None:
 
 
 def write_parameters(out: Path, recording: Path) -> Path:
-    """One parameter file for the whole stack: the nodes' own files plus the demo's recorder output."""
-    parameters = {}
-    for name in NODE_PARAMETER_FILES:
-        parameters.update(yaml.safe_load((REPO_ROOT / name).read_text()))
-    parameters["recorder"] = {"ros__parameters": {"output": str(recording)}}
-    parameters["assembly_state"] = {"ros__parameters": {"assembly_file": "config/assemblies/gripper.yaml"}}
+    """The demo's additions to the stack's own parameter files (config/stack.yaml): the recorder's output
+    and the assembly the fingers are designed for."""
+    parameters = {"recorder": {"ros__parameters": {"output": str(recording)}},
+                  "assembly_state": {"ros__parameters": {"assembly_file": DEMO_ASSEMBLY}}}
     path = out / "params.yaml"
     path.write_text(yaml.safe_dump(parameters, sort_keys=False))
     return path
@@ -130,7 +129,7 @@ def design_gripper(client: DemoClient, object_name: str) -> tuple[dict, dict]:
 def load_designs_into_gripper(client: DemoClient, responses: dict) -> None:
     """Replace the gripper's finger blocks with the designs; the chains keep their gripper base poses."""
     table = load_table()
-    gripper = load_assembly(REPO_ROOT / "config/assemblies/gripper.yaml")
+    gripper = load_assembly(config_file(DEMO_ASSEMBLY))
     designed = assembly_msg(gripper, table)
     for chain in designed.chains:
         finger_set, side = chain.name.split("_")
