@@ -98,7 +98,7 @@ def state_latency(client, samples: int) -> list[float]:
 def planner_overhead(client, table, samples: int) -> dict:
     shape = chain_shape([table.design(15).theta0, table.design(57).theta0],
                         [table.design(15).rod_length, table.design(57).rod_length], 0.0)
-    request = DesignPath.Request(path=points_msg(shape.points), num_blocks=2, allow_rotation=False, optimizer="exact")
+    request = DesignPath.Request(path=points_msg(shape.points), num_blocks=2, allow_rotation=False, method="exact")
     service = client.create_client(DesignPath, "planner/design_path")
     assert service.wait_for_service(timeout_sec=30.0)
     direct, round_trip = [], []

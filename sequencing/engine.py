@@ -5,9 +5,9 @@ view of the channel states. The ROS sequencer node adapts its action clients to 
 tests use a fake. Every step:
 
 1. precondition: no HV fault on the sequence's channels and the expected channel voltages within
-   tolerance (re-checked for up to ``settle_time``, since the state arrives a little after a ramp);
+   tolerance (re-checked for up to ``settle_time_s``, since the state arrives a little after a ramp);
 2. running: motions are watched until done; a cancel, the step's timeout or an HV fault cancels them;
-3. a ramp must end with the measured voltage within tolerance of its target (allowed ``settle_time``).
+3. a ramp must end with the measured voltage within tolerance of its target (allowed ``settle_time_s``).
 
 On failure the step's ``on_failure`` reaction runs (``safe_stop``: arm stops, every channel ramps to
 0 V, e-stop if a ramp-down fails; ``estop``: arm stops, e-stop at once). A cancel always does the
@@ -149,7 +149,7 @@ class SequenceEngine:
         return problems
 
     def _check_precondition(self, step: Step, ctx: _Context) -> None:
-        settle_until = self.clock() + self.options.settle_time
+        settle_until = self.clock() + self.options.settle_time_s
         while True:
             faults = self._faults(ctx.sequence)
             if faults:
@@ -160,7 +160,7 @@ class SequenceEngine:
                 return
             if self.clock() > settle_until:
                 raise StepFailure(f"precondition: {'; '.join(problems)}", step.on_failure)
-            if ctx.cancel.wait(self.options.poll_period):
+            if ctx.cancel.wait(self.options.poll_period_s):
                 raise SequenceCanceled()
 
     # -- waiting ----------------------------------------------------------------------------------------
@@ -173,7 +173,7 @@ class SequenceEngine:
                 if not pending:
                     return [motion.outcome() for motion in motions]
                 self._check_interrupts(ctx)
-                pending[0].wait(self.options.poll_period)
+                pending[0].wait(self.options.poll_period_s)
         except (SequenceCanceled, StepFailure):
             for motion in motions:
                 motion.cancel()
@@ -182,7 +182,7 @@ class SequenceEngine:
     def _sleep_until(self, when: float, ctx: _Context) -> None:
         while (remaining := when - self.clock()) > 0:
             self._check_interrupts(ctx)
-            ctx.cancel.wait(min(remaining, self.options.poll_period))
+            ctx.cancel.wait(min(remaining, self.options.poll_period_s))
         self._check_interrupts(ctx)
 
     # -- step kinds -------------------------------------------------------------------------------------
@@ -218,13 +218,13 @@ class SequenceEngine:
         """The ramp succeeded and the measured voltage settled within tolerance (it lags the setpoint a little)."""
         if not outcome.success:
             raise StepFailure(f"ramp of {channel!r} to {target:.0f} V failed: {outcome.message}")
-        voltage, settle_until = outcome.value, self.clock() + self.options.settle_time
+        voltage, settle_until = outcome.value, self.clock() + self.options.settle_time_s
         while voltage is None or abs(voltage - target) > tolerance:
             if self.clock() > settle_until:
                 raise StepFailure(f"channel {channel!r} ended at {voltage:.0f} V, expected {target:.0f} "
                                   f"+- {tolerance:.0f} V")
             self._check_interrupts(ctx)
-            ctx.cancel.wait(self.options.poll_period)
+            ctx.cancel.wait(self.options.poll_period_s)
             voltage = self.robot.channel_states()[channel].voltage
 
     def _ramp(self, step: RampStep, ctx: _Context) -> str:
@@ -313,14 +313,14 @@ class SequenceEngine:
         states = self.robot.channel_states()
         live = [channel for channel in sequence.channels
                 if channel not in states or states[channel].output_enabled
-                or abs(states[channel].voltage) > self.options.off_voltage]
+                or abs(states[channel].voltage) > self.options.off_voltage_v]
         problems, motions = [], {}
         for channel in live:
             try:
                 motions[channel] = self.robot.ramp(channel, 0.0, 0.0)
             except RobotError as error:
                 problems.append(f"{channel}: {error}")
-        deadline = self.clock() + self.options.safe_stop_timeout
+        deadline = self.clock() + self.options.safe_stop_timeout_s
         for channel, motion in motions.items():
             if not motion.wait(max(0.0, deadline - self.clock())):
                 motion.cancel()

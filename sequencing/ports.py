@@ -60,7 +60,7 @@ class RobotError(RuntimeError):
 
 @dataclass(frozen=True)
 class RunOptions:
-    poll_period: float = 0.02        # [s] how often faults, cancel and timeouts are checked
-    settle_time: float = 1.0         # [s] how long a precondition may take to become true
-    safe_stop_timeout: float = 15.0  # [s] for the ramp-down of every channel
-    off_voltage: float = 20.0        # [V] a disabled output below this needs no ramp-down
+    poll_period_s: float = 0.02        # how often faults, cancel and timeouts are checked
+    settle_time_s: float = 1.0         # how long a precondition may take to become true
+    safe_stop_timeout_s: float = 15.0  # for the ramp-down of every channel
+    off_voltage_v: float = 20.0        # a disabled output below this needs no ramp-down

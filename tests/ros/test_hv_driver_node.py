@@ -185,7 +185,7 @@ def test_cancel_ramps_the_channel_back_to_zero(active):
     cancel = goal.cancel_goal_async()
     wait_for(cancel.done, what="the cancel reply")
     future = goal.get_result_async()
-    wait_for(future.done, what="the cancelled result")
+    wait_for(future.done, what="the canceled result")
     assert future.result().status == GoalStatus.STATUS_CANCELED
-    assert future.result().result.message == "cancelled: reached 0 V"
+    assert future.result().result.message == "canceled: reached 0 V"
     assert active.latest_state().channels[0].setpoint == 0.0

@@ -57,7 +57,7 @@ def chain_msg(chain: Chain, table, calibration: dict[str, float] | None = None) 
 
 def designed_chain_msg(name: str, design_ids, table, rotation_steps=None, base_position=(0.0, 0.0, 0.0),
                        base_orientation=(0.0, 0.0, 0.0, 1.0)) -> msg.Chain:
-    """A chain message for an optimiser result: blocks by design ID, the given base pose, no HV channel."""
+    """A chain message for an optimizer result: blocks by design ID, the given base pose, no HV channel."""
     steps = rotation_steps if rotation_steps is not None else [0] * len(design_ids)
     blocks = tuple(PlacedBlock(int(i), int(k)) for i, k in zip(design_ids, steps, strict=True))
     chain = Chain(name=name, hv_channel="", blocks=blocks, base_position=tuple(base_position),

@@ -110,7 +110,7 @@ def design_gripper(client: DemoClient, object_name: str) -> tuple[dict, dict]:
     for finger_set, constraints in FINGER_SETS.items():
         request = DesignFingers.Request(
             image_path=str(OBJECTS_CATALOG.parent / catalog["file"]), pixel_size=float(catalog["pixel_size_m"]),
-            min_stiff_rod_diameter=0.62e-3, optimizer="exact", time_budget=60.0, **constraints)
+            min_stiff_rod_diameter=0.62e-3, method="exact", time_budget=60.0, **constraints)
         response = call_service(client.design_fingers, request, timeout=SERVICE_TIMEOUT + 60.0)
         if not response.success:
             raise ClientError(f"planner could not design the {finger_set} fingers: {response.message}")

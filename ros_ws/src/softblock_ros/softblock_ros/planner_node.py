@@ -1,8 +1,8 @@
 """Planner node: designs fingers for an object image and chains along 3D paths (planner.design).
 
-Optimisations run in the service callbacks on a reentrant group of a MultiThreadedExecutor, so other
+Optimizations run in the service callbacks on a reentrant group of a MultiThreadedExecutor, so other
 requests, parameter services and shutdown are served meanwhile. A bad request gets success=false and the
-core's message; the node carries on. Shutting down cancels running optimisations.
+core's message; the node carries on. Shutting down cancels running optimizations.
 """
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ from .conversions import designed_chain_msg, inventory_from_lists, mask_from_ima
 from .paths import resolve_path
 from .runner import run_node
 
-DEFAULT_OPTIMIZER = "exact"
+DEFAULT_METHOD = "exact"
 # Finger base frames in the object frame (x right, z up): the finger grows downward (+z -> -z) and
 # bends toward the object (+x -> +x for the left finger, -x for the right one).
 FINGER_BASE_ORIENTATION = {"left": (1.0, 0.0, 0.0, 0.0), "right": (0.0, 1.0, 0.0, 0.0)}
@@ -70,10 +70,10 @@ class PlannerNode(Node):
         budget = request.time_budget or self.get_parameter("default_time_budget").value
         if not budget >= 0.0:
             raise ValueError(f"time_budget must be >= 0 s, got {request.time_budget}")
-        optimizer = request.optimizer or DEFAULT_OPTIMIZER
-        if optimizer not in design.METHODS:
-            raise ValueError(f"optimizer must be one of {', '.join(design.METHODS)}, got {optimizer!r}")
-        return dict(method=optimizer, time_budget=budget or None,
+        method = request.method or DEFAULT_METHOD
+        if method not in design.METHODS:
+            raise ValueError(f"method must be one of {', '.join(design.METHODS)}, got {method!r}")
+        return dict(method=method, time_budget=budget or None,
                     seed=request.seed, table=self._table, callback=self._cancel_on_shutdown)
 
     def _cancel_on_shutdown(self, *_):

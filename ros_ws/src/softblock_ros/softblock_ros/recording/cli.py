@@ -79,9 +79,9 @@ def _play(args, ros_args) -> int:
     from recording.playback import PlaybackOptions
     from .player_node import run
     options = PlaybackOptions(rate=args.rate, loop=args.loop, include=args.include,
-                              exclude=args.exclude, start_offset=args.start_offset,
-                              skip_unknown=args.skip_unknown, clock_frequency=args.clock,
-                              delay=args.delay)
+                              exclude=args.exclude, start_offset_s=args.start_offset,
+                              skip_unknown=args.skip_unknown, clock_frequency_hz=args.clock,
+                              delay_s=args.delay)
     return run(args.recording, options, args.keep_alive, ["--ros-args", *ros_args])
 
 
