@@ -154,7 +154,7 @@ def main() -> None:
     context = rclpy.Context()
     rclpy.init(context=context)
     nodes = [AssemblyStateNode(context=context), PlannerNode(context=context, parameter_overrides=[
-        Parameter("default_time_budget", value=60.0)]), rclpy.create_node("benchmark_client", context=context)]
+        Parameter("default_time_budget_s", value=60.0)]), rclpy.create_node("benchmark_client", context=context)]
     executor = MultiThreadedExecutor(num_threads=4, context=context)
     for node in nodes:
         executor.add_node(node)

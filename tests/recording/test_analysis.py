@@ -104,7 +104,7 @@ def test_replay_recorded_again_gives_the_same_summary(grasp, ros_context, tmp_pa
     """The check a replay into a fresh stack will use: analyze(original) == analyze(replay)."""
     player = PlayerNode(grasp, PlaybackOptions(rate=5.0), context=ros_context)
     recorder = RecorderNode(str(tmp_path / "replayed.mcap"), context=ros_context,
-                            parameter_overrides=[Parameter("discovery_period", value=0.1)])
+                            parameter_overrides=[Parameter("discovery_period_s", value=0.1)])
     spinner = Spinner(ros_context, player, recorder)
     try:
         wait_for(lambda: set(recorder.recorded_topics) >= {

@@ -28,8 +28,8 @@ class Client:
 
     def __init__(self, ros_context, spin):
         self.driver = HvDriverNode(context=ros_context, parameter_overrides=[
-            Parameter("autostart", value=False), Parameter("slew_rate", value=8000.0),
-            Parameter("link_timeout", value=1.0)])  # generous: the suite runs on two loaded cores
+            Parameter("autostart", value=False), Parameter("slew_rate_v_per_s", value=8000.0),
+            Parameter("link_timeout_s", value=1.0)])  # generous: the suite runs on two loaded cores
         self.node = rclpy.create_node("hv_driver_test_client", context=ros_context)
         n = self.node
         self.change_state = n.create_client(ChangeState, "hv_driver/change_state")

@@ -199,7 +199,7 @@ def test_other_requests_are_answered_while_an_optimization_runs(client, monkeypa
 
 def test_stopping_the_node_cancels_a_running_optimization(ros_context, spin, tmp_path):
     params = tmp_path / "params.yaml"
-    params.write_text("/**/planner:\n  ros__parameters:\n    default_time_budget: 0.0\n")  # no limit
+    params.write_text("/**/planner:\n  ros__parameters:\n    default_time_budget_s: 0.0\n")  # no limit
     output = io.StringIO()
     client = rclpy.create_node("planner_stop_client", context=ros_context)
     spin(client)

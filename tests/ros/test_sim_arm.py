@@ -20,7 +20,7 @@ DOWN = (1.0, 0.0, 0.0, 0.0)
 @pytest.fixture(scope="module")
 def arm(ros_context, spin):
     node = SimArmNode(context=ros_context, parameter_overrides=[
-        Parameter("max_speed", value=0.5), Parameter("max_acceleration", value=2.0)])
+        Parameter("max_speed_m_per_s", value=0.5), Parameter("max_acceleration_m_per_s2", value=2.0)])
     client = rclpy.create_node("sim_arm_test_client", context=ros_context)
     poses = Inbox(client, PoseStamped, "arm/pose", 100)
     action = ActionClient(client, MoveArm, "arm/move")

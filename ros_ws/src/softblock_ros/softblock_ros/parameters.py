@@ -11,6 +11,7 @@ allowed. Parameters are read-only: a node reads them once, at start.
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import inspect
 import math
 from dataclasses import dataclass
@@ -68,15 +69,24 @@ class Param:
         return cls(name, default, description, unit, low, high, kind, **options)
 
     # -- checks ----------------------------------------------------------------------------------------
+    def _number(self, value) -> str:
+        return str(int(value)) if self.kind is int else f"{value:g}"
+
     def _range_text(self) -> str:
+        """What the parameter allows, e.g. ``1..10000 V`` or ``1..16 items, each 0..63``."""
         unit = f" {self.unit}" if self.unit else ""
         if self.choices:
-            return f"one of {', '.join(self.choices)}"
-        if self.low is not None and self.high is not None:
-            return f"{self.low:g}..{self.high:g}{unit}"
-        if self.low is not None:
-            return f">= {self.low:g}{unit}"
-        return f"a {self.kind.__name__}"
+            text = f"one of {', '.join(self.choices)}"
+        elif self.kind in (str, bool):
+            text = {str: "any text", bool: "true or false"}[self.kind]
+        elif self.low is not None and self.high is not None:
+            text = f"{self._number(self.low)}..{self._number(self.high)}{unit}"
+        else:
+            text = f"a {self.kind.__name__}{unit}"
+        if self.size is None:
+            return text
+        low, high = (self.size, self.size) if isinstance(self.size, int) else self.size
+        return f"{low if low == high else f'{low}..{high}'} items, each {text}"
 
     def _fail(self, value, rule: str):
         raise ParameterError(f"parameter {self.name}={value!r} refused: {rule}")
@@ -99,6 +109,8 @@ class Param:
         """The value as the node uses it (ints widened to floats, lists as lists); ParameterError otherwise."""
         if self.size is None:
             return self._scalar(value, value)
+        if value is None:  # a params file's `[]` reaches rclpy without a type, as an unset value
+            value = []
         if not isinstance(value, (list, tuple)):
             self._fail(value, f"must be a list of {self.kind.__name__}s")
         low, high = (self.size, self.size) if isinstance(self.size, int) else self.size
@@ -126,6 +138,12 @@ class Param:
         return f"{self.description}{unit}"
 
 
+def with_defaults(schema: tuple[Param, ...], **defaults) -> tuple[Param, ...]:
+    """``schema`` with other defaults for some parameters (e.g. a node's constructor arguments)."""
+    return tuple(dataclasses.replace(param, default=defaults[param.name]) if param.name in defaults else param
+                 for param in schema)
+
+
 def declare(node: Node, schema: tuple[Param, ...]) -> dict[str, Any]:
     """Check the node's parameter overrides against ``schema``, declare every parameter read-only and
     return name -> value. ParameterError (one line) for an unknown key or a bad value; nothing is declared then."""
@@ -148,6 +166,26 @@ def markdown_table(schema: tuple[Param, ...]) -> str:
     """The docs' table of a node's parameters."""
     rows = ["| parameter | default | allowed | description |", "|---|---|---|---|"]
     for param in schema:
-        default = f"`{param.default!r}`" if param.default != "" else '`""`'
-        rows.append(f"| `{param.name}` | {default} | {param._range_text()} | {param.text()} |")
+        default = f"`{param.default!r}`".replace("|", "\\|") if param.default != "" else '`""`'
+        rows.append(f"| `{param.name}` | {default} | {param._range_text()} | {param.description} |")
     return "\n".join(rows)
+
+
+# Where each node's schema (its PARAMETERS) lives.
+NODE_SCHEMAS = {"hv_driver": "softblock_ros.hv_parameters", "assembly_state": "softblock_ros.assembly_state_node",
+                "planner": "softblock_ros.planner_node", "sim_arm": "softblock_ros.sim_arm_node",
+                "sequencer": "softblock_ros.sequencer_node", "recorder": "softblock_ros.recording.recorder_node"}
+
+
+def node_schema(node: str) -> tuple[Param, ...]:
+    return importlib.import_module(NODE_SCHEMAS[node]).PARAMETERS
+
+
+def main() -> int:
+    for node in NODE_SCHEMAS:
+        print(f"<!-- parameters of {node} -->\n{markdown_table(node_schema(node))}\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -70,7 +70,7 @@ def _record(args, ros_args) -> int:
     from .recorder_node import run
     given = {"output": args.output, "topics": args.topics or None, "exclude": args.exclude,
              "compression": args.compression, "chunk_size": args.chunk_size,
-             "flush_period": args.flush_period, "discovery_period": args.discovery_period}
+             "flush_period_s": args.flush_period, "discovery_period_s": args.discovery_period}
     return run({name: value for name, value in given.items() if value is not None},
                ["--ros-args", *ros_args])
 
