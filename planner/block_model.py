@@ -267,16 +267,6 @@ class BlockModel:
         stress, thickness = _strip_tension(stretch, cols, voltage[..., None], d.material)
         return stress, thickness, slope
 
-    def net_moment(self, theta, voltage) -> np.ndarray:
-        """Membrane moment minus rod moment [N m] of every design at angle theta [rad] and voltage.
-
-        Positive: the block wants to bend further. Zero at equilibrium.
-        """
-        n = self.designs.size
-        theta = np.broadcast_to(np.asarray(theta, dtype=float), (n,))
-        voltage = np.broadcast_to(_checked("voltage", voltage), (n,)).astype(float)
-        return self._residual(theta, voltage, np.arange(n))
-
     def _residual(self, theta, voltage, index):
         """Membrane moment minus rod moment [N m] for designs[index]."""
         stress, thickness, slope = self._strip_state(theta, voltage, index)

@@ -84,18 +84,21 @@ def check_assembly(assembly: Assembly, table) -> None:
                 )
 
 
+def chain_from_msg(chain: msg.Chain) -> Chain:
+    """The planner's chain of a message (design IDs, rotations, serials, base pose); ValueError if malformed."""
+    blocks = tuple(PlacedBlock(int(block.design.id), PlacedBlock.steps_from_rotation(block.rotation), block.serial)
+                   for block in chain.blocks)
+    p, q = chain.base_pose.position, chain.base_pose.orientation
+    return Chain(chain.name, chain.hv_channel, blocks, (p.x, p.y, p.z), (q.x, q.y, q.z, q.w))
+
+
 def assembly_from_msg(message: msg.Assembly, table) -> tuple[Assembly, dict[str, float]]:
     """(assembly, calibration serial -> offset [rad]) from a message; ValueError names the bad chain/block."""
     chains, calibration = [], {}
     for c, chain in enumerate(message.chains):
         where = f"chain {chain.name or c!r}"
         try:
-            blocks = tuple(
-                PlacedBlock(int(block.design.id), PlacedBlock.steps_from_rotation(block.rotation), block.serial)
-                for block in chain.blocks
-            )
-            p, q = chain.base_pose.position, chain.base_pose.orientation
-            chains.append(Chain(chain.name, chain.hv_channel, blocks, (p.x, p.y, p.z), (q.x, q.y, q.z, q.w)))
+            chains.append(chain_from_msg(chain))
         except ValueError as error:
             raise ValueError(f"{where}: {error}") from None
         calibration.update(
