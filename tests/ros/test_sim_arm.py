@@ -81,7 +81,7 @@ def test_newer_goal_preempts(arm):
 @pytest.mark.parametrize("kwargs, message", [
     ({"frame_id": "world"}, "target frame 'world' is not the arm frame 'base_link' (no TF here)"),
     ({"orientation": (0.0, 0.0, 0.0, 2.0)}, "orientation=(0.0, 0.0, 0.0, 2.0): a unit quaternion"),
-    ({"max_speed": -1.0}, "max_speed=-1.0: finite number >= 0"),
+    ({"max_speed": -1.0}, "max_speed_m_per_s=-1.0: finite number >= 0"),
 ])
 def test_bad_targets_are_aborted_with_the_reason(arm, kwargs, message):
     action, _ = arm
