@@ -1,6 +1,7 @@
 """Analysis of a synthetic grasp recording, without ROS: peaks, step durations, faults, angles;
 and the same summary after a replay is recorded again."""
 import json
+import os
 import subprocess
 import sys
 
@@ -80,12 +81,17 @@ def test_fault_names_follow_the_bit_table():
     assert fault_names(OVER_CURRENT | LINK | 128, names) == ["over_current", "link", "bit7"]
 
 
-def test_cli_writes_png_and_json_without_importing_rclpy(grasp, tmp_path):
-    script = ("import sys; from softblock_ros.recording.cli import main; "
-              f"code = main(['analyze', {grasp!r}, '--out-dir', {str(tmp_path)!r}]); "
+def test_cli_writes_png_and_json_without_the_ros_workspace_or_rclpy(grasp, tmp_path):
+    """`python -m recording analyze` with the colcon workspace off the path: the core alone."""
+    script = ("import importlib.util, runpy, sys; "
+              "assert importlib.util.find_spec('softblock_ros') is None, 'the ROS workspace is on the path'; "
+              f"sys.argv = ['recording', 'analyze', {grasp!r}, '--out-dir', {str(tmp_path)!r}]; "
+              "import recording.cli; code = recording.cli.main(sys.argv[1:]); "
               "assert 'rclpy' not in sys.modules, 'analysis imported rclpy'; sys.exit(code)")
-    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                            timeout=120)
+    env = {key: value for key, value in os.environ.items()
+           if key not in ("PYTHONPATH", "AMENT_PREFIX_PATH", "COLCON_PREFIX_PATH")}
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, env=env,
+                            cwd=tmp_path)
     assert result.returncode == 0, result.stderr
     assert "channel front: peak 3.000 kV" in result.stdout
     assert (tmp_path / "grasp.png").read_bytes().startswith(b"\x89PNG")

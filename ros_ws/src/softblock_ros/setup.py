@@ -31,7 +31,7 @@ setup(
             "launcher = softblock_ros.launcher:main",
             "recorder = softblock_ros.recording.cli:record_main",
             "player = softblock_ros.recording.cli:play_main",
-            "analyze_recording = softblock_ros.recording.cli:analyze_main",
+            "analyze_recording = recording.cli:analyze_main",
             "sequencer = softblock_ros.sequencer_node:main",
             "sim_arm = softblock_ros.sim_arm_node:main",
         ],
