@@ -60,9 +60,9 @@ def exact_runs(mask, pixel, blocks, table):
     return {
         "times": [r.solve_time for r in runs], "time": float(np.median([r.solve_time for r in runs])),
         "certified": best.optimal, "cost": best.left.cost + best.right.cost,
-        "lower_bound": best.left.lower_bound + best.right.lower_bound,
+        "lower_bound": best.left.lower_bound_m + best.right.lower_bound_m,
         "left": list(best.left.design_ids), "right": list(best.right.design_ids),
-        "min_clearance": min(best.left.min_clearance, best.right.min_clearance),
+        "min_clearance": min(best.left.min_clearance_m, best.right.min_clearance_m),
         "placements": best.left.result.nfev + best.right.result.nfev,
     }
 

@@ -14,6 +14,7 @@ import os
 import statistics
 import threading
 import time
+from pathlib import Path
 
 import matplotlib
 
@@ -24,11 +25,11 @@ from rclpy.executors import MultiThreadedExecutor  # noqa: E402
 from softblock_interfaces.srv import DesignFingers  # noqa: E402
 
 from planner.contours import OBJECTS_CATALOG  # noqa: E402
-from planner.table import REPO_ROOT  # noqa: E402
+from planner.design import DEFAULT_MIN_STIFF_ROD_DIAMETER  # noqa: E402
 from softblock_ros.demo import FINGER_SETS, FINGER_TIME_BUDGET  # noqa: E402
 from softblock_ros.planner_node import PlannerNode  # noqa: E402
 
-FIGURES = REPO_ROOT / "docs" / "figures"
+FIGURES = Path(__file__).resolve().parent.parent / "docs" / "figures"
 REPEATS = 5
 CAP = 60.0  # [s] budget of the "until certified" requests
 
@@ -38,7 +39,7 @@ def design_gripper(service, budget: float) -> dict:
     out = {}
     for finger_set, constraints in FINGER_SETS.items():
         request = DesignFingers.Request(image_path=str(OBJECTS_CATALOG.parent / "asymmetric.png"), pixel_size=2.5e-4,
-                                        min_stiff_rod_diameter=0.62e-3, optimizer="exact", time_budget=budget,
+                                        min_stiff_rod_diameter=DEFAULT_MIN_STIFF_ROD_DIAMETER, method="exact", time_budget=budget,
                                         **constraints)
         started = time.perf_counter()
         future = service.call_async(request)

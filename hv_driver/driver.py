@@ -16,6 +16,7 @@ import serial
 from .config import ChannelConfig
 from .dialects import Dialect, IsegEdcp, ProtocolError
 from .dialects.iseg_edcp import TRIP_ACTION_OFF_WITHOUT_RAMP
+from .errors import HvError, SettingError, StateError
 from .faults import Fault
 from .link import Link, LinkError
 from .supervisor import ChannelCommand, Supervisor
@@ -29,7 +30,7 @@ DEVICE_CURRENT_MARGIN = 1.5
 DEVICE_TRIP_TIME_S = 0.1
 
 
-class ConfigurationError(RuntimeError):
+class ConfigurationError(HvError, RuntimeError):
     """The device did not accept or read back the configured limits."""
 
 
@@ -142,24 +143,28 @@ class HvSupply:
     link_timeout_s: no valid reply for this long trips LINK.
     heartbeat_timeout_s: None, or no `heartbeat()` for this long ramps enabled outputs to 0 V.
     reply_timeout_s: time allowed for one echoed answer (default: a quarter of link_timeout_s).
+    expected_identity: text the device's identification (``*IDN?``) must contain, e.g. its model, checked at
+        `open`; "" checks nothing.
     """
 
     def __init__(self, port: str, baudrate: int | None = None, channels: list[ChannelConfig] = (),
                  loop_rate_hz: float = 100.0, link_timeout_s: float = 0.5,
                  heartbeat_timeout_s: float | None = None, reply_timeout_s: float | None = None,
-                 dialect: Dialect | None = None, handle_signals: bool = True, clock=time.monotonic):
+                 dialect: Dialect | None = None, handle_signals: bool = True, clock=time.monotonic,
+                 expected_identity: str = ""):
         if not (math.isfinite(loop_rate_hz) and 1.0 <= loop_rate_hz <= 1000.0):
-            raise ValueError(f"loop_rate_hz={loop_rate_hz!r}: between 1 and 1000")
+            raise SettingError(f"loop_rate_hz={loop_rate_hz!r}: between 1 and 1000")
         reply_timeout_s = link_timeout_s / 4 if reply_timeout_s is None else reply_timeout_s
         if not (math.isfinite(reply_timeout_s) and 0 < reply_timeout_s < link_timeout_s):
-            raise ValueError(f"reply_timeout_s={reply_timeout_s!r}: > 0 and below link_timeout_s")
+            raise SettingError(f"reply_timeout_s={reply_timeout_s!r}: > 0 and below link_timeout_s")
         self.port_name = port
+        self.expected_identity = expected_identity
         self.dialect = dialect or IsegEdcp()
         self.baudrate = baudrate or self.dialect.default_baudrate
         self.configs = list(channels)
         self._clock = clock
-        self._supervisor = Supervisor(self.configs, link_timeout=link_timeout_s,
-                                      heartbeat_timeout=heartbeat_timeout_s, now=clock())
+        self._supervisor = Supervisor(self.configs, link_timeout_s=link_timeout_s,
+                                      heartbeat_timeout_s=heartbeat_timeout_s, now=clock())
         self._period = 1.0 / loop_rate_hz
         self._reply_timeout = reply_timeout_s
         self._handle_signals = handle_signals
@@ -181,11 +186,17 @@ class HvSupply:
     # --- lifecycle -----------------------------------------------------------------------------
     def open(self) -> "HvSupply":
         """Open the port, identify the supply, set and read back its limits, start the loop."""
-        self._port = serial.serial_for_url(self.port_name, baudrate=self.baudrate,
-                                           timeout=self._reply_timeout, write_timeout=self._reply_timeout)
+        try:
+            self._port = serial.serial_for_url(self.port_name, baudrate=self.baudrate,
+                                               timeout=self._reply_timeout, write_timeout=self._reply_timeout)
+        except (serial.SerialException, OSError, ValueError) as error:
+            raise LinkError(f"cannot open {self.port_name!r}: {error}") from error
         self._link = Link(self._port, self.dialect, self._reply_timeout)
         try:
             self.device_id = self._link.query("identify")
+            if self.expected_identity not in self.device_id:
+                raise ConfigurationError(f"device on {self.port_name} identifies as {self.device_id!r}, "
+                                         f"expected_identity={self.expected_identity!r} is not part of it")
             indices = [c.index for c in self.configs]
             self._link.query("set_voltage", indices, 0.0)  # known state: 0 V, off
             self._link.query("output_off", indices)
@@ -210,8 +221,8 @@ class HvSupply:
         """Device-side second line of defence: ramp speed, current limit and trip; read back."""
         for config in self.configs:
             ch = [config.index]
-            ramp = config.slew_rate * DEVICE_RAMP_MARGIN
-            current = config.current_trip * DEVICE_CURRENT_MARGIN
+            ramp = config.slew_rate_v_per_s * DEVICE_RAMP_MARGIN
+            current = config.current_trip_a * DEVICE_CURRENT_MARGIN
             trip_ms = DEVICE_TRIP_TIME_S * 1000.0
             for operation, value in (("set_ramp_up", ramp), ("set_ramp_down", ramp),
                                      ("set_current_limit", current), ("set_trip_time", trip_ms),
@@ -309,9 +320,9 @@ class HvSupply:
         """Ramp to 0 V at the slew limit, then switch the output off."""
         self._change(lambda now: self._supervisor.channel(channel).disable(now))
 
-    def ramp_to(self, channel: str, target_v: float, slew_rate: float | None = None) -> RampHandle:
+    def ramp_to(self, channel: str, target_v: float, slew_rate_v_per_s: float | None = None) -> RampHandle:
         """Start a smooth ramp; a target above the ceiling raises LimitError naming the limit."""
-        ramp_id = self._change(lambda now: self._supervisor.ramp_to(channel, now, target_v, slew_rate))
+        ramp_id = self._change(lambda now: self._supervisor.ramp_to(channel, now, target_v, slew_rate_v_per_s))
         return RampHandle(self, channel, ramp_id, float(target_v))
 
     def heartbeat(self) -> None:
@@ -338,7 +349,7 @@ class HvSupply:
         again; only with every output off. Latched faults stay latched."""
         with self._lock:
             if any(c.output_enabled for c in self._supervisor.channels.values()):
-                raise RuntimeError("reset_device: switch every output off first (disable)")
+                raise StateError("reset_device: switch every output off first (disable)")
             self._device_reset = self._reconfigure = True
         self._wake.set()
 
@@ -443,7 +454,7 @@ class HvSupply:
                 self._measured[config.name] = (voltage, current)
                 ramp_id, ramping, setpoint = stepped[config.name]
                 self._applied[config.name] = _Applied(ramp_id, ramping,
-                                                      abs(voltage - setpoint) <= config.mismatch_tolerance)
+                                                      abs(voltage - setpoint) <= config.mismatch_tolerance_v)
             self._cycles += 1
             self._cycle_done.notify_all()
             return any(c.faults != faults_before[n] for n, c in self._supervisor.channels.items())

@@ -2,6 +2,8 @@
 import math
 from dataclasses import dataclass
 
+from .errors import SettingError
+
 # Peak of d/ds (10 s^3 - 15 s^4 + 6 s^5) on [0, 1], reached at s = 1/2.
 MIN_JERK_PEAK_RATE = 1.875
 
@@ -40,7 +42,7 @@ def check_slew_rate(slew_rate: float, maximum: float) -> float:
     if slew_rate is None or slew_rate == 0:
         return maximum
     if not (isinstance(slew_rate, (int, float)) and math.isfinite(slew_rate) and slew_rate > 0):
-        raise ValueError(f"slew_rate={slew_rate!r}: finite number > 0 (or 0 for the configured rate)")
+        raise SettingError(f"slew_rate={slew_rate!r}: finite number > 0 (or 0 for the configured rate)")
     if slew_rate > maximum:
-        raise ValueError(f"slew_rate={slew_rate:g} V/s exceeds the configured slew limit {maximum:g} V/s")
+        raise SettingError(f"slew_rate={slew_rate:g} V/s exceeds the configured slew limit {maximum:g} V/s")
     return float(slew_rate)

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 from .config import ChannelConfig
 from .faults import Fault, fault_names
+from .errors import HvError, SettingError, StateError
 from .ramp import MinimumJerkRamp, check_slew_rate
 
 # A lost heartbeat ramps down smoothly; every other fault cuts the output at once.
@@ -29,11 +30,11 @@ IMMEDIATE_FAULTS = Fault(sum(Fault)) & ~RAMP_DOWN_FAULTS
 MAX_SLEW_STEP_S = 0.1
 
 
-class LimitError(ValueError):
+class LimitError(SettingError):
     """A request exceeds a safety limit; the message names the limit and its value."""
 
 
-class FaultLatchedError(RuntimeError):
+class FaultLatchedError(HvError, RuntimeError):
     """A request was refused because faults are latched (reset them first)."""
 
 
@@ -72,7 +73,7 @@ class ChannelSupervisor:
     # --- state -------------------------------------------------------------------------------
     def limits(self) -> dict[str, float]:
         """Every voltage limit in force, by name."""
-        named = {"hard maximum": self.config.max_voltage, "assembly safe voltage": self.safe_voltage,
+        named = {"hard maximum": self.config.max_voltage_v, "assembly safe voltage": self.safe_voltage,
                  "supply limit": self.device_limit}
         return {name: value for name, value in named.items() if value is not None}
 
@@ -98,19 +99,19 @@ class ChannelSupervisor:
     def set_safe_voltage(self, voltage: float | None) -> None:
         """Set the assembly's safe voltage [V] (None = unknown, not a limit)."""
         if voltage is not None and not (_finite(voltage) and voltage >= 0):
-            raise ValueError(f"safe_voltage={voltage!r}: finite number >= 0 or None")
+            raise SettingError(f"safe_voltage={voltage!r}: finite number >= 0 or None")
         self.safe_voltage = None if voltage is None else float(voltage)
 
     def set_device_limit(self, voltage: float | None) -> None:
         """Set the supply's own voltage limit [V] as read from the device."""
         if voltage is not None and not (_finite(voltage) and voltage >= 0):
-            raise ValueError(f"device_limit={voltage!r}: finite number >= 0 or None")
+            raise SettingError(f"device_limit={voltage!r}: finite number >= 0 or None")
         self.device_limit = None if voltage is None else float(voltage)
 
     def check_target(self, target: float) -> float:
         """Validated target [V]; raises ValueError / LimitError naming the violated limit."""
         if not _finite(target) or target < 0:
-            raise ValueError(f"target={target!r} V: finite number >= 0")
+            raise SettingError(f"target={target!r} V: finite number >= 0")
         for name, limit in self.limits().items():
             if target > limit:
                 raise LimitError(f"channel {self.config.name!r}: target {target:g} V exceeds the "
@@ -135,18 +136,18 @@ class ChannelSupervisor:
         """Ramp to 0 V at the slew limit, then switch the output off."""
         now = self._now(now)
         if self.output_enabled:
-            self._start_ramp(now, 0.0, self.config.slew_rate)
+            self._start_ramp(now, 0.0, self.config.slew_rate_v_per_s)
             self._off_at_zero = True
             self.ramp_id += 1
 
-    def ramp_to(self, now: float, target: float, slew_rate: float | None = None) -> int:
-        """Start a smooth ramp to ``target`` [V]; returns the ramp id. Refuses, never clips."""
+    def ramp_to(self, now: float, target_v: float, slew_rate_v_per_s: float | None = None) -> int:
+        """Start a smooth ramp to ``target_v``; returns the ramp id. Refuses, never clips."""
         now = self._now(now)
         self._refuse_if_faulted()
         if not self.output_enabled:
-            raise RuntimeError(f"channel {self.config.name!r}: output not enabled")
-        target = self.check_target(target)
-        slew = check_slew_rate(slew_rate, self.config.slew_rate)
+            raise StateError(f"channel {self.config.name!r}: output not enabled")
+        target = self.check_target(target_v)
+        slew = check_slew_rate(slew_rate_v_per_s, self.config.slew_rate_v_per_s)
         self._start_ramp(now, target, slew)
         self._off_at_zero = False
         self.ramp_id += 1
@@ -168,7 +169,7 @@ class ChannelSupervisor:
             self._ramp = None
             self._off_at_zero = False
         elif self.output_enabled and not self._off_at_zero:
-            self._start_ramp(self._clock, 0.0, self.config.slew_rate)
+            self._start_ramp(self._clock, 0.0, self.config.slew_rate_v_per_s)
             self._off_at_zero = True
 
     def observe(self, now: float, voltage: float, current: float, device_fault: str | None = None,
@@ -178,26 +179,26 @@ class ChannelSupervisor:
         if not (_finite(voltage) and _finite(current)):
             self.trip(Fault.LINK, f"readback not a finite number ({voltage!r} V, {current!r} A)")
             return
-        if current > self.config.current_trip:
+        if current > self.config.current_trip_a:
             self.trip(Fault.OVER_CURRENT, f"measured {current:.3g} A above the trip level "
-                                          f"{self.config.current_trip:.3g} A")
+                                          f"{self.config.current_trip_a:.3g} A")
         if device_over_current:
             self.trip(Fault.OVER_CURRENT, "the supply reported a current trip")
         if device_fault:
             self.trip(Fault.DEVICE, device_fault)
         expected = self.setpoint if self.output_enabled else 0.0
-        if abs(voltage - expected) > self.config.mismatch_tolerance:
+        if abs(voltage - expected) > self.config.mismatch_tolerance_v:
             self._mismatch_since = now if self._mismatch_since is None else self._mismatch_since
-            if now - self._mismatch_since > self.config.mismatch_time:
+            if now - self._mismatch_since > self.config.mismatch_time_s:
                 self.trip(Fault.READBACK_MISMATCH, f"measured {voltage:.1f} V, commanded {expected:.1f} V "
-                                                   f"for more than {self.config.mismatch_time:g} s")
+                                                   f"for more than {self.config.mismatch_time_s:g} s")
         else:
             self._mismatch_since = None
-        if self.config.creep_voltage is not None and voltage >= self.config.creep_voltage:
+        if self.config.creep_voltage_v is not None and voltage >= self.config.creep_voltage_v:
             self._creep_since = now if self._creep_since is None else self._creep_since
-            if now - self._creep_since > self.config.max_time_at_voltage:
-                self.trip(Fault.TIME_AT_VOLTAGE, f"above {self.config.creep_voltage:g} V for more than "
-                                                 f"{self.config.max_time_at_voltage:g} s")
+            if now - self._creep_since > self.config.max_time_at_voltage_s:
+                self.trip(Fault.TIME_AT_VOLTAGE, f"above {self.config.creep_voltage_v:g} V for more than "
+                                                 f"{self.config.max_time_at_voltage_s:g} s")
         else:
             self._creep_since = None
 
@@ -224,9 +225,9 @@ class ChannelSupervisor:
             return ChannelCommand(0.0, False, False)
         ceiling = self.ceiling
         if self.target > ceiling:  # the ceiling dropped under a running ramp: re-plan towards it
-            self._start_ramp(now, ceiling, self._ramp.slew_rate if self._ramp else self.config.slew_rate)
+            self._start_ramp(now, ceiling, self._ramp.slew_rate if self._ramp else self.config.slew_rate_v_per_s)
         desired = self._ramp.value(now) if self._ramp else self.target
-        allowance = self.config.slew_rate * dt
+        allowance = self.config.slew_rate_v_per_s * dt
         desired = min(max(desired, self.setpoint - allowance), self.setpoint + allowance)
         self.setpoint = max(0.0, min(desired, ceiling))
         if self._ramp is not None and self._ramp.finished(now) and self.setpoint == self._ramp.end:
@@ -239,20 +240,20 @@ class ChannelSupervisor:
 class Supervisor:
     """All channels of one supply plus the supply-wide link and heartbeat watchdogs."""
 
-    def __init__(self, configs: list[ChannelConfig], *, link_timeout: float,
-                 heartbeat_timeout: float | None = None, now: float = 0.0):
+    def __init__(self, configs: list[ChannelConfig], *, link_timeout_s: float,
+                 heartbeat_timeout_s: float | None = None, now: float = 0.0):
         if not configs:
-            raise ValueError("channels: at least one ChannelConfig")
+            raise SettingError("channels: at least one ChannelConfig")
         for parameter, values in (("channel names", [c.name for c in configs]),
                                   ("channel indices", [c.index for c in configs])):
             if len(set(values)) != len(values):
-                raise ValueError(f"{parameter} must be unique, got {values}")
-        if not (_finite(link_timeout) and link_timeout > 0):
-            raise ValueError(f"link_timeout={link_timeout!r}: finite number > 0")
-        if heartbeat_timeout is not None and not (_finite(heartbeat_timeout) and heartbeat_timeout > 0):
-            raise ValueError(f"heartbeat_timeout={heartbeat_timeout!r}: None or finite number > 0")
-        self.link_timeout = float(link_timeout)
-        self.heartbeat_timeout = heartbeat_timeout
+                raise SettingError(f"{parameter} must be unique, got {values}")
+        if not (_finite(link_timeout_s) and link_timeout_s > 0):
+            raise SettingError(f"link_timeout_s={link_timeout_s!r}: finite number > 0")
+        if heartbeat_timeout_s is not None and not (_finite(heartbeat_timeout_s) and heartbeat_timeout_s > 0):
+            raise SettingError(f"heartbeat_timeout_s={heartbeat_timeout_s!r}: None or finite number > 0")
+        self.link_timeout_s = float(link_timeout_s)
+        self.heartbeat_timeout_s = heartbeat_timeout_s
         self._clock = float(now) if _finite(now) else 0.0
         self.channels = {c.name: ChannelSupervisor(c, self._clock) for c in configs}
         self._last_heartbeat = self._clock
@@ -271,7 +272,7 @@ class Supervisor:
         try:
             return self.channels[name]
         except KeyError:
-            raise ValueError(f"channel={name!r}: unknown, configured are {sorted(self.channels)}") from None
+            raise SettingError(f"channel={name!r}: unknown, configured are {sorted(self.channels)}") from None
 
     def link_ok(self, now: float) -> None:
         """A complete, valid exchange with the supply finished at ``now``."""
@@ -293,9 +294,9 @@ class Supervisor:
         # Enabling counts as a sign of life, so the heartbeat timeout runs from here.
         self._last_heartbeat = self._now(now)
 
-    def ramp_to(self, name: str, now: float, target: float, slew_rate: float | None = None) -> int:
+    def ramp_to(self, name: str, now: float, target_v: float, slew_rate_v_per_s: float | None = None) -> int:
         """Start a ramp on one channel; a request from the client counts as a sign of life."""
-        ramp_id = self.channel(name).ramp_to(now, target, slew_rate)
+        ramp_id = self.channel(name).ramp_to(now, target_v, slew_rate_v_per_s)
         self._last_heartbeat = self._now(now)
         return ramp_id
 
@@ -321,12 +322,12 @@ class Supervisor:
 
     def step(self, now: float) -> dict[str, ChannelCommand]:
         now = self._now(now)
-        if self._link_failing_since is not None and now - self._link_failing_since > self.link_timeout:
-            self.trip_all(Fault.LINK, f"no valid reply from the supply for more than {self.link_timeout:g} s")
-        if (self.heartbeat_timeout is not None and now - self._last_heartbeat > self.heartbeat_timeout):
+        if self._link_failing_since is not None and now - self._link_failing_since > self.link_timeout_s:
+            self.trip_all(Fault.LINK, f"no valid reply from the supply for more than {self.link_timeout_s:g} s")
+        if (self.heartbeat_timeout_s is not None and now - self._last_heartbeat > self.heartbeat_timeout_s):
             # Only energised outputs need a live client: an output idling at 0 V holds no charge.
             for channel in self.channels.values():
                 if channel.output_enabled and (channel.setpoint > 0.0 or channel.target > 0.0):
                     channel.trip(Fault.HEARTBEAT, f"no heartbeat from the controlling client for more "
-                                                  f"than {self.heartbeat_timeout:g} s")
+                                                  f"than {self.heartbeat_timeout_s:g} s")
         return {name: channel.step(now) for name, channel in self.channels.items()}

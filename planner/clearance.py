@@ -1,10 +1,10 @@
 """Exact clearance between a finger's body and an object's pixels: the collision term C of eq. (2).
 
 The object is the union of its closed pixel squares. The finger body is the tube of radius r around the
-whole continuous centreline (the cap segments and arcs of every block, base to tip, round ends
-included). The body enters the object by more than ``contact_tolerance`` exactly when the centreline
-comes closer than ``r - contact_tolerance`` to a pixel square; the clearance reported is the smallest
-centreline-to-object distance minus r (negative: overlap).
+whole continuous centerline (the cap segments and arcs of every block, base to tip, round ends
+included). The body enters the object by more than ``contact_tolerance_m`` exactly when the centerline
+comes closer than ``r - contact_tolerance_m`` to a pixel square; the clearance reported is the smallest
+centerline-to-object distance minus r (negative: overlap).
 
 Distances come from two exact sources:
 
@@ -16,9 +16,9 @@ Distances come from two exact sources:
   distance of any point (nearest square row by row, outward until the rows are farther than the best)
   where the lattice cannot decide.
 
-Along the centreline the distance changes by at most the arc length travelled, so a stretch of arc
+Along the centerline the distance changes by at most the arc length travelled, so a stretch of arc
 length ds whose end distances are at least a and b stays at least (a + b - ds) / 2 away. A block's
-centreline is checked at ``DENSE_SAMPLES`` points; stretches this cannot decide are halved, with exact
+centerline is checked at ``DENSE_SAMPLES`` points; stretches this cannot decide are halved, with exact
 end distances, until they are decided to within ``RESOLUTION`` (1 um, 1/250 of a 0.25 mm pixel).
 """
 from __future__ import annotations
@@ -32,7 +32,7 @@ from scipy import ndimage
 from planner.kinematics import BLOCK_RADIUS, CAP_LENGTH
 
 SUBDIVISION = 2  # lattice nodes per pixel side
-DENSE_SAMPLES = 48  # centreline points per block checked against the lattice before any refinement
+DENSE_SAMPLES = 48  # centerline points per block checked against the lattice before any refinement
 RESOLUTION = 1e-6  # [m] the rule is decided to within this (overlaps smaller than 1 um count as touching)
 _STACK = 256  # pending stretches per block check (twice the halving depth, about 20, is far below this)
 
@@ -158,7 +158,7 @@ def lattice_bounds(field, x, z):
 
 @njit(cache=True)
 def block_point(theta, length, cap, s):
-    """Centreline point (lateral x, axial z) of a block in its start frame at arc length s from its start."""
+    """Centerline point (lateral x, axial z) of a block in its start frame at arc length s from its start."""
     if s <= cap:
         return 0.0, s
     if abs(theta) < 1e-12:
@@ -185,9 +185,9 @@ def _to_object(frame, pose_x, pose_z, heading, x, z):
 
 @njit(cache=True)
 def block_min_distance(field, frame, pose_x, pose_z, heading, theta, length, cap, threshold, report):
-    """Smallest distance from one block's centreline (start pose in the finger frame) to the object.
+    """Smallest distance from one block's centerline (start pose in the finger frame) to the object.
 
-    ``report`` False: a search check. Returns a value < ``threshold - RESOLUTION`` as soon as the centreline
+    ``report`` False: a search check. Returns a value < ``threshold - RESOLUTION`` as soon as the centerline
     is proven to come that close, otherwise a value >= that (proven: nowhere closer than
     ``threshold - 2 RESOLUTION``). ``report`` True: the minimum itself to within RESOLUTION (``threshold``
     is an upper bound already known, e.g. from other blocks: stretches that cannot go below it are skipped).
@@ -217,7 +217,7 @@ def block_min_distance(field, frame, pose_x, pose_z, heading, theta, length, cap
         while top > 0:
             top -= 1
             s_a, s_b, lo_a, lo_b, exact_a, exact_b = stack[top]
-            if report and best <= 0.0:  # the centreline is inside the object: nothing is closer
+            if report and best <= 0.0:  # the centerline is inside the object: nothing is closer
                 return 0.0
             limit = (min(best, threshold) if report else threshold) - RESOLUTION
             if 0.5 * (lo_a + lo_b - (s_b - s_a)) >= limit:
@@ -255,7 +255,7 @@ def block_min_distance(field, frame, pose_x, pose_z, heading, theta, length, cap
 
 @njit(cache=True)
 def chains_min_distance(field, frame, theta, length, base_x, cap, threshold, report, out):
-    """Smallest centreline-to-object distance of planar chains (n, N) based at (base_x[i], 0), heading 0.
+    """Smallest centerline-to-object distance of planar chains (n, N) based at (base_x[i], 0), heading 0.
 
     ``report`` True: the minima (to within RESOLUTION). False: a collision check against ``threshold`` (see
     ``block_min_distance``); a chain stops at its first colliding block.
@@ -288,7 +288,7 @@ class FingerBody:
     base_x: float
     side: float  # +1: finger X along object +x (left finger); -1: mirrored (right finger)
     radius: float = BLOCK_RADIUS
-    contact_tolerance: float = 0.0
+    contact_tolerance_m: float = 0.0
     cap_length: float = CAP_LENGTH
 
     @property
@@ -297,8 +297,8 @@ class FingerBody:
 
     @property
     def threshold(self) -> float:
-        """Centreline-to-object distances below this are a collision [m] (decided to within RESOLUTION)."""
-        return self.radius - self.contact_tolerance
+        """Centerline-to-object distances below this are a collision [m] (decided to within RESOLUTION)."""
+        return self.radius - self.contact_tolerance_m
 
     def to_object(self, points: np.ndarray) -> np.ndarray:
         """(..., 2) object-frame x, z [m] of finger-frame points (..., 3) or (..., 2) given as x, (y,) z."""
@@ -317,7 +317,7 @@ class FingerBody:
         return out.reshape(batch)
 
     def clearance(self, theta, length, base_x) -> np.ndarray:
-        """Minimum clearance [m] (centreline distance to the object minus r; negative: overlap, down to -r)
+        """Minimum clearance [m] (centerline distance to the object minus r; negative: overlap, down to -r)
         of planar chains theta, length (..., N) whose base sits at finger-frame (base_x (...), 0)."""
         return self._chains(theta, length, base_x, True) - self.radius
 

@@ -4,7 +4,7 @@ Finger placement (the convention behind eq. 3): the object is grasped vertically
 straight down from the object's top edge (z = 0 of the ``planner.contours`` object frame) and bends toward
 the object. Its base centerline point sits one block radius outside the object's bounding box (x = -w/2 - r
 for the left finger, +w/2 + r for the right; a straight finger then just touches the widest point) plus an
-outward offset that the optimiser chooses from ``base_offsets`` (default 0-12 mm in 1 mm steps) together
+outward offset that the optimizer chooses from ``base_offsets`` (default 0-12 mm in 1 mm steps) together
 with the blocks: the blocks only curl toward the object, so an object that is widest low down needs the
 base farther out. The left finger is matched to the left contour, the right finger to the right
 one; contours are resampled every ``contour_spacing`` along their length so the cost does not depend on
@@ -39,15 +39,15 @@ METHODS = ("exact", "pso")
 
 @dataclass(frozen=True)
 class FingerDesign:
-    """One optimised finger; geometry in the object frame (x right, z up) [m]."""
+    """One optimized finger; geometry in the object frame (x right, z up) [m]."""
 
     side: str  # "left" or "right"
     design_ids: tuple[int, ...]  # base (top) first
     cost: float  # eq. (3) [m], including k = 1e11 if colliding
     collision: bool
-    min_clearance: float  # smallest distance between the finger body and the object [m]; negative: overlap
+    min_clearance_m: float  # smallest distance between the finger body and the object [m]; negative: overlap
     optimal: bool  # certified optimum for this finger
-    lower_bound: float  # proven lower bound on this finger's optimum [m] (= cost when optimal)
+    lower_bound_m: float  # proven lower bound on this finger's optimum [m] (= cost when optimal)
     contour: np.ndarray  # (n, 2) the resampled target contour
     centerline: np.ndarray  # (m, 2) the finger's centerline samples, base first
     base: np.ndarray  # (2,) base centerline point
@@ -86,7 +86,7 @@ def _check_common(num_blocks, method: str) -> None:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
 
 
-def _optimise(target: ShapeTarget, space: DesignSpace, method: str, *, seed, time_budget, callback, options):
+def _optimize(target: ShapeTarget, space: DesignSpace, method: str, *, seed, time_budget, callback, options):
     if method == "pso":
         return solve_pso(target, space, rng=np.random.default_rng(seed), options=options,
                          time_budget=time_budget, callback=callback)
@@ -120,14 +120,14 @@ def _cancel(progress) -> None:
 
 
 def finger_problems(contours, base_offsets=DEFAULT_BASE_OFFSETS, contour_spacing: float = DEFAULT_CONTOUR_SPACING,
-                    contact_tolerance: float = 0.0) -> dict[str, tuple[ShapeTarget, np.ndarray]]:
+                    contact_tolerance_m: float = 0.0) -> dict[str, tuple[ShapeTarget, np.ndarray]]:
     """The eq. (3) target of each finger ("left", "right") of an object (``planner.contours.ObjectContours``)
     and its resampled contour in the object frame, placed as the module docstring says."""
     distance = ObjectDistance.from_contours(contours)
     problems = {}
     for side, contour, sign in (("left", contours.left, 1.0), ("right", contours.right, -1.0)):
         base_x = -sign * (contours.width / 2 + BLOCK_RADIUS)
-        body = FingerBody(distance, base_x, sign, contact_tolerance=float(contact_tolerance))
+        body = FingerBody(distance, base_x, sign, contact_tolerance_m=float(contact_tolerance_m))
         resampled = resample_polyline(contour, contour_spacing)
         finger_frame = np.stack([sign * (resampled[:, 0] - base_x), np.zeros(len(resampled)), -resampled[:, 1]], 1)
         problems[side] = (finger_target(finger_frame, body, base_offsets), resampled)
@@ -150,7 +150,7 @@ def design_fingers(
     options: dict | None = None,
     contour_spacing: float = DEFAULT_CONTOUR_SPACING,
     base_offsets=DEFAULT_BASE_OFFSETS,
-    contact_tolerance: float = 0.0,
+    contact_tolerance_m: float = 0.0,
 ) -> FingerDesignResult:
     """Design a left and a right finger of ``num_blocks`` conforming to the object in ``mask`` (eq. 3).
 
@@ -160,8 +160,8 @@ def design_fingers(
     then not certified). ``callback(progress)`` gets a ``planner.optimize.Progress`` and may raise
     StopIteration to cancel. ``time_budget`` [s] covers both fingers; the exact method certifies its result
     unless the budget ends it first (it then says so and reports a proven lower bound). ``options`` go to the
-    optimiser (``planner.optimize.finger_search.DEFAULT_OPTIONS`` or ``planner.optimize.pso.DEFAULT_OPTIONS``).
-    ``contact_tolerance`` [m]: how far the finger body may enter the object before it counts as a collision
+    optimizer (``planner.optimize.finger_search.DEFAULT_OPTIONS`` or ``planner.optimize.pso.DEFAULT_OPTIONS``).
+    ``contact_tolerance_m``: how far the finger body may enter the object before it counts as a collision
     (0: touching only).
     """
     _check_common(num_blocks, method)
@@ -176,8 +176,8 @@ def design_fingers(
         raise ValueError(f"inventory holds {sum(inventory.values())} blocks; two fingers need {2 * num_blocks}")
     if time_budget is not None and not (np.isfinite(time_budget) and time_budget > 0):
         raise ValueError(f"time_budget must be a positive number of seconds or None, got {time_budget!r}")
-    if not (np.isfinite(contact_tolerance) and 0.0 <= contact_tolerance < BLOCK_RADIUS):
-        raise ValueError(f"contact_tolerance must be a length in [0, {BLOCK_RADIUS}) m, got {contact_tolerance!r}")
+    if not (np.isfinite(contact_tolerance_m) and 0.0 <= contact_tolerance_m < BLOCK_RADIUS):
+        raise ValueError(f"contact_tolerance_m must be a length in [0, {BLOCK_RADIUS}) m, got {contact_tolerance_m!r}")
     table = load_table() if table is None else table
     contours = extract_contours(mask, pixel_size)
     space_for = lambda stock: design_space(  # noqa: E731
@@ -185,16 +185,16 @@ def design_fingers(
         inventory=stock,
     )
     space = space_for(inventory)
-    problems = finger_problems(contours, base_offsets, contour_spacing, contact_tolerance)
+    problems = finger_problems(contours, base_offsets, contour_spacing, contact_tolerance_m)
 
     started = time.perf_counter()
     results = {}
     for index, side in enumerate(("left", "right")):
         budget = None if time_budget is None else max(time_budget - (time.perf_counter() - started), 1e-3) / (2 - index)
         progress = _scaled_callback(callback, 0.5 * index, 0.5)
-        if index and results["left"].status == Status.CANCELLED:
-            progress = _cancel  # a cancelled request stops both fingers, even if the callback raised only once
-        results[side] = _optimise(problems[side][0], space, method, seed=seed, time_budget=budget,
+        if index and results["left"].status == Status.CANCELED:
+            progress = _cancel  # a canceled request stops both fingers, even if the callback raised only once
+        results[side] = _optimize(problems[side][0], space, method, seed=seed, time_budget=budget,
                                   callback=progress, options=options)
     shared_stock_ok = True
     if inventory is not None:
@@ -208,7 +208,7 @@ def design_fingers(
             for design_id in results["left"].design_ids:
                 left_over[design_id] -= 1
             budget = None if time_budget is None else max(time_budget - (time.perf_counter() - started), 1e-3)
-            results["right"] = _optimise(problems["right"][0], space_for(left_over), method, seed=seed,
+            results["right"] = _optimize(problems["right"][0], space_for(left_over), method, seed=seed,
                                          time_budget=budget, callback=_scaled_callback(callback, 0.5, 0.5),
                                          options=options)
 
@@ -249,9 +249,9 @@ def _finger(side, result, target, contour, table) -> FingerDesign:
         design_ids=result.design_ids,
         cost=float(cost.total),
         collision=bool(cost.collision),
-        min_clearance=float(target.body.clearance(theta, length, base[0])),
+        min_clearance_m=float(target.body.clearance(theta, length, base[0])),
         optimal=result.optimal,
-        lower_bound=result.lower_bound,
+        lower_bound_m=result.lower_bound,
         contour=contour,
         centerline=target.body.to_object(shape.points + base),
         base=target.body.to_object(base),
@@ -284,7 +284,7 @@ def design_path(
     target = path_target(path)
     if method == "exact":
         options = PATH_EXACT_OPTIONS | (options or {})
-    result = _optimise(target, space, method, seed=seed, time_budget=time_budget, callback=callback, options=options)
+    result = _optimize(target, space, method, seed=seed, time_budget=time_budget, callback=callback, options=options)
     theta, length, _ = design_parameters(table, np.array(result.design_ids))
     shape = chain_shape(theta, length, np.array(result.rotation_steps) * ROTATION_STEP)
     cost = evaluate(target, shape.points, shape.rotations[-1], shape.positions[-1])

@@ -1,4 +1,4 @@
-"""Design objectives of the paper's shape optimisation (section 2.3, eqs. 1-3).
+"""Design objectives of the paper's shape optimization (section 2.3, eqs. 1-3).
 
 Both objectives compare a chain's centerline with target points, all in the chain's base frame [m]:
 
@@ -14,7 +14,7 @@ Both objectives compare a chain's centerline with target points, all in the chai
 smooth curve the closest point is a foot of the normal (and the nearest one when there are several). The
 finger body is the tube of the block radius around the whole continuous centerline; C is decided exactly
 against the object's pixel squares by ``planner.clearance.FingerBody`` (touching is allowed, and so is an
-overlap up to its ``contact_tolerance``).
+overlap up to its ``contact_tolerance_m``).
 """
 from __future__ import annotations
 

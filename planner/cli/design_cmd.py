@@ -1,4 +1,4 @@
-"""`python -m planner design-finger` and `design-path`: run the design optimisers from the shell.
+"""`python -m planner design-finger` and `design-path`: run the design optimizers from the shell.
 
 Results go to stdout as a human summary (mm and degrees allowed) and, with --json, to a file in SI units.
 Progress is printed to stderr.
@@ -14,8 +14,8 @@ import numpy as np
 import yaml
 
 from planner import design
-from planner.assembly import Assembly, Chain, PlacedBlock, save_assembly
-from planner.contours import OBJECTS_CATALOG, load_mask
+from planner.assembly import ROTATION_STEP, Assembly, Chain, PlacedBlock, save_assembly
+from planner.contours import OBJECTS_CATALOG, extract_contours, load_mask
 
 
 def register(subparsers) -> None:
@@ -82,56 +82,32 @@ def run_finger(args) -> int:
     result = design.design_fingers(
         mask, pixel_size, args.blocks, num_stiff_top=args.stiff_top, min_stiff_rod_diameter=args.min_stiff_diameter,
         method=args.method, time_budget=args.time_budget, seed=args.seed,
-        inventory=_load_inventory(args.inventory), callback=_progress, contact_tolerance=args.contact_tolerance,
+        inventory=_load_inventory(args.inventory), callback=_progress, contact_tolerance_m=args.contact_tolerance,
     )
     print(file=sys.stderr)
     report = {"success": result.success, "message": result.message, "optimal": result.optimal,
-              "solve_time": result.solve_time, "contact_tolerance": args.contact_tolerance,
+              "solve_time_s": result.solve_time, "contact_tolerance_m": args.contact_tolerance,
               "frame": "object frame: origin at the top centre of the object's bounding box, x right, z up [m]"}
     for finger in (result.left, result.right):
         report[finger.side] = {
-            "design_ids": list(finger.design_ids), "cost": finger.cost, "collision": finger.collision,
-            "min_clearance": finger.min_clearance, "optimal": finger.optimal,
-            "lower_bound": finger.lower_bound if np.isfinite(finger.lower_bound) else None,
-            "base": finger.base.tolist(), "centerline": finger.centerline.tolist(),
-            "solve_time": finger.result.solve_time,
+            "design_ids": list(finger.design_ids), "cost_m": finger.cost, "collision": finger.collision,
+            "min_clearance_m": finger.min_clearance_m, "optimal": finger.optimal,
+            "lower_bound_m": finger.lower_bound_m if np.isfinite(finger.lower_bound_m) else None,
+            "base_m": finger.base.tolist(), "centerline_m": finger.centerline.tolist(),
+            "solve_time_s": finger.result.solve_time,
         }
-        bound = "certified optimal" if finger.optimal else f"not certified (lower bound {finger.lower_bound:.4f} m)"
+        bound = "certified optimal" if finger.optimal else f"not certified (lower bound {finger.lower_bound_m:.4f} m)"
         print(f"{finger.side:5s} IDs {list(finger.design_ids)}  cost {finger.cost:.4f} m  "
-              f"base x {1e3 * finger.base[0]:.1f} mm  clearance {1e3 * finger.min_clearance:.3f} mm  "
+              f"base x {1e3 * finger.base[0]:.1f} mm  clearance {1e3 * finger.min_clearance_m:.3f} mm  "
               f"collision {finger.collision}  {bound}  {finger.result.solve_time:.2f} s")
     print(result.message)
     if args.json:
         args.json.write_text(json.dumps(report, indent=2))
     if args.png:
-        _draw_fingers(result, mask, pixel_size, args.png)
+        from planner.finger_plot import plot_designed_fingers  # matplotlib only when drawing
+
+        plot_designed_fingers(result, extract_contours(mask, pixel_size), args.png)
     return 0 if result.success else 1
-
-
-def _draw_fingers(result, mask, pixel_size, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from planner.kinematics import BLOCK_RADIUS
-
-    fig, ax = plt.subplots(figsize=(5, 6))
-    for finger, colour in ((result.left, "tab:blue"), (result.right, "tab:red")):
-        ax.plot(*finger.contour.T, color="k", lw=1)
-        centre = finger.centerline
-        tangent = np.gradient(centre, axis=0)
-        normal = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1) / np.linalg.norm(tangent, axis=1)[:, None]
-        body = np.vstack([centre + BLOCK_RADIUS * normal, (centre - BLOCK_RADIUS * normal)[::-1]])
-        ax.fill(*body.T, color=colour, alpha=0.2)
-        ax.plot(*centre.T, color=colour, lw=1.5, label=f"{finger.side} {list(finger.design_ids)}")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("z [m]")
-    ax.legend(fontsize=7, loc="lower center")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def run_prepare(args) -> int:
@@ -156,9 +132,9 @@ def run_path(args) -> int:
     if args.json:
         args.json.write_text(json.dumps({
             "success": result.success, "message": result.message, "optimal": result.optimal,
-            "cost": result.cost, "lower_bound": result.lower_bound if np.isfinite(result.lower_bound) else None,
-            "solve_time": result.solve_time,
-            "blocks": [{"id": i, "rotation_steps": k, "rotation": k * np.pi / 6}
+            "cost_m": result.cost, "lower_bound_m": result.lower_bound if np.isfinite(result.lower_bound) else None,
+            "solve_time_s": result.solve_time,
+            "blocks": [{"id": i, "rotation_steps": k, "rotation_rad": k * ROTATION_STEP}
                        for i, k in zip(result.design_ids, result.rotation_steps)],
         }, indent=2))
     return 0 if result.success else 1

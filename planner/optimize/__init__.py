@@ -1,4 +1,4 @@
-"""Design optimisers: the paper's particle swarm, a certified branch and bound for fingers and a prefix
+"""Design optimizers: the paper's particle swarm, a certified branch and bound for fingers and a prefix
 branch and bound with a beam for paths."""
 from planner.optimize.exact import solve_exact
 from planner.optimize.finger_search import solve_finger

@@ -70,7 +70,7 @@ def test_request_above_the_ceiling_is_refused_naming_the_limit(supply):
 
 def test_cancel_ramps_back_to_zero(sim, supply):
     supply.enable("front")
-    handle = supply.ramp_to("front", 2400.0, slew_rate=2000.0)
+    handle = supply.ramp_to("front", 2400.0, slew_rate_v_per_s=2000.0)
     supply.wait_cycles(20)
     down = handle.cancel()
     assert handle.wait(5.0) and handle.message == "superseded by a later request"
@@ -170,7 +170,7 @@ def test_estop_while_another_thread_streams_ramps(sim, supply, background, wait_
 
 
 def test_lost_heartbeat_ramps_outputs_down(sim, wait_until):
-    configs = [ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=8000.0)]
+    configs = [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=8000.0)]
     with HvSupply(sim.port, channels=configs, heartbeat_timeout_s=0.3, handle_signals=False) as hv:
         hv.enable("front")
         hv.ramp_to("front", 1000.0)
@@ -180,7 +180,7 @@ def test_lost_heartbeat_ramps_outputs_down(sim, wait_until):
 
 
 def test_close_ramps_down_and_switches_off(sim):
-    hv = HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=8000.0)],
+    hv = HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=8000.0)],
                   handle_signals=False).open()
     hv.enable("front")
     assert hv.ramp_to("front", 1200.0).wait(5.0)
@@ -190,7 +190,7 @@ def test_close_ramps_down_and_switches_off(sim):
 
 def test_exception_in_the_with_block_cuts_the_outputs(sim):
     with pytest.raises(RuntimeError, match="operator code failed"):
-        with HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage=3000.0)],
+        with HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage_v=3000.0)],
                       handle_signals=False) as hv:
             hv.enable("front")
             hv.ramp_to("front", 300.0).wait(5.0)
@@ -200,7 +200,7 @@ def test_exception_in_the_with_block_cuts_the_outputs(sim):
 
 def test_a_latched_device_emergency_survives_reconnect_until_reset(sim):
     sim.plant[0].emergency = True
-    with HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage=3000.0)], handle_signals=False) as hv:
+    with HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage_v=3000.0)], handle_signals=False) as hv:
         assert hv.snapshot().channel("front").faults == Fault.DEVICE
         with pytest.raises(FaultLatchedError, match="is_emergency_off"):
             hv.enable("front")
@@ -213,7 +213,7 @@ def test_a_latched_device_emergency_survives_reconnect_until_reset(sim):
 
 def test_device_that_cannot_take_the_ramp_speed_is_refused_at_open():
     with SimulatedSupply(channels=1, defaults=ChannelDefaults(max_ramp_speed=500.0)) as slow:
-        hv = HvSupply(slow.port, channels=[ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=1000.0)],
+        hv = HvSupply(slow.port, channels=[ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=1000.0)],
                       handle_signals=False)
         with pytest.raises(ConfigurationError, match="read_ramp reads 500, configured 1200"):
             hv.open()
@@ -223,7 +223,7 @@ def test_sigterm_switches_the_outputs_off(sim, wait_until):
     script = textwrap.dedent(f"""
         import sys, time
         from hv_driver import ChannelConfig, HvSupply
-        hv = HvSupply({sim.port!r}, channels=[ChannelConfig("front", 0, max_voltage=3000.0)]).open()
+        hv = HvSupply({sim.port!r}, channels=[ChannelConfig("front", 0, max_voltage_v=3000.0)]).open()
         hv.enable("front")
         hv.ramp_to("front", 400.0).wait(5.0)
         print("ramped", flush=True)

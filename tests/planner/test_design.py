@@ -38,8 +38,8 @@ def test_asymmetric_object_gets_four_non_identical_fingers(table):
     assert len({f.design_ids for f in fingers}) == 4
     for finger, top in zip(fingers, (2, 2, 3, 3)):
         assert all(stiff(table, finger.design_ids[:top]))
-        assert not finger.collision and finger.cost < 2.0 and finger.min_clearance >= -2e-6
-        assert finger.lower_bound <= finger.cost
+        assert not finger.collision and finger.cost < 2.0 and finger.min_clearance_m >= -2e-6
+        assert finger.lower_bound_m <= finger.cost
         assert finger.centerline.shape[1] == 2 and finger.contour.shape[1] == 2
     # fingers sit outside the object on their own side
     assert front.left.base[0] < -0.0184 < 0.0184 < front.right.base[0]
@@ -103,9 +103,9 @@ def test_cancel_and_time_budget_give_unsuccessful_results(table):
         if len(calls) == 1:
             raise StopIteration
 
-    cancelled = design.design_fingers(mask, pixel, 4, table=table, callback=cancel_once)
-    assert not cancelled.success and len(calls) == 1
-    assert "left: cancelled" in cancelled.message and "right: cancelled" in cancelled.message
+    canceled = design.design_fingers(mask, pixel, 4, table=table, callback=cancel_once)
+    assert not canceled.success and len(calls) == 1
+    assert "left: canceled" in canceled.message and "right: canceled" in canceled.message
     late = design.design_path(np.array([[0, 0, 0], [0, 0, 0.05]]), 3, table=table, time_budget=1e-9)
     assert not late.success and "time budget" in late.message
 
@@ -119,7 +119,7 @@ def test_cancel_and_time_budget_give_unsuccessful_results(table):
         (lambda m, p: design.design_fingers(m, p, 3, num_stiff_top=4), "num_stiff_top"),
         (lambda m, p: design.design_fingers(m, p, 3, inventory={57: 5}), "two fingers need 6"),
         (lambda m, p: design.design_fingers(m, -1.0, 3), "pixel_size"),
-        (lambda m, p: design.design_fingers(m, p, 3, contact_tolerance=-1e-3), "contact_tolerance"),
+        (lambda m, p: design.design_fingers(m, p, 3, contact_tolerance_m=-1e-3), "contact_tolerance_m"),
         (lambda m, p: design.design_fingers(m, p, 3, options={"max_width": 4}), "unknown keys"),
         (lambda m, p: design.design_path(np.array([[0, 0, 0], [np.nan, 0, 1]]), 3), "NaN"),
         (lambda m, p: design.design_path(np.zeros((4, 2)), 3), "path"),
@@ -140,9 +140,9 @@ def test_cli_design_finger_and_path(tmp_path, capsys):
     report = json.loads(out.read_text())
     assert code == 0 and report["success"] and png.stat().st_size > 0
     assert len(report["left"]["design_ids"]) == 3 and isinstance(report["right"]["collision"], bool)
-    centerline = np.array(report["left"]["centerline"])
-    assert centerline.shape == (31, 2) and np.allclose(centerline[0], report["left"]["base"])
-    assert report["left"]["min_clearance"] >= -2e-6 and report["contact_tolerance"] == 0.0
+    centerline = np.array(report["left"]["centerline_m"])
+    assert centerline.shape == (31, 2) and np.allclose(centerline[0], report["left"]["base_m"])
+    assert report["left"]["min_clearance_m"] >= -2e-6 and report["contact_tolerance_m"] == 0.0
     points = tmp_path / "path.csv"
     points.write_text("x,y,z\n0,0,0\n0.002,0,0.02\n0.008,0.001,0.04\n")
     assembly = tmp_path / "chain.yaml"

@@ -62,7 +62,7 @@ def test_stopped_search_reports_a_proven_lower_bound():
             raise StopIteration
 
     stopped = solve_finger(target, space, callback=stop_early, options={"expansions_per_check": 1})
-    assert stopped.status == Status.CANCELLED and not stopped.optimal and not stopped.success
+    assert stopped.status == Status.CANCELED and not stopped.optimal and not stopped.success
     assert stopped.lower_bound <= optimum + 1e-9 <= stopped.fun + 2e-9
     assert "lower bound" in stopped.message
 
@@ -81,7 +81,7 @@ def test_bad_options_and_targets_are_refused():
 
 # ----------------------------------------------------------------------------- collision rule
 def tube_points(theta, length, base_x, radius):
-    """Dense rasterisation of the body in the finger frame: the centreline every ~0.1 mm and, around each
+    """Dense rasterisation of the body in the finger frame: the centerline every ~0.1 mm and, around each
     point, circles of radius 0, r/2 and r - 2 um at 720 angles (rim spacing 0.11 mm)."""
     centre = chain_shape(theta, length, 0.0, samples_per_block=200).points[:, [0, 2]] + [base_x, 0.0]
     angles = np.linspace(0.0, 2 * np.pi, 720, endpoint=False)
@@ -90,9 +90,20 @@ def tube_points(theta, length, base_x, radius):
     return (centre[:, None, :] + offsets[None]).reshape(-1, 2)
 
 
+def on_object_pixel(contours, points) -> np.ndarray:
+    """Which object-frame points (..., 2) [m] fall on an object pixel, straight from the mask and the frame
+    definition of ``planner.contours``."""
+    column0, row0 = contours.origin_pixel
+    column = np.floor(points[..., 0] / contours.pixel_size + column0).astype(int)
+    row = np.floor(row0 - points[..., 1] / contours.pixel_size).astype(int)
+    rows, columns = contours.mask.shape
+    inside = (column >= 0) & (column < columns) & (row >= 0) & (row < rows)
+    return np.where(inside, contours.mask[row.clip(0, rows - 1), column.clip(0, columns - 1)], False)
+
+
 def body_enters_object(contours, body, theta, length, base_x) -> bool:
     points = tube_points(theta, length, base_x, body.radius)
-    return bool(contours.inside_object(body.to_object(points)).any())
+    return bool(on_object_pixel(contours, body.to_object(points)).any())
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])

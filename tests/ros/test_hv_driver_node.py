@@ -28,8 +28,8 @@ class Client:
 
     def __init__(self, ros_context, spin):
         self.driver = HvDriverNode(context=ros_context, parameter_overrides=[
-            Parameter("autostart", value=False), Parameter("slew_rate", value=8000.0),
-            Parameter("link_timeout", value=1.0)])  # generous: the suite runs on two loaded cores
+            Parameter("autostart", value=False), Parameter("slew_rate_v_per_s", value=8000.0),
+            Parameter("link_timeout_s", value=1.0)])  # generous: the suite runs on two loaded cores
         self.node = rclpy.create_node("hv_driver_test_client", context=ros_context)
         n = self.node
         self.change_state = n.create_client(ChangeState, "hv_driver/change_state")
@@ -185,7 +185,7 @@ def test_cancel_ramps_the_channel_back_to_zero(active):
     cancel = goal.cancel_goal_async()
     wait_for(cancel.done, what="the cancel reply")
     future = goal.get_result_async()
-    wait_for(future.done, what="the cancelled result")
+    wait_for(future.done, what="the canceled result")
     assert future.result().status == GoalStatus.STATUS_CANCELED
-    assert future.result().result.message == "cancelled: reached 0 V"
+    assert future.result().result.message == "canceled: reached 0 V"
     assert active.latest_state().channels[0].setpoint == 0.0

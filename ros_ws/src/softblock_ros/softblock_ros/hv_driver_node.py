@@ -18,45 +18,52 @@ from softblock_interfaces.srv import InjectFault
 from std_msgs.msg import Empty, Float64
 from std_srvs.srv import Trigger
 
-from hv_driver import HvSupply
+from hv_driver import HvError, HvSupply
 from sim_fallback.hv_supply_process import SimulatedSupplyProcess
 
 from .hv_conversions import diagnostics_msg, hv_state_msg
-from .hv_parameters import channel_configs, declare_parameters
+from .hv_parameters import PARAMETERS, channel_configs
 from .hv_ramp_goal import execute_ramp_goal
+from .parameters import ParameterError, declare
 from .runner import run_node
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
-DRIVER_ERRORS = (ValueError, RuntimeError, ConnectionError, OSError)  # incl. LimitError, FaultLatchedError, LinkError
+SIM_ERRORS = (RuntimeError, ValueError, OSError)  # the simulated supply's process: not started, unknown fault
 
 
 class HvDriverNode(LifecycleNode):
     def __init__(self, **kwargs):
         super().__init__("hv_driver", **kwargs)
-        declare_parameters(self)
+        self._settings = declare(self, PARAMETERS)
+        self._channels = channel_configs(self._settings)
+        if self._settings["backend"] == "serial" and not self._settings["port"]:
+            raise ParameterError("parameter port='' refused: backend 'serial' needs a port, e.g. /dev/ttyUSB0")
         self._supply = self._sim = None
         self._entities = []
         self._active = False
         self._group = ReentrantCallbackGroup()
 
     def _param(self, name):
-        return self.get_parameter(name).value
+        return self._settings[name]
 
     # --- lifecycle -------------------------------------------------------------------------------
     def on_configure(self, state) -> TransitionCallbackReturn:
-        backend, port = self._param("backend"), self._param("port")
+        backend, port, channels = self._param("backend"), self._param("port"), self._channels
+        if not self._param("heartbeat_timeout_s"):
+            self.get_logger().warning("heartbeat_timeout_s is 0: the heartbeat watchdog is off; an energised "
+                                      "output stays on when its controlling client dies")
+        if not self._param("expected_identity"):
+            self.get_logger().warning("expected_identity is empty: the supply's identity is not checked")
         try:
-            channels = channel_configs(self)
             if backend == "sim":
                 self._sim = SimulatedSupplyProcess(channels=max(c.index for c in channels) + 1).start()
                 port = self._sim.port
-            elif backend != "serial" or not port:
-                raise ValueError(f"backend={backend!r}, port={port!r}: use 'sim', or 'serial' with a port")
-            self._supply = HvSupply(port, self._param("baudrate"), channels, link_timeout_s=self._param("link_timeout"),
-                                    heartbeat_timeout_s=self._param("heartbeat_timeout") or None,
-                                    handle_signals=False).open()
-        except DRIVER_ERRORS as error:
+            self._supply = HvSupply(port, self._param("baudrate"), channels, loop_rate_hz=self._param("loop_rate_hz"),
+                                    link_timeout_s=self._param("link_timeout_s"),
+                                    heartbeat_timeout_s=self._param("heartbeat_timeout_s") or None,
+                                    expected_identity=self._param("expected_identity"), handle_signals=False).open()
+        except (HvError, *SIM_ERRORS) as error:
             self.get_logger().fatal(f"configure failed: {error}")
             self._stop()
             return FAILURE
@@ -67,7 +74,7 @@ class HvDriverNode(LifecycleNode):
         g = self._group
         self._entities = [
             self._state_pub, self._diag_pub,
-            self.create_timer(1.0 / self._param("state_rate"), self._publish, callback_group=g),
+            self.create_timer(1.0 / self._param("publish_rate_hz"), self._publish, callback_group=g),
             self.create_service(Trigger, "hv/estop", self._on_estop, callback_group=g),
             self.create_service(Trigger, "hv/reset_faults", self._on_reset, callback_group=g),
             self.create_service(InjectFault, "hv/inject_fault", self._on_inject, callback_group=g),
@@ -82,7 +89,7 @@ class HvDriverNode(LifecycleNode):
         try:
             for name in self._index:
                 self._supply.enable(name)
-        except DRIVER_ERRORS as error:
+        except HvError as error:
             self.get_logger().error(f"activate refused: {error}")
             return FAILURE
         self._active = True
@@ -153,7 +160,7 @@ class HvDriverNode(LifecycleNode):
                 for name in self._index:
                     self._supply.enable(name)
                 response.message = "faults cleared; outputs on at 0 V (active)"
-            except DRIVER_ERRORS as error:
+            except HvError as error:
                 response.success, response.message = False, f"faults cleared, enabling refused: {error}"
         return response
 
@@ -169,14 +176,14 @@ class HvDriverNode(LifecycleNode):
                     raise ValueError(f"channel={request.channel!r}: unknown, configured are {sorted(self._index)}")
                 self._sim.inject(request.fault, channel)
             response.success, response.message = True, f"injected {request.fault} on {request.channel or 'the device'}"
-        except DRIVER_ERRORS as error:
+        except SIM_ERRORS as error:
             response.success, response.message = False, str(error)
         return response
 
     def _on_safe_voltage(self, msg: Float64) -> None:
         try:
             self._supply.set_safe_voltage(msg.data)
-        except ValueError as error:  # an unusable ceiling blocks all voltage rather than none
+        except HvError as error:  # an unusable ceiling blocks all voltage rather than none
             self.get_logger().error(f"assembly/safe_voltage: {error}; ceiling set to 0 V")
             self._supply.set_safe_voltage(0.0)
 

@@ -16,8 +16,9 @@ from softblock_interfaces.action import MoveArm, RampChannel
 from softblock_interfaces.msg import HvChannelState, HvState
 from std_srvs.srv import Trigger
 
+from sequencing.ports import ChannelReading, Outcome, RobotError
+
 from .conversions import pose_msg
-from .sequencing.engine import ChannelReading, Outcome, RobotError
 
 
 class ActionMotion:
