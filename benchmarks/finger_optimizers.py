@@ -29,8 +29,10 @@ import yaml  # noqa: E402
 from planner import design  # noqa: E402
 from planner.contours import OBJECTS_CATALOG, extract_contours, load_mask  # noqa: E402
 from planner.generated_objects import PIXEL_SIZE, lumpy_object  # noqa: E402
+from planner.kinematics import CAP_LENGTH  # noqa: E402
 from planner.optimize import design_costs, design_space  # noqa: E402
 from planner.optimize import finger_search  # noqa: E402
+from planner.optimize.lookahead import block_shapes  # noqa: E402
 from planner.table import load_table  # noqa: E402
 
 FIGURES = Path(__file__).resolve().parent.parent / "docs" / "figures"
@@ -97,7 +99,7 @@ def kernel_throughput(table, repeats: int = 7):
     contours = extract_contours(load_mask(OBJECTS_CATALOG.parent / catalog["file"]), float(catalog["pixel_size_m"]))
     target = design.finger_problems(contours)["left"][0]
     space = design_space(table, 4, stiff_positions=range(2))
-    shapes = finger_search.block_shapes(space)
+    shapes = block_shapes(space, CAP_LENGTH)
     rng = np.random.default_rng(0)
     nodes = []
     contour = target.points[:, [0, 2]]

@@ -20,12 +20,12 @@ import numpy as np
 from planner.assembly import ROTATION_STEP
 from planner.clearance import FingerBody, ObjectDistance
 from planner.contours import extract_contours
-from planner.kinematics import BLOCK_RADIUS, chain_shape, design_parameters
+from planner.kinematics import BLOCK_RADIUS, CAP_LENGTH, chain_shape, design_parameters
 from planner.objectives import ShapeTarget, evaluate, finger_target, path_target
 from planner.optimize import (DesignOptimizeResult, DesignSpace, Status, design_space, solve_exact, solve_finger,
                               solve_pso)
 from planner.optimize.finger_search import DEFAULT_OPTIONS as FINGER_OPTIONS
-from planner.optimize.finger_search import block_shapes, lookahead_fields
+from planner.optimize.lookahead import block_shapes, lookahead_fields
 from planner.optimize.space import MAX_BLOCKS
 from planner.table import load_table
 
@@ -227,14 +227,14 @@ def design_fingers(
 def prepare_finger_search(configurations=PREPARED_CONFIGURATIONS, table=None) -> None:
     """Compile the finger search and build (or load) its lookahead fields for each (num_blocks,
     num_stiff_top), so that later requests start at once; both are kept on disk (numba's cache and
-    ``planner.optimize.finger_search.cache_directory()``)."""
+    ``planner.optimize.field_cache.cache_directory()``)."""
     table = load_table() if table is None else table
     rows, columns = np.mgrid[:60, :40]
     ellipse = ((rows - 30) / 24.0) ** 2 + ((columns - 20) / 12.0) ** 2 < 1.0
     design_fingers(ellipse, 5e-4, 2, table=table)  # compiles every kernel on a small problem
     for blocks, stiff in configurations:
         space = design_space(table, blocks, stiff_positions=range(stiff))
-        lookahead_fields(block_shapes(space), space, BLOCK_RADIUS, FINGER_OPTIONS["field_spacing"],
+        lookahead_fields(block_shapes(space, CAP_LENGTH), space, BLOCK_RADIUS, FINGER_OPTIONS["field_spacing"],
                          FINGER_OPTIONS["region_spacing"])
 
 

@@ -9,7 +9,11 @@ suffix that can follow it) and to (the tip periphery points any such suffix can 
 whose error is accounted for. With ``b`` that bound for a contour point, the point's final distance is at
 least min(a, b), so its term |d - r| is at least max(min(a, b) - r, 0); the tip term is bounded by the
 tip field. Summed, this bounds every finger that continues the prefix with that next block, for all next
-blocks in one vectorised pass per node; a complete finger is bounded by its objective.
+blocks in one vectorised pass per node; a complete finger is bounded by its objective. A third field, the
+cover, is an upper bound on the distance to the continuous centerline of *every* such finger: a contour point
+``g`` from the object and closer to the node than the collision threshold minus ``g`` proves that all of
+them collide, and the next block is dropped (this prunes the fingers that would have to pass through the
+object long before a block of theirs touches it).
 
 The search visits children in the order of their bounds and drops every child whose bound reaches the
 best collision-free finger found, so when it ends that finger is the optimum (``Status.CERTIFIED``). The
@@ -23,19 +27,12 @@ the smallest bound of the children not yet visited.
 """
 from __future__ import annotations
 
-import hashlib
-import os
-from dataclasses import dataclass
-from functools import lru_cache
-from pathlib import Path
-
 import numpy as np
 from numba import njit
-from scipy import ndimage
 
 from planner.clearance import RESOLUTION, block_min_distance
-from planner.kinematics import DEFAULT_SAMPLES_PER_BLOCK, chain_shape
 from planner.objectives import COLLISION_PENALTY, ShapeTarget
+from planner.optimize.lookahead import SAMPLES_PER_BLOCK, block_shapes, lookahead_fields
 from planner.optimize.local_search import polish
 from planner.optimize.pso import design_costs
 from planner.optimize.result import DesignOptimizeResult, RunControl, Status, Stop, make_result
@@ -49,201 +46,7 @@ DEFAULT_OPTIONS = {
     "beam_width": 128,  # collision-free prefixes per level of the second beam (the first keeps 16)
     "polish": True,  # improve the beam's finger by block-by-block local search before the search starts
 }
-SAMPLES_PER_BLOCK = DEFAULT_SAMPLES_PER_BLOCK  # the objective's centerline samples (planner.kinematics)
-FLOAT32_MARGIN = 1e-7  # [m] subtracted before storing bounds as float32, so rounding never raises them
 FIRST_BEAM_WIDTH = 16  # the beam that always runs to the end, so that every run returns a finger
-FIELDS_VERSION = 1  # bump when the way the fields are built changes (names the cache files)
-
-
-# ---------------------------------------------------------------------------------------- geometry
-@dataclass(frozen=True)
-class BlockShapes:
-    """Every distinct block shape in the frame of its start (x lateral toward the bend, z along)."""
-
-    samples: np.ndarray  # (S, M, 2) the objective's centerline samples, start excluded
-    ends: np.ndarray  # (S, 3) end x, z and turn (theta)
-    reach: np.ndarray  # (S,) farthest sample from the start [m]
-    disc: np.ndarray  # (S, 3) centre x, z and radius of a disc holding the samples [m]
-    theta: np.ndarray  # (S,)
-    length: np.ndarray  # (S,)
-
-
-def block_shapes(space: DesignSpace) -> BlockShapes:
-    shape = chain_shape(space.theta[:, None], space.length[:, None], 0.0, samples_per_block=SAMPLES_PER_BLOCK)
-    samples = shape.points[:, 1:, :][..., [0, 2]]
-    ends = np.column_stack([shape.positions[:, 1, 0], shape.positions[:, 1, 2], space.theta])
-    centre = 0.5 * (samples.min(axis=1) + samples.max(axis=1))
-    disc = np.column_stack([centre, np.linalg.norm(samples - centre[:, None], axis=-1).max(axis=1)])
-    return BlockShapes(np.ascontiguousarray(samples), ends, np.linalg.norm(samples, axis=-1).max(axis=1), disc,
-                       np.asarray(space.theta, float), np.asarray(space.length, float))
-
-
-@njit(cache=True)
-def _mark(points, grid, x0, z0, spacing):
-    """Set the grid node nearest to each point."""
-    for i in range(points.shape[0]):
-        grid[int(np.round((points[i, 1] - z0) / spacing)), int(np.round((points[i, 0] - x0) / spacing))] = True
-
-
-@njit(cache=True)
-def _mark_moved(marked, x0, z0, spacing, end_x, end_z, turn, out_grid):
-    """Mark in ``out_grid`` the nodes nearest to the marked nodes of ``marked`` moved by a block (a point p
-    of the block's end frame lies at end + p_x (cos turn, -sin turn) + p_z (sin turn, cos turn))."""
-    cos, sin = np.cos(turn), np.sin(turn)
-    for a in range(marked.shape[0]):
-        for b in range(marked.shape[1]):
-            if marked[a, b]:
-                x, z = x0 + b * spacing, z0 + a * spacing
-                out_grid[int(np.round((end_z - x * sin + z * cos - z0) / spacing)),
-                         int(np.round((end_x + x * cos + z * sin - x0) / spacing))] = True
-
-
-@njit(cache=True)
-def _grid_lower(field, x0, z0, spacing, x, z):
-    """Lower bound on a 1-Lipschitz distance at (x, z) from its values at grid nodes; outside the grid, the
-    distance to the grid box (the region lies inside it)."""
-    b = int(np.round((x - x0) / spacing))
-    a = int(np.round((z - z0) / spacing))
-    rows, cols = field.shape
-    if a < 0 or b < 0 or a >= rows or b >= cols:
-        dx = max(x0 - x, x - (x0 + (cols - 1) * spacing), 0.0)
-        dz = max(z0 - z, z - (z0 + (rows - 1) * spacing), 0.0)
-        return np.hypot(dx, dz)
-    return field[a, b] - np.hypot(x - (x0 + b * spacing), z - (z0 + a * spacing))
-
-
-@njit(cache=True)
-def _fill_level(out_body, out_tip, x0, z0, spacing, choices, samples, ends, radius, region, region_tip, rx0, rz0,
-                region_spacing, region_error, last):
-    """Lookahead fields of one block position at every node: for each allowed next shape c, a lower bound
-    on the distance to (c's samples and the suffix region after c) and to the tip periphery set after c."""
-    rows, cols, count = out_body.shape
-    for a in range(rows):
-        z = z0 + a * spacing
-        for b in range(cols):
-            x = x0 + b * spacing
-            for k in range(count):
-                c = choices[k]
-                nearest = np.inf
-                for m in range(samples.shape[1]):
-                    nearest = min(nearest, np.hypot(x - samples[c, m, 0], z - samples[c, m, 1]))
-                cos, sin = np.cos(ends[c, 2]), np.sin(ends[c, 2])
-                dx, dz = x - ends[c, 0], z - ends[c, 1]
-                if last:  # no block after c: its own samples and its own tip periphery point
-                    tip = np.hypot(dx - radius * cos, dz + radius * sin)
-                else:
-                    px, pz = dx * cos - dz * sin, dx * sin + dz * cos  # in the frame of c's end
-                    later = _grid_lower(region, rx0, rz0, region_spacing, px, pz) - region_error
-                    nearest = min(nearest, later)
-                    tip = _grid_lower(region_tip, rx0, rz0, region_spacing, px, pz) - region_error
-                out_body[a, b, k] = nearest - FLOAT32_MARGIN
-                out_tip[a, b, k] = max(tip, 0.0) - FLOAT32_MARGIN
-
-
-@dataclass(frozen=True)
-class LookaheadFields:
-    """Per block position d: float32 fields (rows, cols, choices) in the frame of block d's start, packed
-    flat; ``layout[d]`` = (offset, rows, cols, x0, z0, reach, spacing): every sample from block d on lies
-    within ``reach`` of block d's start (tip periphery points within reach + r), the grid covers r beyond
-    that. The last block's grid is twice as fine (it decides which complete fingers are evaluated)."""
-
-    body: np.ndarray
-    tip: np.ndarray
-    discs: np.ndarray  # (N, C, 9): per next shape, a disc (x, z, radius) holding its samples, its end (x, z),
-    # the reach of the blocks after it, and a point (x, z) and radius holding the tip periphery set
-    layout: np.ndarray  # (N, 7) float64: offset, rows, cols, x0, z0, reach of the samples that follow, spacing
-
-
-def _lookahead_fields(key, field_spacing: float, region_spacing: float) -> LookaheadFields:
-    samples, ends, radius, choices = key
-    samples = np.array(samples).reshape(-1, SAMPLES_PER_BLOCK, 2)
-    ends = np.array(ends).reshape(-1, 3)
-    blocks = len(choices)
-    reach = np.linalg.norm(samples, axis=-1).max(axis=1)
-    ahead = [sum(reach[list(c)].max() for c in choices[d:]) + radius for d in range(blocks + 1)]
-    # suffix regions after each position, re-marked on one grid (each re-marking adds half a diagonal)
-    extent = ahead[1] + 4 * region_spacing
-    size = int(np.ceil(2 * extent / region_spacing)) + 1
-    regions, tips, errors = [None] * (blocks + 1), [None] * (blocks + 1), np.zeros(blocks + 1)
-    marked_body = marked_tip = None
-    for d in range(blocks - 1, 0, -1):  # region of the suffix d..N-1, in the frame of block d's start
-        body = np.zeros((size, size), dtype=bool)
-        tip = np.zeros((size, size), dtype=bool)
-        for c in choices[d]:
-            _mark(samples[c], body, -extent, -extent, region_spacing)
-            if marked_body is None:
-                turn = ends[c, 2]
-                periphery = np.array([[ends[c, 0] + radius * np.cos(turn), ends[c, 1] - radius * np.sin(turn)]])
-                _mark(periphery, tip, -extent, -extent, region_spacing)
-            else:
-                _mark_moved(marked_body, -extent, -extent, region_spacing, *ends[c], body)
-                _mark_moved(marked_tip, -extent, -extent, region_spacing, *ends[c], tip)
-        errors[d] = errors[d + 1] + region_spacing / np.sqrt(2)
-        regions[d] = ndimage.distance_transform_edt(~body) * region_spacing
-        tips[d] = ndimage.distance_transform_edt(~tip) * region_spacing
-        marked_body, marked_tip = body, tip
-    layout, body_parts, tip_parts, offset = np.zeros((blocks, 7)), [], [], 0
-    centre = 0.5 * (samples.min(axis=1) + samples.max(axis=1))
-    disc_radius = np.linalg.norm(samples - centre[:, None], axis=-1).max(axis=1)
-    discs = np.zeros((blocks, max(len(c) for c in choices), 9))
-    for d in range(blocks):
-        last = d == blocks - 1
-        after = 0.0 if last else ahead[d + 1] - radius
-        for k, c in enumerate(choices[d]):
-            x, z, turn = ends[c]
-            tip = (x + radius * np.cos(turn), z - radius * np.sin(turn)) if last else (x, z)
-            discs[d, k] = (*centre[c], disc_radius[c], x, z, after, *tip, 0.0 if last else after + radius)
-    for d in range(blocks):
-        spacing = field_spacing / 2 if d == blocks - 1 else field_spacing
-        half = ahead[d] + 2 * spacing
-        cells = int(np.ceil(2 * half / spacing)) + 1
-        out_body = np.empty((cells, cells, len(choices[d])), dtype=np.float32)
-        out_tip = np.empty_like(out_body)
-        last = d == blocks - 1
-        region = regions[d + 1] if not last else np.zeros((1, 1))
-        region_tip = tips[d + 1] if not last else np.zeros((1, 1))
-        _fill_level(out_body, out_tip, -half, -half, spacing, np.array(choices[d], dtype=np.int64), samples,
-                    ends, radius, region, region_tip, -extent, -extent, region_spacing, errors[d + 1], last)
-        layout[d] = (offset, cells, cells, -half, -half, ahead[d] - radius, spacing)
-        offset += out_body.size
-        body_parts.append(out_body.ravel())
-        tip_parts.append(out_tip.ravel())
-    return LookaheadFields(np.concatenate(body_parts), np.concatenate(tip_parts), discs, layout)
-
-
-def lookahead_fields(shapes: BlockShapes, space: DesignSpace, radius: float, field_spacing: float,
-                     region_spacing: float) -> LookaheadFields:
-    """The lookahead fields of ``space``: they depend only on the block geometry, the radius and the
-    per-position choices, so they are kept in memory and in ``cache_directory()`` (building them takes
-    seconds; loading them, a fraction of one)."""
-    key = (tuple(np.round(shapes.samples, 12).ravel()), tuple(np.round(shapes.ends, 12).ravel()), float(radius),
-           tuple(tuple(int(s) for s in c) for c in space.choices))
-    return _cached_fields(key, float(field_spacing), float(region_spacing))
-
-
-def cache_directory() -> Path:
-    """Where lookahead fields are kept: $SOFTBLOCK_CACHE, else ~/.cache/softblock."""
-    return Path(os.environ.get("SOFTBLOCK_CACHE") or Path.home() / ".cache" / "softblock")
-
-
-@lru_cache(maxsize=4)
-def _cached_fields(key, field_spacing: float, region_spacing: float) -> LookaheadFields:
-    digest = hashlib.sha256(repr((FIELDS_VERSION, key, field_spacing, region_spacing)).encode()).hexdigest()[:24]
-    path = cache_directory() / f"lookahead-{digest}.npz"
-    try:
-        with np.load(path) as stored:
-            return LookaheadFields(*(stored[name] for name in LookaheadFields.__dataclass_fields__))
-    except (OSError, KeyError, ValueError):
-        pass  # not built yet (or unreadable): build and store
-    fields = _lookahead_fields(key, field_spacing, region_spacing)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        temporary = path.with_suffix(f".{os.getpid()}.tmp.npz")
-        np.savez(temporary, **{name: getattr(fields, name) for name in LookaheadFields.__dataclass_fields__})
-        temporary.replace(path)  # atomic: concurrent processes never read a half-written file
-    except OSError:
-        pass  # a read-only home still works, only slower
-    return fields
 
 
 # ------------------------------------------------------------------------------------------ search
@@ -255,16 +58,19 @@ def _place(pose, x, z):
 
 @njit(cache=True)
 def _lookahead(problem, depth, pose, alpha, acc):
-    """acc[k] = lower bound on every finger continuing this node with next shape choices[depth, k]."""
-    contour, end_point, radius, choices, n_choices = problem[0], problem[1], problem[2], problem[3], problem[4]
-    body, tip, layout, discs = problem[8], problem[9], problem[10], problem[11]
+    """acc[k] = lower bound on every collision-free finger continuing this node with next shape
+    choices[depth, k]; infinite when a contour point proves that every such finger collides (the cover
+    field: all of them pass closer to that point than the collision threshold minus its distance to the
+    object)."""
+    contour, end_point, radius, n_choices = problem[0], problem[1], problem[2], problem[4]
+    body, tip, layout, discs, threshold, gap, cover = (problem[8], problem[9], problem[10], problem[11], problem[18],
+                                                       problem[23], problem[24])
     count = n_choices[depth]
     spacing = layout[depth, 6]
     offset, rows, cols, x0, z0 = (int(layout[depth, 0]), int(layout[depth, 1]), int(layout[depth, 2]),
                                   layout[depth, 3], layout[depth, 4])
     cos, sin = np.cos(pose[2]), np.sin(pose[2])
     acc[:count] = 0.0
-    common = 0.0
     for q in range(contour.shape[0] + 1):
         if q < contour.shape[0]:
             dx, dz = contour[q, 0] - pose[0], contour[q, 1] - pose[1]
@@ -272,12 +78,12 @@ def _lookahead(problem, depth, pose, alpha, acc):
         else:  # the tip term's target
             dx, dz = end_point[0] - pose[0], end_point[1] - pose[1]
             own = np.inf
-        if own <= radius:  # the term's bound is 0 whatever comes next
-            continue
         x, z = dx * cos - dz * sin, dx * sin + dz * cos
         b = int(np.round((x - x0) / spacing))
         a = int(np.round((z - z0) / spacing))
         if a < 0 or b < 0 or a >= rows or b >= cols:  # beyond the grid: bounds from each next block's discs
+            if own <= radius:  # the term's bound is 0 whatever comes next
+                continue
             for k in range(count):
                 nearest = min(np.hypot(x - discs[depth, k, 0], z - discs[depth, k, 1]) - discs[depth, k, 2],
                               np.hypot(x - discs[depth, k, 3], z - discs[depth, k, 4]) - discs[depth, k, 5])
@@ -291,7 +97,10 @@ def _lookahead(problem, depth, pose, alpha, acc):
         node_offset = np.hypot(x - (x0 + b * spacing), z - (z0 + a * spacing))
         start = offset + (a * cols + b) * count
         if q < contour.shape[0]:
+            doom = threshold - 2.0 * RESOLUTION - gap[q] - node_offset  # a cover below this proves a collision
             for k in range(count):
+                if cover[start + k] < doom:
+                    acc[k] = np.inf
                 value = min(own, body[start + k] - node_offset) - radius
                 if value > 0.0:
                     acc[k] += value
@@ -300,7 +109,6 @@ def _lookahead(problem, depth, pose, alpha, acc):
                 value = tip[start + k] - node_offset
                 if value > 0.0:
                     acc[k] += value
-    acc[:count] += common
 
 
 @njit(cache=True)
@@ -587,7 +395,7 @@ def search_problem(target: ShapeTarget, space: DesignSpace, settings: dict | Non
     """Everything the compiled search reads, as one tuple (see the kernels for the order)."""
     settings = settings or DEFAULT_OPTIONS
     body = target.body
-    shapes = block_shapes(space)
+    shapes = block_shapes(space, body.cap_length)
     fields = lookahead_fields(shapes, space, body.radius, settings["field_spacing"], settings["region_spacing"])
     choices = np.full((space.num_blocks, max(len(c) for c in space.choices)), -1, dtype=np.int64)
     for k, c in enumerate(space.choices):
@@ -603,6 +411,7 @@ def search_problem(target: ShapeTarget, space: DesignSpace, settings: dict | Non
         stock, stiff_stock, np.asarray(space.stiff_positions, bool), limited,
         body.distance.kernel_args, body.frame, float(body.threshold), float(body.cap_length), shapes.theta,
         shapes.length, np.ascontiguousarray(target.bases[:, 0]), body.distance.exact(body.to_object(contour)),
+        fields.cover,
     )
 
 
