@@ -109,7 +109,7 @@ def _nearest_columns(mask: np.ndarray, from_left: bool) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------------------ kernels
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def exact_distance(field, x, z):
     """Exact distance of one object-frame point to the pixel squares (0 inside one)."""
     left, right, mask, pixel, column0, row0 = field[5], field[6], field[7], field[8], field[9], field[10]
@@ -137,13 +137,13 @@ def exact_distance(field, x, z):
     return np.sqrt(best) * pixel
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _exact_many(field, points, out):
     for i in range(points.shape[0]):
         out[i] = exact_distance(field, points[i, 0], points[i, 1])
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def lattice_bounds(field, x, z):
     """(lower, upper) bounds of the distance at an object-frame point from the nearest lattice node."""
     lattice, spacing, x0, z0, reach = field[0], field[1], field[2], field[3], field[4]
@@ -156,7 +156,7 @@ def lattice_bounds(field, x, z):
     return value - offset, value + offset
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def block_point(theta, length, cap, s):
     """Centerline point (lateral x, axial z) of a block in its start frame at arc length s from its start."""
     if s <= cap:
@@ -174,7 +174,7 @@ def block_point(theta, length, cap, s):
     return x, z
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _to_object(frame, pose_x, pose_z, heading, x, z):
     """Object-frame point of a block-local point (x, z) at finger-frame pose; frame = (base_x, side)."""
     cos, sin = np.cos(heading), np.sin(heading)
@@ -183,7 +183,7 @@ def _to_object(frame, pose_x, pose_z, heading, x, z):
     return frame[0] + frame[1] * finger_x, -finger_z
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def block_min_distance(field, frame, pose_x, pose_z, heading, theta, length, cap, threshold, report):
     """Smallest distance from one block's centerline (start pose in the finger frame) to the object.
 
@@ -253,7 +253,7 @@ def block_min_distance(field, frame, pose_x, pose_z, heading, theta, length, cap
     return best
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def chains_min_distance(field, frame, theta, length, base_x, cap, threshold, report, out):
     """Smallest centerline-to-object distance of planar chains (n, N) based at (base_x[i], 0), heading 0.
 

@@ -12,7 +12,9 @@ the image resolution.
 """
 from __future__ import annotations
 
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,7 +24,7 @@ from planner.clearance import FingerBody, ObjectDistance
 from planner.contours import extract_contours
 from planner.kinematics import BLOCK_RADIUS, CAP_LENGTH, chain_shape, design_parameters
 from planner.objectives import ShapeTarget, evaluate, finger_target, path_target
-from planner.optimize import (DesignOptimizeResult, DesignSpace, Status, design_space, solve_exact, solve_finger,
+from planner.optimize import (DesignOptimizeResult, DesignSpace, design_space, solve_exact, solve_finger,
                               solve_pso)
 from planner.optimize.finger_search import DEFAULT_OPTIONS as FINGER_OPTIONS
 from planner.optimize.lookahead import block_shapes, lookahead_fields
@@ -115,8 +117,33 @@ def _scaled_callback(callback, start: float, share: float):
     return scaled
 
 
-def _cancel(progress) -> None:
-    raise StopIteration
+class _PairProgress:
+    """The user's callback for two fingers designed at once: it hears the mean fraction done, one call at a
+    time; once it cancels (StopIteration), both fingers stop."""
+
+    def __init__(self, callback):
+        self._callback = callback
+        self._fractions = [0.0, 0.0]
+        self._lock = threading.Lock()
+        self._canceled = False
+
+    def for_side(self, index: int):
+        if self._callback is None:
+            return None
+
+        def report(progress):
+            with self._lock:
+                if not self._canceled:
+                    self._fractions[index] = progress.fraction
+                    try:
+                        self._callback(type(progress)(0.5 * sum(self._fractions), progress.best_cost, progress.nfev,
+                                                      progress.elapsed))
+                    except StopIteration:
+                        self._canceled = True
+                if self._canceled:
+                    raise StopIteration
+
+        return report
 
 
 def finger_problems(contours, base_offsets=DEFAULT_BASE_OFFSETS, contour_spacing: float = DEFAULT_CONTOUR_SPACING,
@@ -158,7 +185,8 @@ def design_fingers(
     [m]. ``inventory`` (design ID -> blocks on the shelf) is shared by both fingers: when their separate
     optima do not fit together, the right finger is redesigned from what the left one leaves (the pair is
     then not certified). ``callback(progress)`` gets a ``planner.optimize.Progress`` and may raise
-    StopIteration to cancel. ``time_budget`` [s] covers both fingers; the exact method certifies its result
+    StopIteration to cancel. The two fingers are designed at once (two threads; the compiled search releases
+    the GIL). ``time_budget`` [s] covers both fingers; the exact method certifies its result
     unless the budget ends it first (it then says so and reports a proven lower bound). ``options`` go to the
     optimizer (``planner.optimize.finger_search.DEFAULT_OPTIONS`` or ``planner.optimize.pso.DEFAULT_OPTIONS``).
     ``contact_tolerance_m``: how far the finger body may enter the object before it counts as a collision
@@ -188,14 +216,12 @@ def design_fingers(
     problems = finger_problems(contours, base_offsets, contour_spacing, contact_tolerance_m)
 
     started = time.perf_counter()
-    results = {}
-    for index, side in enumerate(("left", "right")):
-        budget = None if time_budget is None else max(time_budget - (time.perf_counter() - started), 1e-3) / (2 - index)
-        progress = _scaled_callback(callback, 0.5 * index, 0.5)
-        if index and results["left"].status == Status.CANCELED:
-            progress = _cancel  # a canceled request stops both fingers, even if the callback raised only once
-        results[side] = _optimize(problems[side][0], space, method, seed=seed, time_budget=budget,
-                                  callback=progress, options=options)
+    progress = _PairProgress(callback)
+    with ThreadPoolExecutor(max_workers=2) as pool:  # the two fingers are independent problems: both cores
+        futures = {side: pool.submit(_optimize, problems[side][0], space, method, seed=seed,
+                                     time_budget=time_budget, callback=progress.for_side(index), options=options)
+                   for index, side in enumerate(("left", "right"))}
+        results = {side: future.result() for side, future in futures.items()}
     shared_stock_ok = True
     if inventory is not None:
         used: dict[int, int] = {}

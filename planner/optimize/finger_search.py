@@ -50,13 +50,13 @@ FIRST_BEAM_WIDTH = 16  # the beam that always runs to the end, so that every run
 
 
 # ------------------------------------------------------------------------------------------ search
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _place(pose, x, z):
     cos, sin = np.cos(pose[2]), np.sin(pose[2])
     return pose[0] + x * cos + z * sin, pose[1] - x * sin + z * cos
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _lookahead(problem, depth, pose, alpha, acc):
     """acc[k] = lower bound on every collision-free finger continuing this node with next shape
     choices[depth, k]; infinite when a contour point proves that every such finger collides (the cover
@@ -111,7 +111,7 @@ def _lookahead(problem, depth, pose, alpha, acc):
                     acc[k] += value
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _block_update(problem, pose, alpha, s, out):
     """out = contour distances after adding block s at pose (alpha: before). Points farther from the
     block's sample disc than their current distance are skipped; squared distances inside."""
@@ -141,7 +141,7 @@ def _block_update(problem, pose, alpha, s, out):
         out[q] = np.sqrt(nearest)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _too_close(problem, alpha):
     """True when a centerline sample is provably closer to the object than the collision threshold: within
     ``threshold - gap`` of a contour point that lies ``gap`` from the object (a quick, exact reject)."""
@@ -152,7 +152,7 @@ def _too_close(problem, alpha):
     return False
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _expand(problem, depth, pose, alpha, best, limits, out_bound, out_shape, out_base, out_pose, start, base, path,
             counts, acc, scratch):
     """Children of a node with ``depth`` blocks placed whose bound is below min(best, ceiling limits[0]),
@@ -202,7 +202,7 @@ def _expand(problem, depth, pose, alpha, best, limits, out_bound, out_shape, out
     return n
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _search(problem, state, max_expansions):
     """Run the depth-first search from ``state`` for at most ``max_expansions`` node expansions.
 
@@ -271,7 +271,7 @@ def _search(problem, state, max_expansions):
             return 0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _start(problem, state):
     """Root children: every base with every first block, below the ceiling."""
     contour, base_x = problem[0], problem[22]

@@ -21,8 +21,9 @@ are 1-Lipschitz), and float32 storage rounds toward the safe side.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import threading
 from collections import OrderedDict
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
@@ -40,6 +41,7 @@ FLOAT32_MARGIN = 1e-7  # [m] moved toward the safe side before storing bounds as
 COVER_MARGIN = 1e-3  # [m] covers are kept up to r + this; larger ones can never prove a collision
 KEPT_IN_MEMORY = 4  # field sets of recent design spaces kept loaded
 _LOADED: OrderedDict[str, LookaheadFields] = OrderedDict()
+_LOADING = threading.Lock()  # the two fingers of a pair are designed in parallel threads: load once
 
 
 @dataclass(frozen=True)
@@ -97,13 +99,14 @@ def lookahead_fields(shapes: BlockShapes, space: DesignSpace, radius: float, fie
         (shapes.samples, shapes.dense, shapes.ends, shapes.theta, shapes.length, shapes.cap_length, float(radius),
          choices, float(field_spacing), float(region_spacing)),
         modules=(__name__, clearance.__name__))
-    if digest not in _LOADED:
-        arrays = field_cache.load_or_build(
-            "lookahead", digest, lambda: _build(shapes, choices, float(radius), field_spacing, region_spacing))
-        _LOADED[digest] = LookaheadFields(**arrays)
-        while len(_LOADED) > KEPT_IN_MEMORY:
-            _LOADED.popitem(last=False)
-    return _LOADED[digest]
+    with _LOADING:
+        if digest not in _LOADED:
+            arrays = field_cache.load_or_build(
+                "lookahead", digest, lambda: _build(shapes, choices, float(radius), field_spacing, region_spacing))
+            _LOADED[digest] = LookaheadFields(**arrays)
+            while len(_LOADED) > KEPT_IN_MEMORY:
+                _LOADED.popitem(last=False)
+        return _LOADED[digest]
 
 
 # ------------------------------------------------------------------------------------------- kernels
