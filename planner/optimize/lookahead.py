@@ -41,7 +41,8 @@ FLOAT32_MARGIN = 1e-7  # [m] moved toward the safe side before storing bounds as
 COVER_MARGIN = 1e-3  # [m] covers are kept up to r + this; larger ones can never prove a collision
 KEPT_IN_MEMORY = 4  # field sets of recent design spaces kept loaded
 _LOADED: OrderedDict[str, LookaheadFields] = OrderedDict()
-_LOADING = threading.Lock()  # the two fingers of a pair are designed in parallel threads: load once
+_LOCKS: dict[str, threading.Lock] = {}  # one per field set: threads needing it load it once, others go on
+_LOCKS_LOCK = threading.Lock()
 
 
 @dataclass(frozen=True)
@@ -99,14 +100,19 @@ def lookahead_fields(shapes: BlockShapes, space: DesignSpace, radius: float, fie
         (shapes.samples, shapes.dense, shapes.ends, shapes.theta, shapes.length, shapes.cap_length, float(radius),
          choices, float(field_spacing), float(region_spacing)),
         modules=(__name__, clearance.__name__))
-    with _LOADING:
-        if digest not in _LOADED:
+    with _LOCKS_LOCK:
+        lock = _LOCKS.setdefault(digest, threading.Lock())
+    with lock:
+        fields = _LOADED.get(digest)
+        if fields is None:
             arrays = field_cache.load_or_build(
                 "lookahead", digest, lambda: _build(shapes, choices, float(radius), field_spacing, region_spacing))
-            _LOADED[digest] = LookaheadFields(**arrays)
-            while len(_LOADED) > KEPT_IN_MEMORY:
-                _LOADED.popitem(last=False)
-        return _LOADED[digest]
+            fields = LookaheadFields(**arrays)
+            with _LOCKS_LOCK:
+                _LOADED[digest] = fields
+                while len(_LOADED) > KEPT_IN_MEMORY:
+                    _LOADED.popitem(last=False)
+        return fields
 
 
 # ------------------------------------------------------------------------------------------- kernels
