@@ -112,6 +112,62 @@ def _lookahead(problem, depth, pose, alpha, acc):
 
 
 @njit(cache=True, nogil=True)
+def _leaf_bounds(problem, depth, pose, alpha, cutoff, acc):
+    """acc[k] = lower bound on the objective of the complete finger with last block choices[depth, k], or a
+    partial sum once it reaches ``cutoff`` (still a lower bound: every term is >= 0). The children are
+    checked exactly, so no cover here; contour points already within r of the prefix add nothing; each
+    child's sum stops as soon as it reaches the cutoff, the points farthest from the prefix first."""
+    contour, end_point, radius, n_choices = problem[0], problem[1], problem[2], problem[4]
+    body, tip, layout, discs = problem[8], problem[9], problem[10], problem[11]
+    count = n_choices[depth]
+    spacing = layout[depth, 6]
+    offset, rows, cols, x0, z0 = (int(layout[depth, 0]), int(layout[depth, 1]), int(layout[depth, 2]),
+                                  layout[depth, 3], layout[depth, 4])
+    cos, sin = np.cos(pose[2]), np.sin(pose[2])
+    dx, dz = end_point[0] - pose[0], end_point[1] - pose[1]
+    x, z = dx * cos - dz * sin, dx * sin + dz * cos
+    b, a = int(np.round((x - x0) / spacing)), int(np.round((z - z0) / spacing))
+    if a < 0 or b < 0 or a >= rows or b >= cols:  # the tip periphery point is exact after the last block
+        for k in range(count):
+            acc[k] = max(np.hypot(x - discs[depth, k, 6], z - discs[depth, k, 7]) - discs[depth, k, 8], 0.0)
+    else:
+        node_offset = np.hypot(x - (x0 + b * spacing), z - (z0 + a * spacing))
+        start = offset + (a * cols + b) * count
+        for k in range(count):
+            acc[k] = max(tip[start + k] - node_offset, 0.0)
+    starts = np.empty(contour.shape[0], np.int64)
+    offsets = np.empty(contour.shape[0])
+    owns = np.empty(contour.shape[0])
+    m = 0
+    for q in range(contour.shape[0]):
+        own = alpha[q]
+        if own <= radius:
+            continue
+        dx, dz = contour[q, 0] - pose[0], contour[q, 1] - pose[1]
+        x, z = dx * cos - dz * sin, dx * sin + dz * cos
+        b, a = int(np.round((x - x0) / spacing)), int(np.round((z - z0) / spacing))
+        if a < 0 or b < 0 or a >= rows or b >= cols:  # beyond the grid: bounds from the blocks' discs
+            for k in range(count):
+                nearest = np.hypot(x - discs[depth, k, 0], z - discs[depth, k, 1]) - discs[depth, k, 2]
+                acc[k] += max(min(own, nearest) - radius, 0.0)
+            continue
+        starts[m] = offset + (a * cols + b) * count
+        offsets[m] = np.hypot(x - (x0 + b * spacing), z - (z0 + a * spacing))
+        owns[m] = own
+        m += 1
+    order = np.argsort(-owns[:m])
+    for k in range(count):
+        total = acc[k]
+        for j in order:
+            if total >= cutoff:
+                break
+            value = min(owns[j], body[starts[j] + k] - offsets[j]) - radius
+            if value > 0.0:
+                total += value
+        acc[k] = total
+
+
+@njit(cache=True, nogil=True)
 def _block_update(problem, pose, alpha, s, out):
     """out = contour distances after adding block s at pose (alpha: before). Points farther from the
     block's sample disc than their current distance are skipped; squared distances inside."""
@@ -162,7 +218,10 @@ def _expand(problem, depth, pose, alpha, best, limits, out_bound, out_shape, out
     stock, stiff_stock, stiff_positions, limited = problem[12], problem[13], problem[14], problem[15]
     blocks = choices.shape[0]
     cutoff = min(best, limits[0])
-    _lookahead(problem, depth, pose, alpha, acc)
+    if depth + 1 == blocks:
+        _leaf_bounds(problem, depth, pose, alpha, cutoff, acc)
+    else:
+        _lookahead(problem, depth, pose, alpha, acc)
     n = start
     for k in range(n_choices[depth]):
         if acc[k] >= cutoff:
