@@ -15,6 +15,8 @@ from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import MCAP0_MAGIC, CompressionType, Writer
 
+from planner.atomic_file import atomic_write
+
 from .message_definitions import SCHEMA_ENCODING, full_definition
 
 PROFILE = "ros2"
@@ -116,47 +118,61 @@ def _readable_records(path: str):
             yield record
 
 
+class _NotMcap(Exception):
+    """The source does not start with an MCAP header: nothing is written."""
+
+
 def recover(source: str, target: str) -> RecoveryResult:
-    """Rewrites the readable prefix of `source` (e.g. a SIGKILL'd recording) as a valid `target`."""
-    if os.path.abspath(source) == os.path.abspath(target):
-        raise ValueError("target must differ from source")
-    schema_ids: dict[int, int] = {}
-    channel_ids: dict[int, int] = {}
-    topics: dict[int, str] = {}
+    """Rewrites the readable prefix of `source` (e.g. a SIGKILL'd recording) as a valid `target`.
+
+    `target` must not be `source` under any name (a link, another path): the files are compared, not the
+    names. The output goes to a temporary file renamed to `target` at the end, so `source` is read whole
+    before anything named `target` changes.
+    """
+    if os.path.exists(target) and os.path.samefile(source, target):
+        raise ValueError(f"target {target} is the recording {source} itself; choose another output")
     counts: dict[str, int] = {}
-    writer = None
-    with open(target, "wb") as stream:
-        for record in _readable_records(source):
-            if isinstance(record, Header):
-                writer = Writer(stream, chunk_size=DEFAULT_CHUNK_SIZE)
-                writer.start(profile=record.profile, library=record.library)
-            elif writer is None:
-                break
-            elif isinstance(record, Schema) and record.id not in schema_ids:
-                schema_ids[record.id] = writer.register_schema(record.name, record.encoding,
-                                                               record.data)
-            elif isinstance(record, Channel) and record.id not in channel_ids:
-                channel_ids[record.id] = writer.register_channel(
-                    record.topic, record.message_encoding, schema_ids.get(record.schema_id, 0),
-                    record.metadata)
-                topics[record.id] = record.topic
-                counts.setdefault(record.topic, 0)
-            elif isinstance(record, Message) and record.channel_id in channel_ids:
-                writer.add_message(channel_ids[record.channel_id], record.log_time,
-                                   record.data, record.publish_time, record.sequence)
-                counts[topics[record.channel_id]] += 1
-            elif isinstance(record, Metadata):
-                writer.add_metadata(record.name, record.metadata)
-            elif isinstance(record, Attachment):
-                writer.add_attachment(record.create_time, record.log_time, record.name,
-                                      record.media_type, record.data)
-        if writer is not None:
-            writer.finish()
-    if writer is None:
-        os.remove(target)
+    try:
+        with atomic_write(target, "wb") as stream:
+            _copy_readable(source, stream, counts)
+    except _NotMcap:
         return RecoveryResult(False, f"{source} does not start with an MCAP header")
     return RecoveryResult(True, f"recovered {sum(counts.values())} messages into {target}",
                           sum(counts.values()), counts)
+
+
+def _copy_readable(source: str, stream, counts: dict[str, int]) -> None:
+    """Writes every readable record of `source` into `stream` as a complete MCAP file; counts per topic."""
+    schema_ids: dict[int, int] = {}
+    channel_ids: dict[int, int] = {}
+    topics: dict[int, str] = {}
+    writer = None
+    for record in _readable_records(source):
+        if isinstance(record, Header):
+            writer = Writer(stream, chunk_size=DEFAULT_CHUNK_SIZE)
+            writer.start(profile=record.profile, library=record.library)
+        elif writer is None:
+            break
+        elif isinstance(record, Schema) and record.id not in schema_ids:
+            schema_ids[record.id] = writer.register_schema(record.name, record.encoding, record.data)
+        elif isinstance(record, Channel) and record.id not in channel_ids:
+            channel_ids[record.id] = writer.register_channel(
+                record.topic, record.message_encoding, schema_ids.get(record.schema_id, 0),
+                record.metadata)
+            topics[record.id] = record.topic
+            counts.setdefault(record.topic, 0)
+        elif isinstance(record, Message) and record.channel_id in channel_ids:
+            writer.add_message(channel_ids[record.channel_id], record.log_time,
+                               record.data, record.publish_time, record.sequence)
+            counts[topics[record.channel_id]] += 1
+        elif isinstance(record, Metadata):
+            writer.add_metadata(record.name, record.metadata)
+        elif isinstance(record, Attachment):
+            writer.add_attachment(record.create_time, record.log_time, record.name,
+                                  record.media_type, record.data)
+    if writer is None:
+        raise _NotMcap
+    writer.finish()
 
 
 def describe(path: str) -> dict:
