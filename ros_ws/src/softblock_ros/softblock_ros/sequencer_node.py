@@ -1,7 +1,7 @@
 """Sequencer node: action `sequencer/run` executes a YAML manipulation sequence step by step.
 
-Loads config/sequences/<name>.yaml (or a path), runs it with the sequencing engine against the arm
-(`arm/move`) and the HV driver (`hv/ramp`, `hv/state`, `hv/estop`), publishes feedback and a
+Loads <sequences_dir>/<name>.yaml (a goal names a sequence, never a path), runs it with the sequencing
+engine against the arm (`arm/move`) and the HV driver (`hv/ramp`, `hv/state`, `hv/estop`), publishes feedback and a
 `sequencer/events` message per step transition, and `hv/heartbeat` at `heartbeat_rate` while it runs.
 One goal at a time: a second goal is rejected while one runs. See docs/sequences.md.
 """
@@ -26,7 +26,8 @@ FEEDBACK_PHASES = {"precondition", "running", "succeeded"}
 EVENT_PHASES = {"running": "started", "succeeded": "succeeded", "failed": "failed", "canceled": "canceled"}
 
 PARAMETERS = {  # name: (default, description, (min, max) or None)
-    "sequences_dir": ("config/sequences", "directory of <name>.yaml files (relative: to the project root)", None),
+    "sequences_dir": ("config/sequences", "directory of <name>.yaml files, the only ones a goal can name "
+                      "(relative: to the project root)", None),
     "heartbeat_rate": (10.0, "hv/heartbeat rate while a sequence runs [Hz]", (1.0, 100.0)),
     "voltage_ceiling": (2500.0, "highest voltage a sequence may command [V]", (0.0, 10000.0)),
     "max_pulse_frequency": (5.0, "highest pulse-train frequency [Hz]", (0.1, 50.0)),
