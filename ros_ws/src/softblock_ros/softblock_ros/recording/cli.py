@@ -51,6 +51,11 @@ def _parser() -> argparse.ArgumentParser:
                       help="play the other topics when a message type cannot be imported")
     play.add_argument("--keep-alive", action="store_true",
                       help="stay up after the end so latched topics remain available")
+    play.add_argument("--include-commands", action="store_true",
+                      help="also play command topics (hv/heartbeat, assembly/safe_voltage, action "
+                      "internals), which a live HV driver obeys; left out by default")
+    play.add_argument("--namespace", default="",
+                      help="publish every topic under this namespace, e.g. /replay, away from a live stack")
 
     info = commands.add_parser("info", help="topics, types, counts and QoS of a recording")
     info.add_argument("recording")
@@ -81,7 +86,8 @@ def _play(args, ros_args) -> int:
     options = PlaybackOptions(rate=args.rate, loop=args.loop, include=args.include,
                               exclude=args.exclude, start_offset=args.start_offset,
                               skip_unknown=args.skip_unknown, clock_frequency=args.clock,
-                              delay=args.delay)
+                              delay=args.delay, include_commands=args.include_commands,
+                              namespace=args.namespace)
     return run(args.recording, options, args.keep_alive, ["--ros-args", *ros_args])
 
 

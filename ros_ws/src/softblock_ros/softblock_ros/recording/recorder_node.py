@@ -15,13 +15,9 @@ from .mcap_file import COMPRESSIONS, DEFAULT_CHUNK_SIZE, RecordingWriter
 from .message_definitions import DefinitionNotFoundError
 from .message_types import UnknownMessageTypeError, import_message_type
 from .qos_metadata import offered_qos_yaml, recording_qos
+from .topics import is_hidden
 
 DEFAULT_EXCLUDE = r"^/(rosout|parameter_events)$"
-
-
-def is_hidden(topic: str) -> bool:
-    """Hidden topics (a name part starting with '_', e.g. action internals) as in `ros2 bag`."""
-    return any(part.startswith("_") for part in topic.split("/"))
 
 
 class RecorderNode(Node):
