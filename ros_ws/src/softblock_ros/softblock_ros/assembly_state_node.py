@@ -3,7 +3,9 @@
 Latched (transient_local): the assembly on ``assembly/current`` and the lowest safe voltage over its
 blocks on ``assembly/safe_voltage`` (the HV driver's ceiling). At ``rate``: the predicted per-block angles
 and centerlines at the channel voltages measured on ``hv/state`` (``assembly/state``) and RViz markers
-(``assembly/markers``). ``assembly/set`` replaces the assembly; an invalid one is refused, the old kept.
+(``assembly/markers``). ``assembly/set`` replaces the assembly; an invalid one is refused, the old kept. Block calibration offsets
+(``block_calibration`` file, by serial) are added to the predicted angles; an offset a request gives (not 0)
+wins over the file's for that block.
 """
 from __future__ import annotations
 
@@ -18,6 +20,7 @@ from std_msgs.msg import Float64, Header
 from visualization_msgs.msg import MarkerArray
 
 from planner.assembly import load_assembly
+from planner.block_calibration import BlockCalibration, load_block_calibration
 from planner.kinematics import assembly_centerlines
 from planner.table import load_table
 
@@ -39,7 +42,11 @@ class AssemblyStateNode(Node):
         rate = self._declare("rate", 10.0, "publishing rate of assembly/state and assembly/markers [Hz]",
                              FloatingPointRange(from_value=0.1, to_value=100.0))
         self._frame_id = self._declare("frame_id", "gripper_base", "frame of the assembly, centerlines and markers")
+        calibration_file = self._declare("block_calibration", "config/block_calibration.yaml",
+                                         "per-block angle offsets by serial (relative: to the project root); "
+                                         "empty = none")
         self._table = load_table(resolve_path(table_path)) if table_path else load_table()
+        self._block_calibration = self._load_block_calibration(calibration_file)
 
         self._current_pub = self.create_publisher(Assembly, "assembly/current", LATCHED)
         self._safe_voltage_pub = self.create_publisher(Float64, "assembly/safe_voltage", LATCHED)
@@ -49,7 +56,7 @@ class AssemblyStateNode(Node):
         self._prediction = None  # (voltages, state, markers) of the last computation
         assembly = load_assembly(resolve_path(assembly_file))
         check_assembly(assembly, self._table)
-        self._use(assembly, calibration={})
+        self._use(assembly, self._block_calibration.offsets(assembly))
 
         # hv/state is read best effort: it matches a reliable or a best-effort publisher.
         self.create_subscription(HvState, "hv/state", self._on_hv_state, qos_profile_sensor_data)
@@ -61,6 +68,16 @@ class AssemblyStateNode(Node):
         descriptor = ParameterDescriptor(description=description, read_only=True,
                                          floating_point_range=[float_range] if float_range else [])
         return self.declare_parameter(name, default, descriptor).value
+
+    def _load_block_calibration(self, path: str) -> BlockCalibration:
+        if not path:
+            self.get_logger().warning("block_calibration is empty: predictions use the design angles, no offsets")
+            return BlockCalibration(blocks={})
+        if not resolve_path(path).is_file():
+            raise ValueError(f"block_calibration file {path} not found (empty = no calibration)")
+        calibration = load_block_calibration(resolve_path(path))
+        self.get_logger().info(f"block calibration: {len(calibration.blocks)} blocks from {path}")
+        return calibration
 
     def _header(self) -> Header:
         return Header(stamp=self.get_clock().now().to_msg(), frame_id=self._frame_id)
@@ -74,7 +91,9 @@ class AssemblyStateNode(Node):
 
     def _on_set(self, request, response):
         try:
-            assembly, calibration = assembly_from_msg(request.assembly, self._table)
+            assembly, requested = assembly_from_msg(request.assembly, self._table)
+            calibration = {**self._block_calibration.offsets(assembly),
+                           **{serial: offset for serial, offset in requested.items() if offset}}
         except ValueError as error:
             response.success, response.message = False, f"assembly refused: {error}"
             self.get_logger().warning(response.message)
