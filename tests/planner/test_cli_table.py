@@ -1,4 +1,4 @@
-"""`python -m planner` CLI: subcommand registry and the table / ogden-fit commands."""
+"""`python -m planner` CLI: subcommand registry, the table / ogden-fit commands and one-line input errors."""
 import subprocess
 import sys
 
@@ -70,3 +70,10 @@ def test_table_write_failing_part_way_keeps_the_old_file_and_says_so_in_one_line
     assert run.stderr.count("\n") == 1 and "File too large" in run.stderr, run.stderr
     assert out.read_bytes() == DEFAULT_TABLE_PATH.read_bytes()
     load_table(out)
+
+
+@pytest.mark.parametrize("pixel_size", ["0", "-0.001", "nan"])
+def test_design_finger_refuses_a_pixel_size_that_is_not_positive(capsys, pixel_size):
+    """Given for a sample object, 0 used to fall back to the catalogue's scale without a word."""
+    assert main(["design-finger", "strawberry", "--blocks", "2", "--pixel-size", pixel_size]) == 2
+    assert "pixel_size must be a positive number of m/pixel" in capsys.readouterr().err
