@@ -25,6 +25,8 @@ LIBRARY = "softblock-recorder"
 COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
                 "none": CompressionType.NONE}
 DEFAULT_CHUNK_SIZE = 256 * 1024
+BAG_METADATA_VERSION = 9  # rosbag2_storage::BagMetadata of ROS 2 Jazzy
+NO_MESSAGE_TIME = 2**63 - 1  # rosbag2's starting_time of a bag without messages
 
 
 class RecordingWriter:
@@ -45,6 +47,8 @@ class RecordingWriter:
         self._schema_ids: dict[str, int] = {}
         self.message_counts: dict[str, int] = {}
         self._topics: dict[int, str] = {}
+        self._topic_metadata: dict[str, dict] = {}  # topic -> rosbag2 TopicMetadata
+        self._first_time, self._last_time = NO_MESSAGE_TIME, 0  # log times [ns]
 
     def add_topic(self, topic: str, type_name: str, offered_qos_profiles: str = "",
                   type_hash: str = "", definition: str | None = None) -> int:
@@ -61,12 +65,17 @@ class RecordingWriter:
                                                    self._schema_ids[type_name], metadata)
         self._topics[channel_id] = topic
         self.message_counts[topic] = 0
+        self._topic_metadata[topic] = {
+            "name": topic, "type": type_name, "serialization_format": MESSAGE_ENCODING,
+            "offered_qos_profiles": yaml.safe_load(offered_qos_profiles) or [],
+            "type_description_hash": type_hash}
         return channel_id
 
     def write(self, channel_id: int, data: bytes, log_time: int, publish_time: int) -> None:
         """Adds one serialized (CDR) message; times in nanoseconds."""
         self._writer.add_message(channel_id, log_time, bytes(data), publish_time)
         self.message_counts[self._topics[channel_id]] += 1
+        self._first_time, self._last_time = min(self._first_time, log_time), max(self._last_time, log_time)
 
     def flush(self) -> None:
         """Writes the chunk in progress to disk: what a SIGKILL afterwards cannot lose."""
@@ -76,10 +85,32 @@ class RecordingWriter:
     def closed(self) -> bool:
         return self._stream.closed
 
+    def bag_metadata(self) -> dict:
+        """rosbag2's BagMetadata of this file, as `ros2 bag record` stores it at close (version 9)."""
+        count = sum(self.message_counts.values())
+        duration = {"nanoseconds": max(self._last_time - self._first_time, 0)}
+        starting_time = {"nanoseconds_since_epoch": self._first_time}
+        name = os.path.basename(self.path)
+        return {
+            "version": BAG_METADATA_VERSION, "storage_identifier": "mcap", "duration": duration,
+            "starting_time": starting_time, "message_count": count,
+            "topics_with_message_count": [
+                {"topic_metadata": metadata, "message_count": self.message_counts[topic]}
+                for topic, metadata in self._topic_metadata.items()],
+            "compression_format": "", "compression_mode": "",  # rosbag2's own, not MCAP chunk compression
+            "relative_file_paths": [name],
+            "files": [{"path": name, "starting_time": starting_time, "duration": duration,
+                       "message_count": count}],
+            "custom_data": {},
+            "ros_distro": os.environ.get("ROS_DISTRO") or "jazzy",  # the PyPI wheels set no ROS_DISTRO
+        }
+
     def close(self) -> None:
-        """Writes indexes, statistics and footer; the file is complete afterwards."""
+        """Writes rosbag2's metadata record, indexes, statistics and footer; the file is complete afterwards."""
         if self.closed:
             return
+        self._writer.add_metadata("rosbag2", {"serialized_metadata": yaml.safe_dump(
+            self.bag_metadata(), sort_keys=False, default_flow_style=False)})
         self._writer.finish()
         self._stream.close()
 
