@@ -43,19 +43,41 @@ def ros_domain_per_module():
 
 
 adopt_orphans()  # a test process killed with its children alive leaves them in this tree, not to init
+_TIMED_OUT = pytest.StashKey[bool]()
 
 
-@pytest.fixture(autouse=True)
-def kill_leftover_processes():
-    """Processes a test started and left running (a hung node, a simulator, what they started) are killed
-    when it ends. pytest-timeout fails a hung test by raising in it (timeout_method = signal), so this
-    teardown runs then too."""
-    before = descendants(os.getpid())
-    yield
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item, call):
+    report = yield
+    if report.failed and "from pytest-timeout" in report.longreprtext:
+        item.stash[_TIMED_OUT] = True
+    return report
+
+
+def _kill_new_processes(before: set[int]) -> None:
     leftover = descendants(os.getpid()) - before
     if leftover:
         kill_tree(leftover)
         reap(leftover)
+
+
+@pytest.fixture(autouse=True)
+def kill_processes_of_a_timed_out_test(request):
+    """What a test started is killed as soon as pytest-timeout fails it (timeout_method = signal raises in
+    the test, so this teardown runs). Processes of passing tests may outlive them: module fixtures start
+    some (the HV driver's simulated supply) in the tests."""
+    before = descendants(os.getpid())
+    yield
+    if request.node.stash.get(_TIMED_OUT, False):
+        _kill_new_processes(before)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def kill_processes_left_by_a_module():
+    """Whatever a test module's tests and fixtures started and left running is killed when it ends."""
+    before = descendants(os.getpid())
+    yield
+    _kill_new_processes(before)
 
 
 # A test stuck in C code (e.g. a wait inside rclpy) never sees pytest-timeout's signal. Then, this much
