@@ -26,6 +26,10 @@ GREY_MODES = ("1", "L", "I", "I;16", "F")  # Pillow modes read as they are
 # across resolve 0.25 mm over half a metre, far finer than a finger samples its object (1 mm).
 MAX_IMAGE_PIXELS = 4_000_000
 MIN_OBJECT_PIXELS = 8  # an object must span this many pixels in height and width to have an outline
+# Pixel sizes a finger design can use: coarser than 1 cm cannot show a 15 mm block's fit (and the design
+# samples the contour every millimetre: 1e300 m per pixel asked for 1e305 samples); finer than 1 um makes
+# the object smaller than anything a 25 mm block grasps (1e-300 m per pixel underflowed the outline).
+PIXEL_SIZE_RANGE = (1e-6, 0.01)  # [m / pixel]
 
 
 def load_mask(source, threshold: float | None = None) -> np.ndarray:
@@ -155,8 +159,9 @@ def extract_contours(mask, pixel_size: float, speck_fraction: float = DEFAULT_SP
     straight side of k pixels is exactly k * pixel_size long. The top and bottom cut points are left out
     of both contours.
     """
-    if not (np.isfinite(pixel_size) and pixel_size > 0):
-        raise ValueError(f"pixel_size must be a positive number of m/pixel, got {pixel_size!r}")
+    low, high = PIXEL_SIZE_RANGE
+    if not (np.isfinite(pixel_size) and low <= pixel_size <= high):
+        raise ValueError(f"pixel_size must be a positive number of m/pixel in {low:g}..{high:g}, got {pixel_size!r}")
     cleaned = clean_mask(mask, speck_fraction)
     lines = contourpy.contour_generator(z=cleaned.astype(float), line_type="Separate").lines(0.5)
     outline_pixels = max(lines, key=len)[:-1]  # closed loop; drop the repeated first vertex

@@ -106,6 +106,9 @@ def test_bad_images_are_named(mask, message):
 def test_bad_arguments_are_named(tmp_path):
     with pytest.raises(ValueError, match="pixel_size"):
         extract_contours(rectangle(), 0.0)
+    for absurd in (1e300, 1e-300):  # found by fuzzing planner/design_fingers: it never answered
+        with pytest.raises(ValueError, match=r"pixel_size must be a positive number of m/pixel in 1e-06..0.01, got"):
+            extract_contours(rectangle(), absurd)
     with pytest.raises(ValueError, match="cannot read object image"):
         load_mask(tmp_path / "missing.png")
     with pytest.raises(ValueError, match="2D"):

@@ -32,7 +32,7 @@ def init(args=None) -> None:
     rclpy.init(args=args)
 
 
-def _where(error: BaseException) -> str:
+def where(error: BaseException) -> str:
     """``file:line in function`` of the innermost frame of an exception's traceback."""
     frames = traceback.extract_tb(error.__traceback__)
     return f"{os.path.basename(frames[-1].filename)}:{frames[-1].lineno} in {frames[-1].name}" if frames else "?"
@@ -51,7 +51,7 @@ def spin_logging_errors(executor: Executor, logger) -> None:
                 # Ctrl-C / SIGTERM shut the context down while the executor was taking a message; rclpy then
                 # raises from the half-destroyed handle. That is the stop that was asked for, not a failure.
                 return
-            logger.error(f"a callback raised {type(error).__name__}: {str(error)[:200]} (at {_where(error)}); "
+            logger.error(f"a callback raised {type(error).__name__}: {str(error)[:200]} (at {where(error)}); "
                          "the node keeps running", throttle_duration_sec=1.0)
 
 
