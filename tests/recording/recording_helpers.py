@@ -24,7 +24,7 @@ def wait_for(predicate, what: str, timeout: float = TIMEOUT):
 
 
 class Spinner:
-    """Spins nodes in a background thread until closed; an exception there is kept and raised by close()."""
+    """Spins nodes in a background thread until closed; an exception there is raised by close()."""
 
     def __init__(self, context, *nodes):
         self.executor = SingleThreadedExecutor(context=context)
@@ -40,8 +40,8 @@ class Spinner:
             self.executor.spin()
         except BaseException as error:  # raised again by close(), not lost with the thread
             if self._closing:
-                # rclpy's Executor.shutdown destroys its guard conditions without waiting for spin to
-                # leave its wait, which may then raise: that is the stop close() asked for.
+                # rclpy's Executor.shutdown destroys its guard conditions without waiting for
+                # spin to leave its wait, which may then raise: the stop close() asked for.
                 return
             self.error = error
             raise

@@ -166,11 +166,11 @@ def test_bad_playback_options_name_the_parameter(field, value):
 
 @pytest.fixture
 def recording_with_commands(tmp_path):
-    """A stack's recording: hv/state, and what a live driver obeys (heartbeat, latched safe voltage)."""
+    """A stack's recording: hv/state, and what a live driver obeys (heartbeat, safe voltage)."""
     entries = [("/assembly/safe_voltage", Float64(data=2901.0), START)]
     entries += [("/hv/heartbeat", Empty(), START + i * STEP) for i in range(SAMPLES)]
-    entries += [("/hv/state", stamp(START + i * STEP, hv_state({"front": float(i)})), START + i * STEP)
-                for i in range(SAMPLES)]
+    entries += [("/hv/state", stamp(START + i * STEP, hv_state({"front": float(i)})),
+                 START + i * STEP) for i in range(SAMPLES)]
     return write_recording(str(tmp_path / "stack.mcap"), sorted(entries, key=lambda e: e[2]),
                            {"/assembly/safe_voltage": LATCHED})
 
@@ -185,19 +185,20 @@ class DriverLike:
         self.states = collect(self.node, HvState, "hv/state", QoSProfile(depth=100))
 
     def got_the_last_state(self) -> bool:
-        """The last replayed hv/state arrived (it stays in the publisher's history until delivered; earlier
-        ones may be overwritten on a loaded machine)."""
+        """The last replayed hv/state arrived (it stays in the publisher's history until
+        delivered; earlier ones may be overwritten on a loaded machine)."""
         return any(s.channels[0].measured_voltage == SAMPLES - 1 for s in self.states)
 
 
-def test_command_topics_are_not_replayed_to_a_live_driver_by_default(ros_context, recording_with_commands):
+def test_command_topics_are_not_replayed_to_a_live_driver_by_default(ros_context,
+                                                                      recording_with_commands):
     driver = DriverLike(ros_context)
     player = PlayerNode(recording_with_commands, PlaybackOptions(), context=ros_context)
     spinner = Spinner(ros_context, player, driver.node)
     try:
         assert sorted(p.topic_name for p in player.publishers_by_channel.values()) == ["/hv/state"]
         state = next(iter(player.publishers_by_channel.values()))
-        wait_for(lambda: state.get_subscription_count() >= 1, "the driver-like node to match hv/state")
+        wait_for(lambda: state.get_subscription_count() >= 1, "the driver-like node to match")
         player.start()
         wait_for(player.finished.is_set, "end of playback")
         wait_for(driver.got_the_last_state, "the last hv/state sample")
@@ -210,7 +211,8 @@ def test_command_topics_are_not_replayed_to_a_live_driver_by_default(ros_context
     assert player.published == SAMPLES
 
 
-def test_include_commands_plays_them_and_a_namespace_keeps_them_away(ros_context, recording_with_commands):
+def test_include_commands_plays_them_and_a_namespace_keeps_them_away(ros_context,
+                                                                      recording_with_commands):
     live, replay = DriverLike(ros_context), DriverLike(ros_context, namespace="/replay")
     options = PlaybackOptions(include_commands=True, namespace="/replay")
     player = PlayerNode(recording_with_commands, options, context=ros_context)
@@ -218,7 +220,8 @@ def test_include_commands_plays_them_and_a_namespace_keeps_them_away(ros_context
     try:
         assert sorted(p.topic_name for p in player.publishers_by_channel.values()) == [
             "/replay/assembly/safe_voltage", "/replay/hv/heartbeat", "/replay/hv/state"]
-        wait_for(lambda: all(p.get_subscription_count() >= 1 for p in player.publishers_by_channel.values()),
+        publishers = player.publishers_by_channel.values()
+        wait_for(lambda: all(p.get_subscription_count() >= 1 for p in publishers),
                  "the replay namespace's node to match every topic")
         player.start()
         wait_for(player.finished.is_set, "end of playback")
@@ -231,23 +234,29 @@ def test_include_commands_plays_them_and_a_namespace_keeps_them_away(ros_context
     assert (live.heartbeats, live.safe_voltages, live.states) == ([], [], [])
 
 
-@pytest.mark.parametrize("flag, logged", [([], "not playing command topics ['/assembly/safe_voltage', "
-                                                "'/hv/heartbeat'] (--include-commands plays them)"),
-                                          (["--include-commands"], "playing command topics ['/assembly/"
-                                                                   "safe_voltage', '/hv/heartbeat']: a live node")])
-def test_cli_says_which_command_topics_it_leaves_out_or_plays(recording_with_commands, flag, logged):
-    result = subprocess.run([sys.executable, "-m", "softblock_ros.recording", "play", "--rate", "10",
-                             recording_with_commands, *flag], capture_output=True, text=True, timeout=60)
+COMMAND_TOPICS = "['/assembly/safe_voltage', '/hv/heartbeat']"
+
+
+@pytest.mark.parametrize("flag, logged", [
+    ([], f"not playing command topics {COMMAND_TOPICS} (--include-commands plays them)"),
+    (["--include-commands"], f"playing command topics {COMMAND_TOPICS}: a live node")])
+def test_cli_says_which_command_topics_it_leaves_out_or_plays(recording_with_commands, flag,
+                                                              logged):
+    result = subprocess.run([sys.executable, "-m", "softblock_ros.recording", "play", "--rate",
+                             "10", recording_with_commands, *flag], capture_output=True,
+                            text=True, timeout=60)
     assert result.returncode == 0, result.stderr
     assert logged in result.stderr
 
 
 def test_the_hv_drivers_inputs_are_all_command_topics(ros_context):
     """Whatever topics the real HV driver subscribes to are left out of a default replay."""
-    driver = HvDriverNode(context=ros_context, parameter_overrides=[Parameter("autostart", value=False)])
+    driver = HvDriverNode(context=ros_context,
+                          parameter_overrides=[Parameter("autostart", value=False)])
     try:
         assert driver.trigger_configure() == TransitionCallbackReturn.SUCCESS
-        topics = [name for name, _ in driver.get_subscriber_names_and_types_by_node("hv_driver", "/")]
+        topics = [name for name, _ in
+                  driver.get_subscriber_names_and_types_by_node("hv_driver", "/")]
     finally:
         driver.trigger_shutdown()
         driver.destroy_node()

@@ -146,16 +146,18 @@ def test_file_carries_rosbag2_metadata_as_ros2_bag_record_writes_it(recording):
         records = [m for m in make_reader(stream).iter_metadata() if m.name == "rosbag2"]
     assert len(records) == 1 and set(records[0].metadata) == {"serialized_metadata"}
     bag = yaml.safe_load(records[0].metadata["serialized_metadata"])
-    assert list(bag) == ["version", "storage_identifier", "duration", "starting_time", "message_count",
-                         "topics_with_message_count", "compression_format", "compression_mode",
-                         "relative_file_paths", "files", "custom_data", "ros_distro"]
+    assert list(bag) == ["version", "storage_identifier", "duration", "starting_time",
+                         "message_count", "topics_with_message_count", "compression_format",
+                         "compression_mode", "relative_file_paths", "files", "custom_data",
+                         "ros_distro"]
     total = COUNT * len(STREAMED) + len(LATCHED_TOPICS)
     assert (bag["version"], bag["storage_identifier"], bag["message_count"]) == (9, "mcap", total)
     assert bag["relative_file_paths"] == ["stack.mcap"] and bag["ros_distro"] == "jazzy"
     with open(recording, "rb") as stream:
         statistics = make_reader(stream).get_summary().statistics
     assert bag["starting_time"] == {"nanoseconds_since_epoch": statistics.message_start_time}
-    assert bag["duration"] == {"nanoseconds": statistics.message_end_time - statistics.message_start_time}
+    span = statistics.message_end_time - statistics.message_start_time
+    assert bag["duration"] == {"nanoseconds": span}
     assert bag["files"] == [{"path": "stack.mcap", "starting_time": bag["starting_time"],
                              "duration": bag["duration"], "message_count": total}]
     topics = {t["topic_metadata"]["name"]: t for t in bag["topics_with_message_count"]}
@@ -164,5 +166,5 @@ def test_file_carries_rosbag2_metadata_as_ros2_bag_record_writes_it(recording):
     hv = topics["/hv/state"]["topic_metadata"]
     assert (hv["type"], hv["serialization_format"]) == ("softblock_interfaces/msg/HvState", "cdr")
     assert hv["type_description_hash"].startswith("RIHS01_")
-    assert topics["/assembly/current"]["topic_metadata"]["offered_qos_profiles"][0]["durability"] == \
-        "transient_local"
+    latched = topics["/assembly/current"]["topic_metadata"]["offered_qos_profiles"]
+    assert latched[0]["durability"] == "transient_local"

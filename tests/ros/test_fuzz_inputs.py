@@ -147,7 +147,8 @@ def test_the_planner_still_designs_after_the_fuzzing(nodes):
 
 
 # --- assembly_state ------------------------------------------------------------------------------------
-PLACED_BLOCKS = messages(PlacedBlock, design=messages(BlockDesign, id=mostly(st.integers(1, 84), st.integers(0, 65535))),
+DESIGN_IDS = mostly(st.integers(1, 84), st.integers(0, 65535))
+PLACED_BLOCKS = messages(PlacedBlock, design=messages(BlockDesign, id=DESIGN_IDS),
                          rotation=mostly(st.integers(-12, 12).map(lambda k: k * math.pi / 6), st.floats()),
                          serial=st.sampled_from(["", "S-1", "S-2"]) | TEXT,
                          calibration_offset=mostly(st.just(0.0), st.just(0.02) | ANY_NUMBER))
@@ -207,15 +208,15 @@ def test_run_sequence_answers_every_goal_without_file_contents(nodes, goal):
 
 
 NEAR = st.floats(-0.05, 0.05)
+NEAR_START = st.builds(Point, x=NEAR.map(lambda d: 0.45 + d), y=NEAR, z=NEAR.map(lambda d: 0.3 + d))
+FRAMES = mostly(st.sampled_from(["", "base_link"]), st.just("world") | TEXT)
 
 
 @settings(FUZZ, max_examples=10)
 @given(messages(MoveArm.Goal,
                 target=messages(PoseStamped,
-                                header=st.builds(Header, frame_id=mostly(st.sampled_from(["", "base_link"]), st.just("world") | TEXT)),
-                                pose=st.builds(Pose, position=mostly(st.builds(Point, x=NEAR.map(lambda d: 0.45 + d), y=NEAR,
-                                                                               z=NEAR.map(lambda d: 0.3 + d)),
-                                                                     messages(Point)),
+                                header=st.builds(Header, frame_id=FRAMES),
+                                pose=st.builds(Pose, position=mostly(NEAR_START, messages(Point)),
                                                orientation=QUATERNIONS)),
                 max_speed=mostly(st.just(0.0), ANY_NUMBER)))
 def test_move_arm_answers_every_goal_and_the_pose_stays_finite(nodes, goal):

@@ -3,9 +3,9 @@
 Latched (transient_local): the assembly on ``assembly/current`` and the lowest safe voltage over its
 blocks on ``assembly/safe_voltage`` (the HV driver's ceiling). At ``rate``: the predicted per-block angles
 and centerlines at the channel voltages measured on ``hv/state`` (``assembly/state``) and RViz markers
-(``assembly/markers``). ``assembly/set`` replaces the assembly; an invalid one is refused, the old kept. Block calibration offsets
-(``block_calibration`` file, by serial) are added to the predicted angles; an offset a request gives (not 0)
-wins over the file's for that block.
+(``assembly/markers``). ``assembly/set`` replaces the assembly; an invalid one is refused, the old kept.
+Block calibration offsets (``block_calibration`` file, by serial) are added to the predicted angles; an
+offset a request gives (not 0) wins over the file's for that block.
 """
 from __future__ import annotations
 

@@ -55,7 +55,8 @@ def _parser() -> argparse.ArgumentParser:
                       help="also play command topics (hv/heartbeat, assembly/safe_voltage, action "
                       "internals), which a live HV driver obeys; left out by default")
     play.add_argument("--namespace", default="",
-                      help="publish every topic under this namespace, e.g. /replay, away from a live stack")
+                      help="publish every topic under this namespace (e.g. /replay), away from "
+                      "a live stack")
 
     info = commands.add_parser("info", help="topics, types, counts and QoS of a recording")
     info.add_argument("recording")

@@ -75,7 +75,8 @@ class RecordingWriter:
         """Adds one serialized (CDR) message; times in nanoseconds."""
         self._writer.add_message(channel_id, log_time, bytes(data), publish_time)
         self.message_counts[self._topics[channel_id]] += 1
-        self._first_time, self._last_time = min(self._first_time, log_time), max(self._last_time, log_time)
+        self._first_time = min(self._first_time, log_time)
+        self._last_time = max(self._last_time, log_time)
 
     def flush(self) -> None:
         """Writes the chunk in progress to disk: what a SIGKILL afterwards cannot lose."""
@@ -86,7 +87,7 @@ class RecordingWriter:
         return self._stream.closed
 
     def bag_metadata(self) -> dict:
-        """rosbag2's BagMetadata of this file, as `ros2 bag record` stores it at close (version 9)."""
+        """rosbag2's BagMetadata of this file, as `ros2 bag record` stores it at close (v9)."""
         count = sum(self.message_counts.values())
         duration = {"nanoseconds": max(self._last_time - self._first_time, 0)}
         starting_time = {"nanoseconds_since_epoch": self._first_time}
@@ -97,16 +98,17 @@ class RecordingWriter:
             "topics_with_message_count": [
                 {"topic_metadata": metadata, "message_count": self.message_counts[topic]}
                 for topic, metadata in self._topic_metadata.items()],
-            "compression_format": "", "compression_mode": "",  # rosbag2's own, not MCAP chunk compression
+            # rosbag2's own file or message compression, not MCAP's chunk compression
+            "compression_format": "", "compression_mode": "",
             "relative_file_paths": [name],
             "files": [{"path": name, "starting_time": starting_time, "duration": duration,
                        "message_count": count}],
             "custom_data": {},
-            "ros_distro": os.environ.get("ROS_DISTRO") or "jazzy",  # the PyPI wheels set no ROS_DISTRO
+            "ros_distro": os.environ.get("ROS_DISTRO") or "jazzy",  # PyPI wheels set no ROS_DISTRO
         }
 
     def close(self) -> None:
-        """Writes rosbag2's metadata record, indexes, statistics and footer; the file is complete afterwards."""
+        """Writes rosbag2's metadata record, indexes, statistics and footer: a complete file."""
         if self.closed:
             return
         self._writer.add_metadata("rosbag2", {"serialized_metadata": yaml.safe_dump(
@@ -156,9 +158,9 @@ class _NotMcap(Exception):
 def recover(source: str, target: str) -> RecoveryResult:
     """Rewrites the readable prefix of `source` (e.g. a SIGKILL'd recording) as a valid `target`.
 
-    `target` must not be `source` under any name (a link, another path): the files are compared, not the
-    names. The output goes to a temporary file renamed to `target` at the end, so `source` is read whole
-    before anything named `target` changes.
+    `target` must not be `source` under any name (a link, another path): the files are compared,
+    not the names. The output goes to a temporary file renamed to `target` at the end, so `source`
+    is read whole before anything named `target` changes.
     """
     if os.path.exists(target) and os.path.samefile(source, target):
         raise ValueError(f"target {target} is the recording {source} itself; choose another output")
@@ -173,7 +175,7 @@ def recover(source: str, target: str) -> RecoveryResult:
 
 
 def _copy_readable(source: str, stream, counts: dict[str, int]) -> None:
-    """Writes every readable record of `source` into `stream` as a complete MCAP file; counts per topic."""
+    """Writes the readable records of `source` as a complete MCAP file; counts per topic."""
     schema_ids: dict[int, int] = {}
     channel_ids: dict[int, int] = {}
     topics: dict[int, str] = {}
@@ -185,7 +187,8 @@ def _copy_readable(source: str, stream, counts: dict[str, int]) -> None:
         elif writer is None:
             break
         elif isinstance(record, Schema) and record.id not in schema_ids:
-            schema_ids[record.id] = writer.register_schema(record.name, record.encoding, record.data)
+            schema_ids[record.id] = writer.register_schema(record.name, record.encoding,
+                                                           record.data)
         elif isinstance(record, Channel) and record.id not in channel_ids:
             channel_ids[record.id] = writer.register_channel(
                 record.topic, record.message_encoding, schema_ids.get(record.schema_id, 0),

@@ -31,8 +31,8 @@ class PlaybackOptions:
     clock_frequency: float = 0.0  # Hz of /clock (rosgraph_msgs/Clock); 0 = no /clock
     delay: float = 0.0           # seconds between advertising the topics and the first message,
                                  # so subscribers can discover and match the publishers first
-    include_commands: bool = False  # also play command topics (heartbeat, safe voltage, action internals)
-    namespace: str = ""          # publish every topic under this prefix, e.g. /replay (empty: as recorded)
+    include_commands: bool = False  # also play command topics (recording.topics)
+    namespace: str = ""          # prefix of every topic, e.g. /replay; "": topics as recorded
 
     def validate(self) -> None:
         if not self.rate > 0:
@@ -71,7 +71,7 @@ class Recording:
         self.end_time = summary.statistics.message_end_time
 
     def select(self, options: PlaybackOptions) -> list[Channel]:
-        """Channels whose topic passes the include/exclude regexes (command topics only if asked for)."""
+        """Channels whose topic passes the include/exclude regexes (command topics if asked for)."""
         include, exclude = re.compile(options.include), re.compile(options.exclude)
         return [c for c in self.channels
                 if include.search(c.topic) and not (options.exclude and exclude.search(c.topic))

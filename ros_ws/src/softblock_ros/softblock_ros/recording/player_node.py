@@ -46,10 +46,12 @@ class PlayerNode(Node):
     def _announce_command_topics(self) -> None:
         commands = self.recording.command_topics()
         if commands and self.options.include_commands:
-            self.get_logger().warning(f"playing command topics {commands}: a live node listening on them "
-                                      "obeys them (an HV driver takes the heartbeat and the safe voltage)")
+            self.get_logger().warning(
+                f"playing command topics {commands}: a live node listening on them obeys them "
+                "(an HV driver takes the heartbeat and the safe voltage)")
         elif commands:
-            self.get_logger().info(f"not playing command topics {commands} (--include-commands plays them)")
+            self.get_logger().info(
+                f"not playing command topics {commands} (--include-commands plays them)")
 
     def _advertise(self, channel) -> None:
         type_name = self.recording.type_names.get(channel.id, "")
