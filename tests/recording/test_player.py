@@ -104,7 +104,9 @@ def test_loop_replays_until_stopped_and_clock_follows_recorded_time(ros_context,
     restarts = [later for earlier, later in zip(voltages, voltages[1:]) if later < earlier]
     assert restarts and set(voltages) <= {100.0 * i for i in range(SAMPLES)}
     clock_ns = clock[0].clock.sec * 1_000_000_000 + clock[0].clock.nanosec
-    assert START <= clock_ns <= START + SAMPLES * STEP * 2
+    # recorded time (2023), not wall time; at rate 20 a stall of the playback thread between two passes
+    # on a loaded machine moves it past one pass (200 ms), so the bound is a minute of recorded time
+    assert START <= clock_ns <= START + 60 * 1_000_000_000
 
 
 @pytest.fixture
