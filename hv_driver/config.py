@@ -2,6 +2,8 @@
 import math
 from dataclasses import dataclass
 
+from .ramp import MAX_RAMP_DURATION_S, slowest_slew_rate
+
 
 def _require(condition: bool, parameter: str, value, expectation: str) -> None:
     if not condition:
@@ -15,7 +17,8 @@ class ChannelConfig:
     name: label used by every API ("front", "back").
     index: channel number on the supply (0-based, as in ``(@0)``).
     max_voltage: hard maximum [V]; the ceiling never exceeds it.
-    slew_rate: maximum rate of change of the commanded voltage [V/s].
+    slew_rate: maximum rate of change of the commanded voltage [V/s]; at least the rate that ramps
+        max_voltage within ramp.MAX_RAMP_DURATION_S.
     current_trip: measured current above this trips OVER_CURRENT [A].
     mismatch_tolerance, mismatch_time: measured voltage further than ``mismatch_tolerance`` [V]
         from the commanded one for longer than ``mismatch_time`` [s] trips READBACK_MISMATCH.
@@ -41,6 +44,9 @@ class ChannelConfig:
             value = getattr(self, parameter)
             _require(isinstance(value, (int, float)) and math.isfinite(value) and value > 0,
                      parameter, value, "finite number > 0")
+        _require(self.slew_rate >= slowest_slew_rate(self.max_voltage), "slew_rate", self.slew_rate,
+                 f">= {slowest_slew_rate(self.max_voltage):g} V/s, so a ramp over max_voltage="
+                 f"{self.max_voltage:g} V ends within {MAX_RAMP_DURATION_S:g} s")
         _require((self.creep_voltage is None) == (self.max_time_at_voltage is None),
                  "creep_voltage", self.creep_voltage, "set together with max_time_at_voltage")
         for parameter in ("creep_voltage", "max_time_at_voltage"):

@@ -71,10 +71,18 @@ def sim():
 
 @pytest.fixture
 def supply(sim):
-    # A generous link timeout: the suite runs on two loaded cores.
-    hv = HvSupply(sim.port, channels=CHANNELS, link_timeout_s=0.5, handle_signals=False).open()
+    # A generous link timeout: the suite runs on two loaded cores. The heartbeat watchdog stays on, with a
+    # timeout longer than any test holds an output without a request (its own tests set a short one).
+    hv = HvSupply(sim.port, channels=CHANNELS, link_timeout_s=0.5, heartbeat_timeout_s=30.0,
+                  handle_signals=False).open()
     yield hv
     hv.abort()
+
+
+@pytest.fixture
+def token(supply):
+    """The test's control session of ``supply``."""
+    return supply.claim_control("test")
 
 
 def _wait_until(predicate, deadline_s: float = 3.0, poll_s: float = 0.005):
