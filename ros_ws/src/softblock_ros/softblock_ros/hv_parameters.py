@@ -1,6 +1,8 @@
 """Parameters of the hv_driver node: declaration with descriptors and ranges, and the channel limits they give."""
 from __future__ import annotations
 
+import math
+
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
 
@@ -16,8 +18,9 @@ PARAMETERS = {  # name: (default, description, range)
     "slew_rate": (1000.0, "maximum slew rate [V/s]", FloatingPointRange(from_value=1.0, to_value=100000.0)),
     "current_trip": (50e-6, "over-current trip level [A]", FloatingPointRange(from_value=1e-9, to_value=0.1)),
     "link_timeout": (0.5, "no valid reply for this long trips LINK [s]", FloatingPointRange(from_value=0.1, to_value=10.0)),
-    "heartbeat_timeout": (0.0, "no hv/heartbeat for this long ramps outputs to 0 V [s]; 0 = off",
-                          FloatingPointRange(from_value=0.0, to_value=60.0)),
+    "heartbeat_timeout": (2.0, "the client holding control must send hv/heartbeat this often or its energised "
+                               "outputs ramp to 0 V [s]; .inf switches the watchdog off (warned at every start)",
+                          FloatingPointRange(from_value=0.05, to_value=math.inf)),
     "state_rate": (50.0, "hv/state rate [Hz]", FloatingPointRange(from_value=20.0, to_value=200.0)),
     "autostart": (True, "configure and activate at start (console script / python -m)", None),
 }

@@ -2,7 +2,8 @@
 
 Loads config/sequences/<name>.yaml (or a path), runs it with the sequencing engine against the arm
 (`arm/move`) and the HV driver (`hv/ramp`, `hv/state`, `hv/estop`), publishes feedback and a
-`sequencer/events` message per step transition, and `hv/heartbeat` at `heartbeat_rate` while it runs.
+`sequencer/events` message per step transition. It holds control of the HV driver while a sequence runs
+(`hv/claim_control`, then `hv/heartbeat` at `heartbeat_rate`, `hv/release_control` at the end).
 One goal at a time: a second goal is rejected while one runs. See docs/sequences.md.
 """
 import threading
@@ -14,12 +15,11 @@ from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from softblock_interfaces.action import RunSequence
 from softblock_interfaces.msg import SequenceEvent
-from std_msgs.msg import Empty
 
 from .paths import resolve_path
 from .ros_robot import RosRobot
 from .runner import run_node
-from .sequencing.engine import RunOptions, SequenceEngine, StepEvent
+from .sequencing.engine import RobotError, RunOptions, SequenceEngine, StepEvent
 from .sequencing.schema import Limits, SequenceError, load_sequence
 
 FEEDBACK_PHASES = {"precondition", "running", "succeeded"}
@@ -55,21 +55,14 @@ class SequencerNode(Node):
         self._defaults = {"tolerance": value("default_tolerance"), "timeout": value("default_timeout")}
         self._options = RunOptions(value("poll_period"), value("settle_time"), value("safe_stop_timeout"))
         group = ReentrantCallbackGroup()
-        self._robot = RosRobot(self, group, value("server_timeout"), value("state_timeout"))
+        self._robot = RosRobot(self, group, value("server_timeout"), value("state_timeout"), value("heartbeat_rate"))
         self._events = self.create_publisher(SequenceEvent, "sequencer/events", 10)
-        self._heartbeat = self.create_publisher(Empty, "hv/heartbeat", 10)
-        self.create_timer(1.0 / value("heartbeat_rate"), self._beat, callback_group=group)
         self._busy = threading.Lock()
-        self._running = False
         self._cancel = threading.Event()
         self._running_name = ""
         self._server = ActionServer(self, RunSequence, "sequencer/run", execute_callback=self._execute,
                                     goal_callback=self._on_goal, cancel_callback=self._on_cancel,
                                     callback_group=group)
-
-    def _beat(self) -> None:
-        if self._running:
-            self._heartbeat.publish(Empty())
 
     def _on_goal(self, goal: RunSequence.Goal) -> GoalResponse:
         if not self._busy.acquire(blocking=False):
@@ -108,9 +101,16 @@ class SequencerNode(Node):
             except SequenceError as error:
                 goal_handle.abort()
                 return RunSequence.Result(success=False, message=f"rejected: {error}")
-            self._running = True
-            engine = SequenceEngine(self._robot, self._options, lambda event: self._on_step(goal_handle, event))
-            outcome = engine.run(sequence, self._cancel)
+            try:
+                self._robot.take_control()
+            except RobotError as error:
+                goal_handle.abort()
+                return RunSequence.Result(success=False, message=str(error))
+            try:
+                engine = SequenceEngine(self._robot, self._options, lambda event: self._on_step(goal_handle, event))
+                outcome = engine.run(sequence, self._cancel)
+            finally:
+                self.get_logger().info(f"HV control: {self._robot.give_up_control()}")
             if outcome.canceled:
                 goal_handle.canceled()
             elif outcome.success:
@@ -121,7 +121,6 @@ class SequencerNode(Node):
                                       failed_step=outcome.failed_step, step_names=outcome.step_names,
                                       step_durations=outcome.step_durations)
         finally:
-            self._running = False
             self._busy.release()
 
 
