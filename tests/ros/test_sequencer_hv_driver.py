@@ -1,6 +1,6 @@
 """Sequencer against the real HV driver node (simulated supply on a pty) and the simulated arm:
-the scaled finger grasp succeeds while the sequencer's heartbeat keeps the driver's watchdog quiet,
-and an over-current injected through `hv/inject_fault` mid-sequence ends in the safe state."""
+the scaled finger grasp succeeds while the sequencer holds control and its heartbeat keeps the driver's
+watchdog quiet, and an over-current injected through `hv/inject_fault` mid-sequence ends in the safe state."""
 import pytest
 import rclpy
 from action_msgs.msg import GoalStatus
@@ -46,7 +46,7 @@ def stack(ros_context, spin, tmp_path_factory):
 
 
 def start(stack, sequence):
-    """Clear faults (the driver's heartbeat watchdog restarts then) and send the goal at once."""
+    """Clear faults and send the goal at once (the sequencer claims control of the driver for it)."""
     call(stack["inject"], InjectFault.Request(fault="clear"))
     assert call(stack["reset"], Trigger.Request()).success
     stack["events"].messages.clear()
