@@ -1,17 +1,22 @@
 """The heartbeat watchdog with the quick start's parameters (docs/sequences.md: the launcher with
 `--params config/sequencer.yaml`, which has no hv_driver section): it is on, and a SIGKILLed sequencer
-holding control at 2.4 kV leaves the output ramped down with HEARTBEAT latched."""
+holding control at 2.4 kV leaves the output ramped down with HEARTBEAT latched. Switching it off takes
+`heartbeat_timeout: .inf` and is warned when the driver starts; 0 does not switch it off."""
 import io
 
 import pytest
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
-from ros_testing import Inbox, wait_for
+from rclpy.exceptions import InvalidParameterValueException
+from rclpy.parameter import Parameter
+from ros_testing import Inbox, call, wait_for
 from softblock_interfaces.action import RunSequence
 from softblock_interfaces.msg import HvChannelState, HvState
+from std_srvs.srv import Trigger
 
 from planner.table import REPO_ROOT
-from softblock_ros.client import ActionClient
+from softblock_ros.client import ActionClient, ClientError
+from softblock_ros.hv_driver_node import HvDriverNode
 from softblock_ros.launcher import Stack
 
 NAMESPACE = "/watchdog"
@@ -26,6 +31,7 @@ def stack():
     output = io.StringIO()
     with Stack(nodes=["hv_driver", "sim_arm", "sequencer"], params=QUICK_START_PARAMS, namespace=NAMESPACE,
                output=output) as stack:
+        stack.log = output
         yield stack
     codes = stack.stop()
     assert codes["hv_driver"] == 0 and codes["sim_arm"] == 0, output.getvalue()
@@ -37,6 +43,7 @@ def client(ros_context, spin, stack):
     node.states = Inbox(node, HvState, "hv/state", 100)
     node.diagnostics = Inbox(node, DiagnosticArray, "/diagnostics")
     node.run = ActionClient(node, RunSequence, "sequencer/run")
+    node.reset = node.create_client(Trigger, "hv/reset_faults")
     spin(node)
     return node
 
@@ -53,9 +60,14 @@ def test_the_quick_start_parameters_leave_the_watchdog_on(client):
 
 def test_a_sigkilled_sequencer_leaves_the_output_ramped_down_and_heartbeat_latched(stack, client):
     assert client.run.wait_for_server(timeout_sec=STARTUP_TIMEOUT)
+    # The nodes' start-up on two loaded cores can starve the simulated supply into a LINK fault: start clean.
+    assert call(client.reset, Trigger.Request(), STARTUP_TIMEOUT).success
     client.run.send_goal_async(RunSequence.Goal(sequence="finger_grasp"))
     back = lambda state: next(c for c in state.channels if c.name == "back")  # noqa: E731
-    client.states.wait(lambda s: back(s).measured_voltage > 2350.0, STARTUP_TIMEOUT)
+    try:
+        client.states.wait(lambda s: back(s).measured_voltage > 2350.0, STARTUP_TIMEOUT)
+    except ClientError as error:
+        pytest.fail(f"{error}; the nodes' output:\n{stack.log.getvalue()[-4000:]}")
     client.diagnostics.messages.clear()
     assert control_values(client.diagnostics.wait(lambda a: (v := control_values(a)) and v["controller"]))[
         "controller"] == "sequencer"
@@ -72,3 +84,19 @@ def test_a_sigkilled_sequencer_leaves_the_output_ramped_down_and_heartbeat_latch
     assert ramping, "the output was cut instead of ramped down"
     wait_for(lambda: all(abs(c.measured_voltage) < 50.0 for c in client.states.messages[-1].channels),
              what="every channel below 50 V")
+
+
+def test_switching_the_watchdog_off_takes_inf_and_is_warned_at_start(tmp_path):
+    params = tmp_path / "watchdog_off.yaml"
+    params.write_text("/**/hv_driver:\n  ros__parameters:\n    heartbeat_timeout: .inf\n")
+    output = io.StringIO()
+    with Stack(nodes=["hv_driver"], params=params, namespace="/watchdog_off", output=output) as stack:
+        wait_for(lambda: "configured:" in output.getvalue() or stack.dead(), STARTUP_TIMEOUT, "the driver to start")
+    log = output.getvalue()
+    assert "[WARN]" in log and "heartbeat watchdog OFF (heartbeat_timeout_s=inf)" in log, log
+
+
+@pytest.mark.parametrize("timeout", [0.0, -1.0])
+def test_a_zero_or_negative_heartbeat_timeout_is_refused(ros_context, timeout):
+    with pytest.raises(InvalidParameterValueException, match="heartbeat_timeout"):
+        HvDriverNode(context=ros_context, parameter_overrides=[Parameter("heartbeat_timeout", value=timeout)])
