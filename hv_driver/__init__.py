@@ -13,6 +13,6 @@ from .faults import Fault, fault_names
 from .link import LinkError
 from .supervisor import FaultLatchedError, LimitError, Supervisor
 
-__all__ = ["ChannelConfig", "ChannelSnapshot", "ConfigurationError", "ControlError", "Dialect", "Fault", "FaultLatchedError",
-           "HvSupply", "IsegEdcp", "LimitError", "LinkError", "ProtocolError", "RampHandle", "Supervisor",
-           "SupplySnapshot", "fault_names"]
+__all__ = ["ChannelConfig", "ChannelSnapshot", "ConfigurationError", "ControlError", "Dialect", "Fault",
+           "FaultLatchedError", "HvSupply", "IsegEdcp", "LimitError", "LinkError", "ProtocolError", "RampHandle",
+           "Supervisor", "SupplySnapshot", "fault_names"]

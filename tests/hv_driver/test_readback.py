@@ -71,9 +71,12 @@ def test_a_stalled_loop_catches_up_by_at_most_one_nominal_period_of_slew():
     assert after - before == pytest.approx(GAIT.slew_rate * 0.01)
 
 
-def test_an_output_switched_off_may_ramp_down_at_the_device_rate():
-    config = ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=1000.0)
-    channel = ChannelSupervisor(config)
+GRIPPER = ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=1000.0)  # device ramp 1200 V/s
+
+
+def held_at_2400_volts() -> tuple[ChannelSupervisor, Rig]:
+    """A healthy channel of a supply ramping at 1.2 kV/s, held at 2.4 kV."""
+    channel = ChannelSupervisor(GRIPPER)
     channel.set_device_ramp(1200.0)
     channel.enable()
     rig = Rig(channel, 1200.0)
@@ -81,6 +84,11 @@ def test_an_output_switched_off_may_ramp_down_at_the_device_rate():
     for _ in range(500):
         rig.cycle(0.01)
     assert channel.setpoint == 2400.0 and not channel.faults
+    return channel, rig
+
+
+def test_an_output_switched_off_may_ramp_down_at_the_device_rate():
+    channel, rig = held_at_2400_volts()
     channel.reset()  # as reset_faults(all_channels=True): `:VOLT 0`, `:VOLT OFF`; the device ramps down
     voltages = []
     for _ in range(300):
@@ -91,14 +99,7 @@ def test_an_output_switched_off_may_ramp_down_at_the_device_rate():
 
 
 def test_an_output_that_does_not_fall_after_off_is_a_mismatch():
-    config = ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=1000.0)
-    channel = ChannelSupervisor(config)
-    channel.set_device_ramp(1200.0)
-    channel.enable()
-    rig = Rig(channel, 1200.0)
-    channel.ramp_to(0.0, 2400.0)
-    for _ in range(500):
-        rig.cycle(0.01)
+    channel, rig = held_at_2400_volts()
     channel.reset()
     cycles = 0
     while not channel.faults and cycles < 200:
@@ -112,15 +113,14 @@ def test_an_output_that_does_not_fall_after_off_is_a_mismatch():
 
 
 def test_an_output_left_on_by_an_earlier_session_may_ramp_down_after_open():
-    config = ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=1000.0)
-    channel = ChannelSupervisor(config)
+    channel = ChannelSupervisor(GRIPPER)
     channel.set_device_ramp(1200.0)
     channel.output_found(0.0, 2400.0)
     rig = Rig(channel, 1200.0, voltage=2400.0)
     for _ in range(300):
         rig.cycle(0.01)
     assert not channel.faults and rig.voltage == 0.0
-    stuck = ChannelSupervisor(config)
+    stuck = ChannelSupervisor(GRIPPER)
     stuck.set_device_ramp(1200.0)
     stuck.output_found(0.0, 2400.0)
     rig = Rig(stuck, 1200.0, voltage=2400.0)
