@@ -170,6 +170,7 @@ class HvSupply:
         self._supervisor = Supervisor(self.configs, link_timeout=link_timeout_s, heartbeat_timeout=heartbeat_timeout_s,
                                       nominal_period=self._period, now=clock())
         self._reply_timeout = reply_timeout_s
+        self._link_timeout = link_timeout_s
         self._handle_signals = handle_signals
         self._lock = threading.RLock()
         self._cycle_done = threading.Condition(self._lock)
@@ -193,7 +194,7 @@ class HvSupply:
                                            timeout=self._reply_timeout, write_timeout=self._reply_timeout)
         self._link = Link(self._port, self.dialect, self._reply_timeout)
         try:
-            self.device_id = self._link.query("identify")
+            self.device_id = self._identify()
             self._check_channels(*self._link.query("read_channel_count"))
             indices = [c.index for c in self.configs]
             self._link.query("set_voltage", indices, 0.0)  # known state: 0 V, off (an output left on ramps down)
@@ -221,6 +222,17 @@ class HvSupply:
         self._thread.start()
         self._install_exit_guards()
         return self
+
+    def _identify(self) -> str:
+        """``*IDN?``, retried while answers keep failing for up to link_timeout_s (the rule of the link watchdog):
+        a supply that is just starting up, or answers one line late, is not taken for a dead one."""
+        failing_since = self._clock()
+        while True:
+            try:
+                return self._link.query("identify")
+            except (LinkError, ProtocolError):
+                if self._clock() - failing_since > self._link_timeout:
+                    raise
 
     def _check_channels(self, count: int) -> None:
         """Refuse configured channel indices the supply does not have (it reports its channel count)."""

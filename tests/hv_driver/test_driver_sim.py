@@ -11,7 +11,8 @@ import textwrap
 
 import pytest
 
-from hv_driver import ChannelConfig, ConfigurationError, ControlError, Fault, FaultLatchedError, HvSupply, LimitError
+from hv_driver import (ChannelConfig, ConfigurationError, ControlError, Fault, FaultLatchedError, HvSupply, LimitError,
+                       LinkError)
 from hv_driver.dialects.iseg_edcp import ChannelEvent
 from sim_fallback.hv_plant import ChannelDefaults
 from sim_fallback.hv_supply import SimulatedSupply
@@ -341,3 +342,21 @@ def test_a_channel_index_the_supply_does_not_have_is_refused_at_open(sim):
                                                  r"channel\(s\) \(indices 0-1\)"):
         hv.open()
     assert not [line for _, line in sim.command_log if "999" in line]  # nothing sent to it
+
+
+def test_open_waits_up_to_the_link_timeout_for_a_supply_that_is_starting_up(sim, background):
+    """A supply that answers late at first (a simulator still starting on a loaded host) is identified."""
+    sim.inject("no_reply")
+    background(lambda: (time.sleep(0.2), sim.clear_faults()))
+    configs = [ChannelConfig("front", 0, max_voltage=3000.0)]
+    with HvSupply(sim.port, channels=configs, link_timeout_s=2.0, handle_signals=False) as hv:
+        assert hv.snapshot().device_id.startswith("iseg")
+
+
+def test_open_gives_up_on_a_silent_supply_after_the_link_timeout(sim):
+    sim.inject("no_reply")
+    started = time.monotonic()
+    with pytest.raises(LinkError, match=r"no reply to '\*IDN\?'"):
+        HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage=3000.0)], link_timeout_s=0.4,
+                 handle_signals=False).open()
+    assert time.monotonic() - started > 0.4

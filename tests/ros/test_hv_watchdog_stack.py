@@ -10,7 +10,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.exceptions import InvalidParameterValueException
 from rclpy.parameter import Parameter
 from ros_testing import Inbox, call, wait_for
-from softblock_interfaces.action import RunSequence
+from softblock_interfaces.action import MoveArm, RunSequence
 from softblock_interfaces.msg import HvChannelState, HvState
 from std_srvs.srv import Trigger
 
@@ -43,6 +43,7 @@ def client(ros_context, spin, stack):
     node.states = Inbox(node, HvState, "hv/state", 100)
     node.diagnostics = Inbox(node, DiagnosticArray, "/diagnostics")
     node.run = ActionClient(node, RunSequence, "sequencer/run")
+    node.arm = ActionClient(node, MoveArm, "arm/move")
     node.reset = node.create_client(Trigger, "hv/reset_faults")
     spin(node)
     return node
@@ -60,6 +61,7 @@ def test_the_quick_start_parameters_leave_the_watchdog_on(client):
 
 def test_a_sigkilled_sequencer_leaves_the_output_ramped_down_and_heartbeat_latched(stack, client):
     assert client.run.wait_for_server(timeout_sec=STARTUP_TIMEOUT)
+    assert client.arm.wait_for_server(timeout_sec=STARTUP_TIMEOUT)  # the sequence's first step moves the arm
     # The nodes' start-up on two loaded cores can starve the simulated supply into a LINK fault: start clean.
     assert call(client.reset, Trigger.Request(), STARTUP_TIMEOUT).success
     client.run.send_goal_async(RunSequence.Goal(sequence="finger_grasp"))
