@@ -193,23 +193,18 @@ class HvSupply:
         self._port = serial.serial_for_url(self.port_name, baudrate=self.baudrate,
                                            timeout=self._reply_timeout, write_timeout=self._reply_timeout)
         self._link = Link(self._port, self.dialect, self._reply_timeout)
+        failing_since = None
         try:
-            self.device_id = self._identify()
-            self._check_channels(*self._link.query("read_channel_count"))
-            indices = [c.index for c in self.configs]
-            self._link.query("set_voltage", indices, 0.0)  # known state: 0 V, off (an output left on ramps down)
-            self._link.query("output_off", indices)
-            self._configure_device()
-            registers = zip(self._link.query("read_status", indices), self._link.query("read_event_status", indices))
-            voltages = self._link.query("measure_voltage", indices)
-            with self._lock:
-                for config, (status, events), voltage in zip(self.configs, registers, voltages):
-                    channel = self._supervisor.channel(config.name)
-                    channel.output_found(self._clock(), voltage)
-                    report = self.dialect.status_report(status, events)
-                    if report.fault:  # a latched device fault survives reconnects until reset on purpose
-                        channel.trip(Fault.DEVICE, report.fault)
-                        self._sent[config.name].emergency = True
+            while True:
+                try:
+                    self._start_session()
+                    break
+                except (LinkError, ProtocolError):
+                    # The link watchdog's rule: only answers failing for longer than link_timeout_s mean a dead
+                    # supply; one still starting up (a simulator on a loaded host) gets the same grace.
+                    failing_since = self._clock() if failing_since is None else failing_since
+                    if self._clock() - failing_since > self._link_timeout:
+                        raise
         except (LinkError, ProtocolError, ConfigurationError):
             self._port.close()
             raise
@@ -223,16 +218,25 @@ class HvSupply:
         self._install_exit_guards()
         return self
 
-    def _identify(self) -> str:
-        """``*IDN?``, retried while answers keep failing for up to link_timeout_s (the rule of the link watchdog):
-        a supply that is just starting up, or answers one line late, is not taken for a dead one."""
-        failing_since = self._clock()
-        while True:
-            try:
-                return self._link.query("identify")
-            except (LinkError, ProtocolError):
-                if self._clock() - failing_since > self._link_timeout:
-                    raise
+    def _start_session(self) -> None:
+        """Identify, check the channels, switch every output off, configure the device side and take in what
+        an earlier session left (outputs still up, latched device faults). Every step may be repeated."""
+        self.device_id = self._link.query("identify")
+        self._check_channels(*self._link.query("read_channel_count"))
+        indices = [c.index for c in self.configs]
+        self._link.query("set_voltage", indices, 0.0)  # known state: 0 V, off (an output left on ramps down)
+        self._link.query("output_off", indices)
+        self._configure_device()
+        registers = zip(self._link.query("read_status", indices), self._link.query("read_event_status", indices))
+        voltages = self._link.query("measure_voltage", indices)
+        with self._lock:
+            for config, (status, events), voltage in zip(self.configs, registers, voltages):
+                channel = self._supervisor.channel(config.name)
+                channel.output_found(self._clock(), voltage)
+                report = self.dialect.status_report(status, events)
+                if report.fault:  # a latched device fault survives reconnects until reset on purpose
+                    channel.trip(Fault.DEVICE, report.fault)
+                    self._sent[config.name].emergency = True
 
     def _check_channels(self, count: int) -> None:
         """Refuse configured channel indices the supply does not have (it reports its channel count)."""

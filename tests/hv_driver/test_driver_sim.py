@@ -360,3 +360,19 @@ def test_open_gives_up_on_a_silent_supply_after_the_link_timeout(sim):
         HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage=3000.0)], link_timeout_s=0.4,
                  handle_signals=False).open()
     assert time.monotonic() - started > 0.4
+
+
+def test_open_rides_out_answers_missing_in_the_middle_of_the_set_up(sim, background):
+    """The simulator starved for a moment after the identification: the set-up is repeated, not given up."""
+    def starve_after_identification():
+        while not any(line == "*IDN?" for _, line in list(sim.command_log)):
+            time.sleep(0.001)
+        sim.inject("no_reply")
+        time.sleep(0.3)
+        sim.clear_faults()
+    background(starve_after_identification)
+    configs = [ChannelConfig("front", 0, max_voltage=3000.0)]
+    with HvSupply(sim.port, channels=configs, link_timeout_s=2.0, handle_signals=False) as hv:
+        hv.wait_cycles(3)
+        assert not hv.snapshot().channel("front").faults
+    assert sum(line == "*IDN?" for _, line in sim.command_log) >= 2  # set up again from the start
