@@ -24,8 +24,8 @@ from sim_fallback.hv_supply import SimulatedSupply  # noqa: E402
 
 FIGURES = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "docs", "figures")
 LOOP_RATE_HZ = 100.0
-CHANNELS = [ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=8000.0),
-            ChannelConfig("back", 1, max_voltage=3000.0, slew_rate=8000.0)]
+CHANNELS = [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=8000.0),
+            ChannelConfig("back", 1, max_voltage_v=3000.0, slew_rate_v_per_s=8000.0)]
 CLIENT = "hv_loop benchmark"  # the client holding control of the supply
 
 

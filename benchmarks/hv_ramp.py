@@ -30,8 +30,8 @@ DURATION = 15.0
 
 def main() -> int:
     os.makedirs(FIGURES, exist_ok=True)
-    configs = [ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=SLEW),
-               ChannelConfig("back", 1, max_voltage=3000.0, slew_rate=SLEW)]
+    configs = [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=SLEW),
+               ChannelConfig("back", 1, max_voltage_v=3000.0, slew_rate_v_per_s=SLEW)]
     samples = []
     with SimulatedSupply(channels=2) as sim, HvSupply(sim.port, channels=configs, handle_signals=False) as hv:
         for name in ("front", "back"):

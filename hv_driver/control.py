@@ -9,30 +9,32 @@ import hmac
 import math
 import secrets
 
+from .errors import HvError, SettingError
+
 MAX_CLIENT_NAME = 64  # [characters] names appear in refusals and /diagnostics
 TOKEN_BYTES = 16
 
 
-class ControlError(RuntimeError):
+class ControlError(HvError, RuntimeError):
     """A command from a client that does not hold control; the message names the current owner."""
 
 
 def _valid_client_name(client) -> str:
     if not (isinstance(client, str) and client.strip() and client.isprintable() and len(client) <= MAX_CLIENT_NAME):
-        raise ValueError(f"client={client!r}: a printable name of 1 to {MAX_CLIENT_NAME} characters")
+        raise SettingError(f"client={client!r}: a printable name of 1 to {MAX_CLIENT_NAME} characters")
     return client
 
 
 class ControlClaim:
     """The controlling client of one supply.
 
-    timeout: seconds without a heartbeat after which control lapses (math.inf: never lapses; then only a
+    timeout_s: seconds without a heartbeat after which control lapses (math.inf: never lapses; then only a
         release or an e-stop ends it).
     new_token: source of session tokens (default: 128 random bits from `secrets`).
     """
 
-    def __init__(self, timeout: float, new_token=lambda: secrets.token_hex(TOKEN_BYTES)):
-        self.timeout = timeout
+    def __init__(self, timeout_s: float, new_token=lambda: secrets.token_hex(TOKEN_BYTES)):
+        self.timeout_s = timeout_s
         self._new_token = new_token
         self.owner: str | None = None
         self._token: str | None = None
@@ -45,7 +47,7 @@ class ControlClaim:
 
     def silent(self, now: float) -> bool:
         """True when the owner's heartbeat is older than the timeout."""
-        return self.owner is not None and now - self._last_heartbeat > self.timeout
+        return self.owner is not None and now - self._last_heartbeat > self.timeout_s
 
     def claim(self, client: str, now: float) -> str:
         """Take control as ``client``; returns the session token. Refused while another session is live."""
@@ -59,7 +61,7 @@ class ControlClaim:
         return self._token
 
     def _lapse_hint(self) -> str:
-        return "" if math.isinf(self.timeout) else f" or stay silent for {self.timeout:g} s"
+        return "" if math.isinf(self.timeout_s) else f" or stay silent for {self.timeout_s:g} s"
 
     def confirm(self, token, now: float) -> None:
         """A command carrying ``token``: accepted as the owner's sign of life, else ControlError naming the owner."""
@@ -82,7 +84,7 @@ class ControlClaim:
         if not self.silent(now):
             return None
         owner = self.owner
-        self.end(f"control of {owner!r} lapsed: no heartbeat for more than {self.timeout:g} s")
+        self.end(f"control of {owner!r} lapsed: no heartbeat for more than {self.timeout_s:g} s")
         return owner
 
     def end(self, reason: str) -> None:

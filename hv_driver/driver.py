@@ -17,6 +17,7 @@ import serial
 from .config import ChannelConfig
 from .dialects import Dialect, IsegEdcp, ProtocolError
 from .dialects.iseg_edcp import TRIP_ACTION_OFF_WITHOUT_RAMP
+from .errors import HvError, SettingError, StateError
 from .faults import Fault
 from .link import Link, LinkError
 from .supervisor import DEFAULT_HEARTBEAT_TIMEOUT_S, ChannelCommand, Supervisor
@@ -32,7 +33,7 @@ DEVICE_TRIP_TIME_S = 0.1
 log = logging.getLogger(__name__)
 
 
-class ConfigurationError(RuntimeError):
+class ConfigurationError(HvError, RuntimeError):
     """The device did not accept or read back the configured limits."""
 
 
@@ -60,8 +61,8 @@ class SupplySnapshot:
     stamp: float               # clock time [s] of the last control cycle's setpoints
     channels: tuple[ChannelSnapshot, ...]
     controller: str = ""       # name of the client holding control, "" when none
-    heartbeat_age: float | None = None  # [s] since the controlling client's last sign of life
-    heartbeat_timeout: float = DEFAULT_HEARTBEAT_TIMEOUT_S  # [s]; inf = watchdog off
+    heartbeat_age_s: float | None = None  # since the controlling client's last sign of life
+    heartbeat_timeout_s: float = DEFAULT_HEARTBEAT_TIMEOUT_S  # inf = watchdog off
 
     def channel(self, name: str) -> ChannelSnapshot:
         return next(c for c in self.channels if c.name == name)
@@ -150,25 +151,30 @@ class HvSupply:
         ramp) this often, or its control lapses and its energised outputs ramp to 0 V (HEARTBEAT).
         math.inf switches the watchdog off on purpose; the driver then warns at every `open()`.
     reply_timeout_s: time allowed for one echoed answer (default: a quarter of link_timeout_s).
+    expected_identity: text the device's identification (``*IDN?``) must contain, e.g. its model, checked at
+        `open`; "" checks nothing.
     """
 
     def __init__(self, port: str, baudrate: int | None = None, channels: list[ChannelConfig] = (),
                  loop_rate_hz: float = 100.0, link_timeout_s: float = 0.5,
                  heartbeat_timeout_s: float = DEFAULT_HEARTBEAT_TIMEOUT_S, reply_timeout_s: float | None = None,
-                 dialect: Dialect | None = None, handle_signals: bool = True, clock=time.monotonic):
+                 dialect: Dialect | None = None, handle_signals: bool = True, clock=time.monotonic,
+                 expected_identity: str = ""):
         if not (math.isfinite(loop_rate_hz) and 1.0 <= loop_rate_hz <= 1000.0):
-            raise ValueError(f"loop_rate_hz={loop_rate_hz!r}: between 1 and 1000")
+            raise SettingError(f"loop_rate_hz={loop_rate_hz!r}: between 1 and 1000")
         reply_timeout_s = link_timeout_s / 4 if reply_timeout_s is None else reply_timeout_s
         if not (math.isfinite(reply_timeout_s) and 0 < reply_timeout_s < link_timeout_s):
-            raise ValueError(f"reply_timeout_s={reply_timeout_s!r}: > 0 and below link_timeout_s")
+            raise SettingError(f"reply_timeout_s={reply_timeout_s!r}: > 0 and below link_timeout_s")
         self.port_name = port
+        self.expected_identity = expected_identity
         self.dialect = dialect or IsegEdcp()
         self.baudrate = baudrate or self.dialect.default_baudrate
         self.configs = list(channels)
         self._clock = clock
         self._period = 1.0 / loop_rate_hz
-        self._supervisor = Supervisor(self.configs, link_timeout=link_timeout_s, heartbeat_timeout=heartbeat_timeout_s,
-                                      nominal_period=self._period, now=clock())
+        self._supervisor = Supervisor(self.configs, link_timeout_s=link_timeout_s,
+                                      heartbeat_timeout_s=heartbeat_timeout_s, nominal_period_s=self._period,
+                                      now=clock())
         self._reply_timeout = reply_timeout_s
         self._link_timeout = link_timeout_s
         self._handle_signals = handle_signals
@@ -190,8 +196,11 @@ class HvSupply:
     # --- lifecycle -----------------------------------------------------------------------------
     def open(self) -> "HvSupply":
         """Open the port, identify the supply, set and read back its limits, start the loop."""
-        self._port = serial.serial_for_url(self.port_name, baudrate=self.baudrate,
-                                           timeout=self._reply_timeout, write_timeout=self._reply_timeout)
+        try:
+            self._port = serial.serial_for_url(self.port_name, baudrate=self.baudrate,
+                                               timeout=self._reply_timeout, write_timeout=self._reply_timeout)
+        except (serial.SerialException, OSError, ValueError) as error:
+            raise LinkError(f"cannot open {self.port_name!r}: {error}") from error
         self._link = Link(self._port, self.dialect, self._reply_timeout)
         failing_since = None
         try:
@@ -222,6 +231,9 @@ class HvSupply:
         """Identify, check the channels, switch every output off, configure the device side and take in what
         an earlier session left (outputs still up, latched device faults). Every step may be repeated."""
         self.device_id = self._link.query("identify")
+        if self.expected_identity not in self.device_id:
+            raise ConfigurationError(f"device on {self.port_name} identifies as {self.device_id!r}, "
+                                     f"expected_identity={self.expected_identity!r} is not part of it")
         self._check_channels(*self._link.query("read_channel_count"))
         indices = [c.index for c in self.configs]
         self._link.query("set_voltage", indices, 0.0)  # known state: 0 V, off (an output left on ramps down)
@@ -249,8 +261,8 @@ class HvSupply:
         """Device-side second line of defence: ramp speed, current limit and trip; read back."""
         for config in self.configs:
             ch = [config.index]
-            ramp = config.slew_rate * DEVICE_RAMP_MARGIN
-            current = config.current_trip * DEVICE_CURRENT_MARGIN
+            ramp = config.slew_rate_v_per_s * DEVICE_RAMP_MARGIN
+            current = config.current_trip_a * DEVICE_CURRENT_MARGIN
             trip_ms = DEVICE_TRIP_TIME_S * 1000.0
             for operation, value in (("set_ramp_up", ramp), ("set_ramp_down", ramp),
                                      ("set_current_limit", current), ("set_trip_time", trip_ms),
@@ -350,10 +362,12 @@ class HvSupply:
         """Ramp to 0 V at the slew limit, then switch the output off."""
         self._change(lambda now: self._supervisor.channel(channel).disable(now))
 
-    def ramp_to(self, channel: str, target_v: float, slew_rate: float | None = None, *, token: str) -> RampHandle:
+    def ramp_to(self, channel: str, target_v: float, slew_rate_v_per_s: float | None = None, *,
+                token: str) -> RampHandle:
         """Start a smooth ramp for the client holding control (``token`` from `claim_control`); a target above
         the ceiling raises LimitError naming the limit, another client's token ControlError naming the owner."""
-        ramp_id = self._change(lambda now: self._supervisor.ramp_to(channel, now, target_v, slew_rate, token=token))
+        ramp_id = self._change(
+            lambda now: self._supervisor.ramp_to(channel, now, target_v, slew_rate_v_per_s, token=token))
         return RampHandle(self, channel, ramp_id, float(target_v))
 
     def claim_control(self, client: str) -> str:
@@ -392,7 +406,7 @@ class HvSupply:
         again; only with every output off. Latched faults stay latched."""
         with self._lock:
             if any(c.output_enabled for c in self._supervisor.channels.values()):
-                raise RuntimeError("reset_device: switch every output off first (disable)")
+                raise StateError("reset_device: switch every output off first (disable)")
             self._device_reset = self._reconfigure = True
         self._wake.set()
 
@@ -407,7 +421,7 @@ class HvSupply:
             control = self._supervisor.control
             return SupplySnapshot(self.device_id, self.port_name, self._supervisor.estop_latched,
                                   self._link_error, self._stamp, channels, control.owner or "",
-                                  control.heartbeat_age(self._clock()), self._supervisor.heartbeat_timeout)
+                                  control.heartbeat_age(self._clock()), self._supervisor.heartbeat_timeout_s)
 
     def wait_outputs_off(self, timeout: float | None = None) -> bool:
         """Block until every output is off (e.g. after `disable`); False if ``timeout`` [s] passed first."""
@@ -499,7 +513,7 @@ class HvSupply:
                 self._measured[config.name] = (voltage, current)
                 ramp_id, ramping, setpoint = stepped[config.name]
                 self._applied[config.name] = _Applied(ramp_id, ramping,
-                                                      abs(voltage - setpoint) <= config.mismatch_tolerance)
+                                                      abs(voltage - setpoint) <= config.mismatch_tolerance_v)
             self._cycles += 1
             self._cycle_done.notify_all()
             return any(c.faults != faults_before[n] for n, c in self._supervisor.channels.items())

@@ -2,6 +2,8 @@
 import math
 from dataclasses import dataclass
 
+from .errors import SettingError
+
 # Peak of d/ds (10 s^3 - 15 s^4 + 6 s^5) on [0, 1], reached at s = 1/2.
 MIN_JERK_PEAK_RATE = 1.875
 # Longest ramp accepted [s]: a slew rate that would take longer over a channel's range is refused, so an
@@ -49,10 +51,10 @@ def check_slew_rate(slew_rate: float, maximum: float, span: float) -> float:
     if slew_rate is None or slew_rate == 0:
         return maximum
     if not (isinstance(slew_rate, (int, float)) and math.isfinite(slew_rate) and slew_rate > 0):
-        raise ValueError(f"slew_rate={slew_rate!r}: finite number > 0 (or 0 for the configured rate)")
+        raise SettingError(f"slew_rate={slew_rate!r}: finite number > 0 (or 0 for the configured rate)")
     if slew_rate > maximum:
-        raise ValueError(f"slew_rate={slew_rate:g} V/s exceeds the configured slew limit {maximum:g} V/s")
+        raise SettingError(f"slew_rate={slew_rate:g} V/s exceeds the configured slew limit {maximum:g} V/s")
     if slew_rate < (slowest := slowest_slew_rate(span)):
-        raise ValueError(f"slew_rate={slew_rate:g} V/s is below {slowest:g} V/s, the slowest that ramps the "
-                         f"channel's {span:g} V within the {MAX_RAMP_DURATION_S:g} s limit on a ramp's duration")
+        raise SettingError(f"slew_rate={slew_rate:g} V/s is below {slowest:g} V/s, the slowest that ramps the "
+                           f"channel's {span:g} V within the {MAX_RAMP_DURATION_S:g} s limit on a ramp's duration")
     return float(slew_rate)

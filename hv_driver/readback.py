@@ -14,14 +14,14 @@ the gap, as if restarted), while a loop that keeps running late still trips, lat
 
 
 class ReadbackCheck:
-    """tolerance [V], time_limit [s]: a readback further than tolerance from the expectation for longer
-    than time_limit is a mismatch. max_interval [s]: the most one interval between readbacks adds to that
-    time (the loop's nominal period). ramp_rate [V/s]: the device's own ramp, None when it has none (the
+    """tolerance_v, time_limit_s: a readback further than tolerance_v from the expectation for longer than
+    time_limit_s is a mismatch. max_interval_s: the most one interval between readbacks adds to that time
+    (the loop's nominal period). ramp_rate_v_per_s: the device's own ramp, None when it has none (the
     output follows each command at once)."""
 
-    def __init__(self, tolerance: float, time_limit: float, max_interval: float, now: float = 0.0):
-        self.tolerance, self.time_limit, self.max_interval = tolerance, time_limit, max_interval
-        self.ramp_rate: float | None = None
+    def __init__(self, tolerance_v: float, time_limit_s: float, max_interval_s: float, now: float = 0.0):
+        self.tolerance_v, self.time_limit_s, self.max_interval_s = tolerance_v, time_limit_s, max_interval_s
+        self.ramp_rate_v_per_s: float | None = None
         self.commanded = 0.0  # [V] what the device was last told (0 V when off)
         self.expected = 0.0   # [V] where a device ramping at ramp_rate would be now
         self._since = now     # time of the last command or readback the expectation was advanced to
@@ -30,10 +30,10 @@ class ReadbackCheck:
         self._off = False
 
     def _advance(self, now: float) -> None:
-        if self.ramp_rate is None:
+        if self.ramp_rate_v_per_s is None:
             self.expected = self.commanded
         else:
-            reach = self.ramp_rate * max(0.0, now - self._since)
+            reach = self.ramp_rate_v_per_s * max(0.0, now - self._since)
             self.expected += max(-reach, min(reach, self.commanded - self.expected))
         self._since = max(self._since, now)
 
@@ -52,10 +52,10 @@ class ReadbackCheck:
     def band(self) -> tuple[float, float]:
         """Consistent readbacks lie between these voltages [V]."""
         low, high = sorted((self.expected, self.commanded))
-        return low - self.tolerance, high + self.tolerance
+        return low - self.tolerance_v, high + self.tolerance_v
 
     def check(self, now: float, measured: float) -> str | None:
-        """Check one readback; the reason of a mismatch once it has lasted longer than time_limit."""
+        """Check one readback; the reason of a mismatch once it has lasted longer than time_limit_s."""
         self._advance(now)
         low, high = self.band()
         interval = 0.0 if self._last_readback is None else max(0.0, now - self._last_readback)
@@ -63,13 +63,14 @@ class ReadbackCheck:
         if low <= measured <= high:
             self.off_for, self._off = 0.0, False
             return None
-        self.off_for = self.off_for + min(interval, self.max_interval) if self._off else 0.0
+        self.off_for = self.off_for + min(interval, self.max_interval_s) if self._off else 0.0
         self._off = True
-        if self.off_for <= self.time_limit:
+        if self.off_for <= self.time_limit_s:
             return None
-        ramp = "at once" if self.ramp_rate is None else f"at the device ramp of {self.ramp_rate:g} V/s"
+        ramp = ("at once" if self.ramp_rate_v_per_s is None
+                else f"at the device ramp of {self.ramp_rate_v_per_s:g} V/s")
         return (f"measured {measured:.1f} V, commanded {self.commanded:.1f} V (expected {self.expected:.1f} V, "
-                f"following {ramp}) for more than {self.time_limit:g} s")
+                f"following {ramp}) for more than {self.time_limit_s:g} s")
 
     def reset(self) -> None:
         self.off_for, self._off = 0.0, False

@@ -12,7 +12,7 @@ Rules enforced here:
   at most one nominal period's worth per cycle), except that it drops at once when the ceiling drops
   below it or a fault latches;
 - only the client holding control (its session token) may ramp or feed the heartbeat watchdog; the
-  watchdog is on unless switched off on purpose (heartbeat_timeout=math.inf);
+  watchdog is on unless switched off on purpose (heartbeat_timeout_s=math.inf);
 - the readback must follow the commands at the device's own ramp (`ReadbackCheck`);
 - faults latch until `reset`; every fault but HEARTBEAT puts the output to 0 V and off at once
   (emergency off), a lost heartbeat ramps to 0 V at the slew limit and then switches off;
@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 from .config import ChannelConfig
 from .control import ControlClaim
+from .errors import HvError, SettingError, StateError
 from .faults import Fault, fault_names
 from .ramp import MinimumJerkRamp, check_slew_rate
 from .readback import ReadbackCheck
@@ -38,11 +39,11 @@ DEFAULT_PERIOD_S = 0.01
 DEFAULT_HEARTBEAT_TIMEOUT_S = 2.0
 
 
-class LimitError(ValueError):
+class LimitError(SettingError):
     """A request exceeds a safety limit; the message names the limit and its value."""
 
 
-class FaultLatchedError(RuntimeError):
+class FaultLatchedError(HvError, RuntimeError):
     """A request was refused because faults are latched (reset them first)."""
 
 
@@ -62,10 +63,10 @@ def _finite(value) -> bool:
 class ChannelSupervisor:
     """Limits, ramp and latched faults of one output channel."""
 
-    def __init__(self, config: ChannelConfig, now: float = 0.0, max_step: float = DEFAULT_PERIOD_S):
+    def __init__(self, config: ChannelConfig, now: float = 0.0, max_step_s: float = DEFAULT_PERIOD_S):
         self.config = config
         self._clock = float(now) if _finite(now) else 0.0
-        self.max_step = max_step
+        self.max_step_s = max_step_s
         self.setpoint = 0.0
         self.target = 0.0
         self.output_enabled = False
@@ -75,14 +76,14 @@ class ChannelSupervisor:
         self.device_limit: float | None = None
         self._ramp: MinimumJerkRamp | None = None
         self._off_at_zero = False
-        self._readback = ReadbackCheck(config.mismatch_tolerance, config.mismatch_time, max_step, self._clock)
+        self._readback = ReadbackCheck(config.mismatch_tolerance_v, config.mismatch_time_s, max_step_s, self._clock)
         self._creep_since: float | None = None
         self.ramp_id = 0  # counts accepted ramp requests, so a waiting caller sees being superseded
 
     # --- state -------------------------------------------------------------------------------
     def limits(self) -> dict[str, float]:
         """Every voltage limit in force, by name."""
-        named = {"hard maximum": self.config.max_voltage, "assembly safe voltage": self.safe_voltage,
+        named = {"hard maximum": self.config.max_voltage_v, "assembly safe voltage": self.safe_voltage,
                  "supply limit": self.device_limit}
         return {name: value for name, value in named.items() if value is not None}
 
@@ -108,33 +109,33 @@ class ChannelSupervisor:
     def set_safe_voltage(self, voltage: float | None) -> None:
         """Set the assembly's safe voltage [V] (None = unknown, not a limit)."""
         if voltage is not None and not (_finite(voltage) and voltage >= 0):
-            raise ValueError(f"safe_voltage={voltage!r}: finite number >= 0 or None")
+            raise SettingError(f"safe_voltage={voltage!r}: finite number >= 0 or None")
         self.safe_voltage = None if voltage is None else float(voltage)
 
     def set_device_limit(self, voltage: float | None) -> None:
         """Set the supply's own voltage limit [V] as read from the device."""
         if voltage is not None and not (_finite(voltage) and voltage >= 0):
-            raise ValueError(f"device_limit={voltage!r}: finite number >= 0 or None")
+            raise SettingError(f"device_limit={voltage!r}: finite number >= 0 or None")
         self.device_limit = None if voltage is None else float(voltage)
 
     def set_device_ramp(self, rate: float | None) -> None:
         """The supply's own ramp speed [V/s] as read from the device (None: it has none and follows at once);
         the readback check expects the output to move, and to ramp down when switched off, at this rate."""
         if rate is not None and not (_finite(rate) and rate > 0):
-            raise ValueError(f"device_ramp={rate!r}: finite number > 0 or None")
-        self._readback.ramp_rate = None if rate is None else float(rate)
+            raise SettingError(f"device_ramp={rate!r}: finite number > 0 or None")
+        self._readback.ramp_rate_v_per_s = None if rate is None else float(rate)
 
     def output_found(self, now: float, voltage: float) -> None:
         """The output was found at ``voltage`` [V] (left on by an earlier session): the readback check
         expects it to ramp down from there."""
         if not _finite(voltage):
-            raise ValueError(f"voltage={voltage!r}: finite number")
+            raise SettingError(f"voltage={voltage!r}: finite number")
         self._readback.found(self._now(now), float(voltage))
 
     def check_target(self, target: float) -> float:
         """Validated target [V]; raises ValueError / LimitError naming the violated limit."""
         if not _finite(target) or target < 0:
-            raise ValueError(f"target={target!r} V: finite number >= 0")
+            raise SettingError(f"target={target!r} V: finite number >= 0")
         for name, limit in self.limits().items():
             if target > limit:
                 raise LimitError(f"channel {self.config.name!r}: target {target:g} V exceeds the "
@@ -159,18 +160,18 @@ class ChannelSupervisor:
         """Ramp to 0 V at the slew limit, then switch the output off."""
         now = self._now(now)
         if self.output_enabled:
-            self._start_ramp(now, 0.0, self.config.slew_rate)
+            self._start_ramp(now, 0.0, self.config.slew_rate_v_per_s)
             self._off_at_zero = True
             self.ramp_id += 1
 
-    def ramp_to(self, now: float, target: float, slew_rate: float | None = None) -> int:
-        """Start a smooth ramp to ``target`` [V]; returns the ramp id. Refuses, never clips."""
+    def ramp_to(self, now: float, target_v: float, slew_rate_v_per_s: float | None = None) -> int:
+        """Start a smooth ramp to ``target_v``; returns the ramp id. Refuses, never clips."""
         now = self._now(now)
         self._refuse_if_faulted()
         if not self.output_enabled:
-            raise RuntimeError(f"channel {self.config.name!r}: output not enabled")
-        target = self.check_target(target)
-        slew = check_slew_rate(slew_rate, self.config.slew_rate, self.config.max_voltage)
+            raise StateError(f"channel {self.config.name!r}: output not enabled")
+        target = self.check_target(target_v)
+        slew = check_slew_rate(slew_rate_v_per_s, self.config.slew_rate_v_per_s, self.config.max_voltage_v)
         self._start_ramp(now, target, slew)
         self._off_at_zero = False
         self.ramp_id += 1
@@ -192,7 +193,7 @@ class ChannelSupervisor:
             self._ramp = None
             self._off_at_zero = False
         elif self.output_enabled and not self._off_at_zero:
-            self._start_ramp(self._clock, 0.0, self.config.slew_rate)
+            self._start_ramp(self._clock, 0.0, self.config.slew_rate_v_per_s)
             self._off_at_zero = True
 
     def observe(self, now: float, voltage: float, current: float, device_fault: str | None = None,
@@ -202,9 +203,9 @@ class ChannelSupervisor:
         if not (_finite(voltage) and _finite(current)):
             self.trip(Fault.LINK, f"readback not a finite number ({voltage!r} V, {current!r} A)")
             return
-        if current > self.config.current_trip:
+        if current > self.config.current_trip_a:
             self.trip(Fault.OVER_CURRENT, f"measured {current:.3g} A above the trip level "
-                                          f"{self.config.current_trip:.3g} A")
+                                          f"{self.config.current_trip_a:.3g} A")
         if device_over_current:
             self.trip(Fault.OVER_CURRENT, "the supply reported a current trip")
         if device_fault:
@@ -212,11 +213,11 @@ class ChannelSupervisor:
         mismatch = self._readback.check(now, voltage)
         if mismatch:
             self.trip(Fault.READBACK_MISMATCH, mismatch)
-        if self.config.creep_voltage is not None and voltage >= self.config.creep_voltage:
+        if self.config.creep_voltage_v is not None and voltage >= self.config.creep_voltage_v:
             self._creep_since = now if self._creep_since is None else self._creep_since
-            if now - self._creep_since > self.config.max_time_at_voltage:
-                self.trip(Fault.TIME_AT_VOLTAGE, f"above {self.config.creep_voltage:g} V for more than "
-                                                 f"{self.config.max_time_at_voltage:g} s")
+            if now - self._creep_since > self.config.max_time_at_voltage_s:
+                self.trip(Fault.TIME_AT_VOLTAGE, f"above {self.config.creep_voltage_v:g} V for more than "
+                                                 f"{self.config.max_time_at_voltage_s:g} s")
         else:
             self._creep_since = None
 
@@ -240,7 +241,7 @@ class ChannelSupervisor:
 
     def _command(self, now: float) -> ChannelCommand:
         now = self._now(now)
-        dt = min(now - self._clock, self.max_step)
+        dt = min(now - self._clock, self.max_step_s)
         self._clock = now
         if self.faults & IMMEDIATE_FAULTS:
             return ChannelCommand(0.0, False, True)
@@ -249,9 +250,9 @@ class ChannelSupervisor:
             return ChannelCommand(0.0, False, False)
         ceiling = self.ceiling
         if self.target > ceiling:  # the ceiling dropped under a running ramp: re-plan towards it
-            self._start_ramp(now, ceiling, self._ramp.slew_rate if self._ramp else self.config.slew_rate)
+            self._start_ramp(now, ceiling, self._ramp.slew_rate if self._ramp else self.config.slew_rate_v_per_s)
         desired = self._ramp.value(now) if self._ramp else self.target
-        allowance = self.config.slew_rate * dt
+        allowance = self.config.slew_rate_v_per_s * dt
         desired = min(max(desired, self.setpoint - allowance), self.setpoint + allowance)
         self.setpoint = max(0.0, min(desired, ceiling))
         if self._ramp is not None and self._ramp.finished(now) and self.setpoint == self._ramp.end:
@@ -264,33 +265,33 @@ class ChannelSupervisor:
 class Supervisor:
     """All channels of one supply, who may command them, the link and heartbeat watchdogs, the e-stop.
 
-    heartbeat_timeout [s]: the controlling client must show a sign of life (a heartbeat or a ramp request
+    heartbeat_timeout_s: the controlling client must show a sign of life (a heartbeat or a ramp request
         with its token) this often, or its control lapses and every output it energised ramps to 0 V
         (HEARTBEAT). math.inf switches the watchdog off; that takes this deliberate value, None is refused.
-    nominal_period [s]: the control loop's period (catch-up cap of the slew allowance, readback check).
+    nominal_period_s: the control loop's period (catch-up cap of the slew allowance, readback check).
     """
 
-    def __init__(self, configs: list[ChannelConfig], *, link_timeout: float,
-                 heartbeat_timeout: float = DEFAULT_HEARTBEAT_TIMEOUT_S, nominal_period: float = DEFAULT_PERIOD_S,
-                 now: float = 0.0):
+    def __init__(self, configs: list[ChannelConfig], *, link_timeout_s: float,
+                 heartbeat_timeout_s: float = DEFAULT_HEARTBEAT_TIMEOUT_S,
+                 nominal_period_s: float = DEFAULT_PERIOD_S, now: float = 0.0):
         if not configs:
-            raise ValueError("channels: at least one ChannelConfig")
+            raise SettingError("channels: at least one ChannelConfig")
         for parameter, values in (("channel names", [c.name for c in configs]),
                                   ("channel indices", [c.index for c in configs])):
             if len(set(values)) != len(values):
-                raise ValueError(f"{parameter} must be unique, got {values}")
-        if not (_finite(link_timeout) and link_timeout > 0):
-            raise ValueError(f"link_timeout={link_timeout!r}: finite number > 0")
-        if not (isinstance(heartbeat_timeout, (int, float)) and heartbeat_timeout > 0):  # also refuses NaN
-            raise ValueError(f"heartbeat_timeout={heartbeat_timeout!r}: a number of seconds > 0, or math.inf to "
-                             f"switch the heartbeat watchdog off on purpose")
-        if not (_finite(nominal_period) and nominal_period > 0):
-            raise ValueError(f"nominal_period={nominal_period!r}: finite number > 0")
-        self.link_timeout = float(link_timeout)
-        self.heartbeat_timeout = float(heartbeat_timeout)
+                raise SettingError(f"{parameter} must be unique, got {values}")
+        if not (_finite(link_timeout_s) and link_timeout_s > 0):
+            raise SettingError(f"link_timeout_s={link_timeout_s!r}: finite number > 0")
+        if not (isinstance(heartbeat_timeout_s, (int, float)) and heartbeat_timeout_s > 0):  # also refuses NaN
+            raise SettingError(f"heartbeat_timeout_s={heartbeat_timeout_s!r}: a number of seconds > 0, or math.inf "
+                               f"to switch the heartbeat watchdog off on purpose")
+        if not (_finite(nominal_period_s) and nominal_period_s > 0):
+            raise SettingError(f"nominal_period_s={nominal_period_s!r}: finite number > 0")
+        self.link_timeout_s = float(link_timeout_s)
+        self.heartbeat_timeout_s = float(heartbeat_timeout_s)
         self._clock = float(now) if _finite(now) else 0.0
-        self.channels = {c.name: ChannelSupervisor(c, self._clock, nominal_period) for c in configs}
-        self.control = ControlClaim(self.heartbeat_timeout)
+        self.channels = {c.name: ChannelSupervisor(c, self._clock, nominal_period_s) for c in configs}
+        self.control = ControlClaim(self.heartbeat_timeout_s)
         # Start of the current run of failed exchanges (None while the link answers). Timing the
         # failures, not the gap since the last success, keeps a host that was merely descheduled (a
         # loaded machine) from tripping while a supply that stops answering still trips on time.
@@ -298,7 +299,7 @@ class Supervisor:
 
     @property
     def heartbeat_watchdog_off(self) -> bool:
-        return math.isinf(self.heartbeat_timeout)
+        return math.isinf(self.heartbeat_timeout_s)
 
     @property
     def estop_latched(self) -> bool:
@@ -313,7 +314,7 @@ class Supervisor:
         try:
             return self.channels[name]
         except (KeyError, TypeError):
-            raise ValueError(f"channel={name!r}: unknown, configured are {sorted(self.channels)}") from None
+            raise SettingError(f"channel={name!r}: unknown, configured are {sorted(self.channels)}") from None
 
     def link_ok(self, now: float) -> None:
         """A complete, valid exchange with the supply finished at ``now``."""
@@ -349,12 +350,13 @@ class Supervisor:
         self._now(now)
         self.channel(name).enable()
 
-    def ramp_to(self, name: str, now: float, target: float, slew_rate: float | None = None, *, token: str) -> int:
+    def ramp_to(self, name: str, now: float, target_v: float, slew_rate_v_per_s: float | None = None, *,
+                token: str) -> int:
         """Start a ramp on one channel for the client holding control; the request counts as its sign of life."""
         now = self._now(now)
         channel = self.channel(name)
         self.control.confirm(token, now)
-        return channel.ramp_to(now, target, slew_rate)
+        return channel.ramp_to(now, target_v, slew_rate_v_per_s)
 
     def set_safe_voltage(self, voltage: float | None) -> None:
         for channel in self.channels.values():
@@ -381,8 +383,8 @@ class Supervisor:
 
     def step(self, now: float) -> dict[str, ChannelCommand]:
         now = self._now(now)
-        if self._link_failing_since is not None and now - self._link_failing_since > self.link_timeout:
-            self.trip_all(Fault.LINK, f"no valid reply from the supply for more than {self.link_timeout:g} s")
+        if self._link_failing_since is not None and now - self._link_failing_since > self.link_timeout_s:
+            self.trip_all(Fault.LINK, f"no valid reply from the supply for more than {self.link_timeout_s:g} s")
         self.control.lapse_if_silent(now)
         if not self.heartbeat_watchdog_off and self.control.owner is None:
             # Only an output held or raised above 0 V needs a live client; one on its way to 0 V does not.

@@ -8,6 +8,8 @@ from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
+from ..errors import HvError
+
 # Operations the driver uses; every dialect's table must define all of them.
 OPERATIONS = (
     "identify", "read_channel_count", "reset", "set_voltage", "output_on", "output_off", "emergency_off",
@@ -17,7 +19,7 @@ OPERATIONS = (
 )
 
 
-class ProtocolError(ConnectionError):
+class ProtocolError(HvError, ConnectionError):
     """A reply that does not fit the dialect: garbage, wrong echo, wrong count or unit."""
 
 

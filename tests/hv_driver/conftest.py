@@ -58,7 +58,7 @@ def scripted_port():
 
 
 # Fast limits so ramps in tests take a fraction of a second.
-FAST = dict(max_voltage=3000.0, slew_rate=8000.0, mismatch_tolerance=150.0, mismatch_time=0.2)
+FAST = dict(max_voltage_v=3000.0, slew_rate_v_per_s=8000.0, mismatch_tolerance_v=150.0, mismatch_time_s=0.2)
 CHANNELS = [ChannelConfig("front", 0, **FAST), ChannelConfig("back", 1, **FAST)]
 
 

@@ -12,7 +12,7 @@ from hv_driver import ChannelConfig, ControlError, Fault, Supervisor
 from hv_driver.control import MAX_CLIENT_NAME, ControlClaim
 from hv_driver.supervisor import DEFAULT_HEARTBEAT_TIMEOUT_S
 
-CONFIG = ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=1000.0)
+CONFIG = ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=1000.0)
 
 
 def hold(supervisor: Supervisor, token: str, t0: float, t1: float, dt: float = 0.01, beat: bool = True) -> float:
@@ -26,9 +26,9 @@ def hold(supervisor: Supervisor, token: str, t0: float, t1: float, dt: float = 0
     return t1
 
 
-def energised(heartbeat_timeout: float = 0.5) -> tuple[Supervisor, str]:
+def energised(heartbeat_timeout_s: float = 0.5) -> tuple[Supervisor, str]:
     """A supervisor whose client 'sequencer' holds control and has ramped front to 1000 V."""
-    supervisor = Supervisor([CONFIG], link_timeout=100.0, heartbeat_timeout=heartbeat_timeout)
+    supervisor = Supervisor([CONFIG], link_timeout_s=100.0, heartbeat_timeout_s=heartbeat_timeout_s)
     supervisor.enable("front", 0.0)
     token = supervisor.claim_control("sequencer", 0.0)
     supervisor.ramp_to("front", 0.0, 1000.0, token=token)
@@ -38,26 +38,26 @@ def energised(heartbeat_timeout: float = 0.5) -> tuple[Supervisor, str]:
 
 
 def test_the_heartbeat_watchdog_is_on_by_default():
-    supervisor = Supervisor([CONFIG], link_timeout=1.0)
-    assert supervisor.heartbeat_timeout == DEFAULT_HEARTBEAT_TIMEOUT_S == 2.0
+    supervisor = Supervisor([CONFIG], link_timeout_s=1.0)
+    assert supervisor.heartbeat_timeout_s == DEFAULT_HEARTBEAT_TIMEOUT_S == 2.0
     assert not supervisor.heartbeat_watchdog_off
 
 
 @pytest.mark.parametrize("timeout", [None, 0.0, -1.0, math.nan, "2"])
 def test_the_watchdog_is_never_off_by_omission(timeout):
     with pytest.raises(ValueError, match="math.inf to switch the heartbeat watchdog off on purpose"):
-        Supervisor([CONFIG], link_timeout=1.0, heartbeat_timeout=timeout)
+        Supervisor([CONFIG], link_timeout_s=1.0, heartbeat_timeout_s=timeout)
 
 
 def test_switched_off_on_purpose_the_watchdog_never_trips_and_control_never_lapses():
-    supervisor, token = energised(heartbeat_timeout=math.inf)
+    supervisor, token = energised(heartbeat_timeout_s=math.inf)
     assert supervisor.heartbeat_watchdog_off
     hold(supervisor, token, 2.0, 1000.0, dt=1.0, beat=False)
     assert not supervisor.channel("front").faults and supervisor.control.owner == "sequencer"
 
 
 def test_a_claim_answers_a_fresh_token_and_is_refused_while_another_client_holds_control():
-    supervisor = Supervisor([CONFIG], link_timeout=1.0)
+    supervisor = Supervisor([CONFIG], link_timeout_s=1.0)
     token = supervisor.claim_control("sequencer", 0.0)
     assert len(token) == 32 and int(token, 16) >= 0
     with pytest.raises(ControlError, match="control is held by 'sequencer' .*release it first or stay silent for 2 s"):
@@ -67,7 +67,7 @@ def test_a_claim_answers_a_fresh_token_and_is_refused_while_another_client_holds
 
 
 def test_a_ramp_without_the_live_token_is_refused_naming_the_owner():
-    supervisor = Supervisor([CONFIG], link_timeout=1.0)
+    supervisor = Supervisor([CONFIG], link_timeout_s=1.0)
     supervisor.enable("front", 0.0)
     with pytest.raises(ControlError, match="no client holds control; claim it first"):
         supervisor.ramp_to("front", 0.0, 500.0, token="")
@@ -79,7 +79,7 @@ def test_a_ramp_without_the_live_token_is_refused_naming_the_owner():
 
 def test_a_replayed_heartbeat_cannot_keep_an_output_energised():
     """A recording of an earlier session replays that session's token: it is not the live one."""
-    supervisor = Supervisor([CONFIG], link_timeout=100.0, heartbeat_timeout=0.5)
+    supervisor = Supervisor([CONFIG], link_timeout_s=100.0, heartbeat_timeout_s=0.5)
     recorded = supervisor.claim_control("sequencer", 0.0)
     supervisor.release_control(recorded, 0.3)
     supervisor.enable("front", 1.0)
@@ -130,12 +130,12 @@ def test_the_estop_is_open_to_everyone_and_ends_the_control_session():
 @pytest.mark.parametrize("client", ["", "   ", "x" * (MAX_CLIENT_NAME + 1), "two\nlines", None, 7])
 def test_bad_client_names_are_refused_naming_the_rule(client):
     with pytest.raises(ValueError, match="a printable name of 1 to 64 characters"):
-        Supervisor([CONFIG], link_timeout=1.0).claim_control(client, 0.0)
+        Supervisor([CONFIG], link_timeout_s=1.0).claim_control(client, 0.0)
 
 
 @given(st.one_of(st.none(), st.text(max_size=80), st.binary(max_size=40), st.integers(), st.floats()))
 def test_no_token_but_the_live_one_is_accepted(token):
-    claim = ControlClaim(timeout=2.0)
+    claim = ControlClaim(timeout_s=2.0)
     live = claim.claim("sequencer", 0.0)
     if token == live:
         claim.confirm(token, 0.1)
@@ -148,7 +148,7 @@ def test_no_token_but_the_live_one_is_accepted(token):
 @given(timeout=st.floats(min_value=0.05, max_value=5.0),
        gaps=st.lists(st.floats(min_value=0.0, max_value=10.0), min_size=1, max_size=30))
 def test_control_lapses_exactly_when_a_heartbeat_gap_exceeds_the_timeout(timeout, gaps):
-    supervisor = Supervisor([CONFIG], link_timeout=100.0, heartbeat_timeout=timeout)
+    supervisor = Supervisor([CONFIG], link_timeout_s=100.0, heartbeat_timeout_s=timeout)
     token, t = supervisor.claim_control("sequencer", 0.0), 0.0
     for gap in gaps:
         previous, t = t, t + gap

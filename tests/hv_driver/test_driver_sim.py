@@ -77,7 +77,7 @@ def test_request_above_the_ceiling_is_refused_naming_the_limit(supply, token):
 
 def test_cancel_ramps_back_to_zero(sim, supply, token):
     supply.enable("front")
-    handle = supply.ramp_to("front", 2400.0, slew_rate=2000.0, token=token)
+    handle = supply.ramp_to("front", 2400.0, slew_rate_v_per_s=2000.0, token=token)
     supply.wait_cycles(20)
     down = handle.cancel()
     assert handle.wait(5.0) and handle.message == "superseded by a later request"
@@ -177,7 +177,7 @@ def test_estop_while_another_thread_streams_ramps(sim, supply, token, background
 
 
 def test_lost_heartbeat_ramps_outputs_down(sim, wait_until):
-    configs = [ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=8000.0)]
+    configs = [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=8000.0)]
     with HvSupply(sim.port, channels=configs, heartbeat_timeout_s=0.3, handle_signals=False) as hv:
         hv.enable("front")
         hv.ramp_to("front", 1000.0, token=hv.claim_control("test"))
@@ -187,7 +187,7 @@ def test_lost_heartbeat_ramps_outputs_down(sim, wait_until):
 
 
 def test_close_ramps_down_and_switches_off(sim):
-    hv = HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=8000.0)],
+    hv = HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=8000.0)],
                   handle_signals=False).open()
     hv.enable("front")
     assert hv.ramp_to("front", 1200.0, token=hv.claim_control("test")).wait(5.0)
@@ -197,7 +197,7 @@ def test_close_ramps_down_and_switches_off(sim):
 
 def test_exception_in_the_with_block_cuts_the_outputs(sim):
     with pytest.raises(RuntimeError, match="operator code failed"):
-        with HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage=3000.0)],
+        with HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage_v=3000.0)],
                       handle_signals=False) as hv:
             hv.enable("front")
             hv.ramp_to("front", 300.0, token=hv.claim_control("test")).wait(5.0)
@@ -207,7 +207,7 @@ def test_exception_in_the_with_block_cuts_the_outputs(sim):
 
 def test_a_latched_device_emergency_survives_reconnect_until_reset(sim):
     sim.plant[0].emergency = True
-    with HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage=3000.0)], handle_signals=False) as hv:
+    with HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage_v=3000.0)], handle_signals=False) as hv:
         assert hv.snapshot().channel("front").faults == Fault.DEVICE
         with pytest.raises(FaultLatchedError, match="is_emergency_off"):
             hv.enable("front")
@@ -220,7 +220,7 @@ def test_a_latched_device_emergency_survives_reconnect_until_reset(sim):
 
 def test_device_that_cannot_take_the_ramp_speed_is_refused_at_open():
     with SimulatedSupply(channels=1, defaults=ChannelDefaults(max_ramp_speed=500.0)) as slow:
-        hv = HvSupply(slow.port, channels=[ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=1000.0)],
+        hv = HvSupply(slow.port, channels=[ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=1000.0)],
                       handle_signals=False)
         with pytest.raises(ConfigurationError, match="read_ramp reads 500, configured 1200"):
             hv.open()
@@ -230,7 +230,7 @@ def test_sigterm_switches_the_outputs_off(sim, wait_until):
     script = textwrap.dedent(f"""
         import sys, time
         from hv_driver import ChannelConfig, HvSupply
-        hv = HvSupply({sim.port!r}, channels=[ChannelConfig("front", 0, max_voltage=3000.0)]).open()
+        hv = HvSupply({sim.port!r}, channels=[ChannelConfig("front", 0, max_voltage_v=3000.0)]).open()
         hv.enable("front")
         hv.ramp_to("front", 400.0, token=hv.claim_control("test")).wait(5.0)
         print("ramped", flush=True)
@@ -249,9 +249,9 @@ def test_sigterm_switches_the_outputs_off(sim, wait_until):
 
 
 def test_the_heartbeat_watchdog_is_on_by_default(sim, wait_until):
-    configs = [ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=8000.0)]
+    configs = [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=8000.0)]
     with HvSupply(sim.port, channels=configs, handle_signals=False) as hv:
-        assert hv.snapshot().heartbeat_timeout == 2.0
+        assert hv.snapshot().heartbeat_timeout_s == 2.0
         token = hv.claim_control("client that dies")
         hv.enable("front")
         assert hv.ramp_to("front", 1000.0, token=token).wait(5.0)
@@ -263,13 +263,13 @@ def test_the_heartbeat_watchdog_is_on_by_default(sim, wait_until):
 
 
 def test_switching_the_watchdog_off_takes_inf_and_warns_at_every_open(sim, caplog):
-    configs = [ChannelConfig("front", 0, max_voltage=3000.0)]
+    configs = [ChannelConfig("front", 0, max_voltage_v=3000.0)]
     with pytest.raises(ValueError, match="math.inf to switch the heartbeat watchdog off on purpose"):
         HvSupply(sim.port, channels=configs, heartbeat_timeout_s=None, handle_signals=False)
     caplog.set_level(logging.WARNING, logger="hv_driver")
     for _ in range(2):
         with HvSupply(sim.port, channels=configs, heartbeat_timeout_s=math.inf, handle_signals=False) as hv:
-            assert hv.snapshot().heartbeat_timeout == math.inf
+            assert hv.snapshot().heartbeat_timeout_s == math.inf
     warnings = [r for r in caplog.records if "heartbeat watchdog OFF" in r.getMessage()]
     assert len(warnings) == 2 and all(r.levelno == logging.WARNING for r in warnings)
 
@@ -284,7 +284,7 @@ def test_only_the_client_holding_control_ramps(supply, token):
     with pytest.raises(ControlError, match="held by 'test'"):
         supply.claim_control("intruder")
     snap = supply.snapshot()
-    assert snap.channel("front").target == 0.0 and snap.controller == "test" and snap.heartbeat_age < 30.0
+    assert snap.channel("front").target == 0.0 and snap.controller == "test" and snap.heartbeat_age_s < 30.0
     assert supply.release_control(token) == "test" and supply.snapshot().controller == ""
 
 
@@ -306,7 +306,7 @@ def test_reset_faults_leaves_healthy_channels_alone(sim, supply, token, wait_unt
 
 
 def test_resetting_every_channel_ramps_healthy_outputs_down_at_the_device_ramp(sim, wait_until):
-    configs = [ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=2000.0)]  # device ramp 2400 V/s
+    configs = [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=2000.0)]  # device ramp 2400 V/s
     with HvSupply(sim.port, channels=configs, heartbeat_timeout_s=30.0, handle_signals=False) as hv:
         hv.enable("front")
         assert hv.ramp_to("front", 2400.0, token=hv.claim_control("test")).wait(10.0)
@@ -328,7 +328,7 @@ def test_open_ramps_down_an_output_an_earlier_session_left_on(sim, wait_until):
         left_on.ramp_up = left_on.ramp_down = 2400.0
         left_on.voltage_set = left_on.voltage = 2400.0
         left_on.output_on = True
-    configs = [ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=2000.0)]
+    configs = [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=2000.0)]
     with HvSupply(sim.port, channels=configs, heartbeat_timeout_s=30.0, handle_signals=False) as hv:
         assert wait_until(lambda: left_on.voltage < 1.0, 5.0)
         hv.wait_cycles(10)
@@ -337,7 +337,7 @@ def test_open_ramps_down_an_output_an_earlier_session_left_on(sim, wait_until):
 
 
 def test_a_channel_index_the_supply_does_not_have_is_refused_at_open(sim):
-    hv = HvSupply(sim.port, channels=[ChannelConfig("front", 999, max_voltage=3000.0)], handle_signals=False)
+    hv = HvSupply(sim.port, channels=[ChannelConfig("front", 999, max_voltage_v=3000.0)], handle_signals=False)
     with pytest.raises(ConfigurationError, match=r"channel 'front': index 999 is not on this supply, which has 2 "
                                                  r"channel\(s\) \(indices 0-1\)"):
         hv.open()
@@ -348,7 +348,7 @@ def test_open_waits_up_to_the_link_timeout_for_a_supply_that_is_starting_up(sim,
     """A supply that answers late at first (a simulator still starting on a loaded host) is identified."""
     sim.inject("no_reply")
     background(lambda: (time.sleep(0.2), sim.clear_faults()))
-    configs = [ChannelConfig("front", 0, max_voltage=3000.0)]
+    configs = [ChannelConfig("front", 0, max_voltage_v=3000.0)]
     with HvSupply(sim.port, channels=configs, link_timeout_s=2.0, handle_signals=False) as hv:
         assert hv.snapshot().device_id.startswith("iseg")
 
@@ -357,7 +357,7 @@ def test_open_gives_up_on_a_silent_supply_after_the_link_timeout(sim):
     sim.inject("no_reply")
     started = time.monotonic()
     with pytest.raises(LinkError, match=r"no reply to '\*IDN\?'"):
-        HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage=3000.0)], link_timeout_s=0.4,
+        HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage_v=3000.0)], link_timeout_s=0.4,
                  handle_signals=False).open()
     assert time.monotonic() - started > 0.4
 
@@ -371,7 +371,7 @@ def test_open_rides_out_answers_missing_in_the_middle_of_the_set_up(sim, backgro
         time.sleep(0.3)
         sim.clear_faults()
     background(starve_after_identification)
-    configs = [ChannelConfig("front", 0, max_voltage=3000.0)]
+    configs = [ChannelConfig("front", 0, max_voltage_v=3000.0)]
     with HvSupply(sim.port, channels=configs, link_timeout_s=2.0, handle_signals=False) as hv:
         hv.wait_cycles(3)
         assert not hv.snapshot().channel("front").faults

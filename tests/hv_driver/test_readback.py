@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from hv_driver import ChannelConfig, Fault
 from hv_driver.supervisor import ChannelSupervisor
 
-GAIT = ChannelConfig("leg", 0, max_voltage=3000.0, slew_rate=16000.0)  # the legged gait's 16 kV/s
+GAIT = ChannelConfig("leg", 0, max_voltage_v=3000.0, slew_rate_v_per_s=16000.0)  # the legged gait's 16 kV/s
 DEVICE_MARGIN = 1.2  # the driver sets the device ramp to 1.2 x the slew limit
 
 
@@ -50,7 +50,7 @@ def test_a_loop_stall_at_16_kv_per_s_is_no_readback_mismatch():
     """The CI failure: one 20 ms cycle, then a 550 ms stall, mid-ramp at 16 kV/s."""
     channel = ChannelSupervisor(GAIT)
     channel.enable()
-    rig = Rig(channel, DEVICE_MARGIN * GAIT.slew_rate)
+    rig = Rig(channel, DEVICE_MARGIN * GAIT.slew_rate_v_per_s)
     channel.ramp_to(0.0, 2400.0)
     for _ in range(12):
         rig.cycle(0.01)
@@ -68,10 +68,10 @@ def test_a_stalled_loop_catches_up_by_at_most_one_nominal_period_of_slew():
     channel.ramp_to(0.0, 2400.0)
     before = channel.step(0.1).setpoint
     after = channel.step(0.65).setpoint  # 550 ms later
-    assert after - before == pytest.approx(GAIT.slew_rate * 0.01)
+    assert after - before == pytest.approx(GAIT.slew_rate_v_per_s * 0.01)
 
 
-GRIPPER = ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=1000.0)  # device ramp 1200 V/s
+GRIPPER = ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=1000.0)  # device ramp 1200 V/s
 
 
 def held_at_2400_volts() -> tuple[ChannelSupervisor, Rig]:
@@ -151,7 +151,7 @@ def test_a_device_that_follows_at_its_ramp_never_trips_the_readback_check(slew, 
                                                                           intervals, events):
     """Any loop timing (stalls up to 2 s), ramps, disables and resets: a readback that follows the commands
     at the device ramp (within 2 % and 20 V of noise) is never a mismatch."""
-    config = ChannelConfig("ch", 0, max_voltage=3000.0, slew_rate=slew)
+    config = ChannelConfig("ch", 0, max_voltage_v=3000.0, slew_rate_v_per_s=slew)
     channel = ChannelSupervisor(config)
     channel.set_device_ramp(DEVICE_MARGIN * slew)
     channel.enable()
@@ -175,7 +175,7 @@ def test_a_device_that_follows_at_its_ramp_never_trips_the_readback_check(slew, 
 def test_an_output_that_does_not_fall_always_trips(start, slew, intervals):
     """Switched off at ``start`` V and stuck there: trips after the tolerance is ramped through and the
     mismatch has been seen for mismatch_time of loop time (each interval counted up to one nominal period)."""
-    config = ChannelConfig("ch", 0, max_voltage=3000.0, slew_rate=slew)
+    config = ChannelConfig("ch", 0, max_voltage_v=3000.0, slew_rate_v_per_s=slew)
     channel = ChannelSupervisor(config)  # nominal period 10 ms
     rate = DEVICE_MARGIN * slew
     channel.set_device_ramp(rate)
@@ -188,7 +188,7 @@ def test_an_output_that_does_not_fall_always_trips(start, slew, intervals):
         channel.observe(t, start, 1e-7)
         if channel.faults:
             break
-        if start - max(0.0, start - rate * t) > config.mismatch_tolerance:  # off the expectation
+        if start - max(0.0, start - rate * t) > config.mismatch_tolerance_v:  # off the expectation
             credited = 0.0 if credited is None else credited + min(interval, 0.01)
     assert channel.faults == Fault.READBACK_MISMATCH
-    assert credited is not None and credited <= config.mismatch_time + 1e-9
+    assert credited is not None and credited <= config.mismatch_time_s + 1e-9

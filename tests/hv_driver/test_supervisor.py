@@ -10,8 +10,8 @@ from hv_driver import ChannelConfig, ControlError, Fault, FaultLatchedError, Lim
 from hv_driver.ramp import MinimumJerkRamp
 from hv_driver.supervisor import DEFAULT_PERIOD_S, IMMEDIATE_FAULTS, ChannelCommand, ChannelSupervisor
 
-CONFIG = ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=1000.0, current_trip=50e-6,
-                       mismatch_tolerance=100.0, mismatch_time=0.5, creep_voltage=2000.0, max_time_at_voltage=60.0)
+CONFIG = ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=1000.0, current_trip_a=50e-6,
+                       mismatch_tolerance_v=100.0, mismatch_time_s=0.5, creep_voltage_v=2000.0, max_time_at_voltage_s=60.0)
 
 
 def run(channel: ChannelSupervisor, t0: float, t1: float, dt: float = 0.01):
@@ -31,14 +31,14 @@ def enabled(config=CONFIG) -> ChannelSupervisor:
 
 
 def test_config_errors_name_the_parameter():
-    with pytest.raises(ValueError, match="max_voltage"):
-        ChannelConfig("front", 0, max_voltage=-1.0)
+    with pytest.raises(ValueError, match="max_voltage_v"):
+        ChannelConfig("front", 0, max_voltage_v=-1.0)
     with pytest.raises(ValueError, match="slew_rate"):
-        ChannelConfig("front", 0, max_voltage=1.0, slew_rate=math.nan)
-    with pytest.raises(ValueError, match="creep_voltage"):
-        ChannelConfig("front", 0, max_voltage=1.0, creep_voltage=100.0)
+        ChannelConfig("front", 0, max_voltage_v=1.0, slew_rate_v_per_s=math.nan)
+    with pytest.raises(ValueError, match="creep_voltage_v"):
+        ChannelConfig("front", 0, max_voltage_v=1.0, creep_voltage_v=100.0)
     with pytest.raises(ValueError, match="channel names must be unique"):
-        Supervisor([CONFIG, CONFIG], link_timeout=1.0)
+        Supervisor([CONFIG, CONFIG], link_timeout_s=1.0)
 
 
 def test_minimum_jerk_ramp_peaks_at_the_slew_rate_and_is_symmetric():
@@ -81,15 +81,15 @@ def test_absurd_targets_are_refused(target):
 
 def test_slew_rate_above_the_limit_is_refused():
     with pytest.raises(ValueError, match="exceeds the configured slew limit 1000"):
-        enabled().ramp_to(0.0, 100.0, slew_rate=5000.0)
+        enabled().ramp_to(0.0, 100.0, slew_rate_v_per_s=5000.0)
 
 
 def test_a_slew_rate_that_would_take_ages_is_refused_naming_the_bound():
     with pytest.raises(ValueError, match=r"slew_rate=1e-09 V/s is below 9.375 V/s, the slowest that ramps the "
                                          r"channel's 3000 V within the 600 s limit on a ramp's duration"):
-        enabled().ramp_to(0.0, 2400.0, slew_rate=1e-9)
-    with pytest.raises(ValueError, match="slew_rate=1e-09: >= 9.375 V/s, so a ramp over max_voltage=3000 V"):
-        ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=1e-9)
+        enabled().ramp_to(0.0, 2400.0, slew_rate_v_per_s=1e-9)
+    with pytest.raises(ValueError, match="slew_rate_v_per_s=1e-09: >= 9.375 V/s, so a ramp over max_voltage_v=3000 V"):
+        ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=1e-9)
 
 
 def test_lowering_the_ceiling_mid_ramp_clamps_the_setpoint_at_once():
@@ -137,7 +137,7 @@ def test_a_brief_mismatch_does_not_accumulate():
 
 
 def test_time_at_voltage_trips_after_the_creep_limit():
-    channel = ChannelSupervisor(CONFIG, max_step=0.1)  # a 10 Hz loop
+    channel = ChannelSupervisor(CONFIG, max_step_s=0.1)  # a 10 Hz loop
     channel.enable()
     channel.ramp_to(0.0, 2400.0)
     run(channel, 0.0, 60.0, dt=0.1)
@@ -147,8 +147,8 @@ def test_time_at_voltage_trips_after_the_creep_limit():
 
 
 def test_link_timeout_trips_every_channel():
-    back = ChannelConfig("back", 1, max_voltage=3000.0)
-    supervisor = Supervisor([CONFIG, back], link_timeout=0.2)
+    back = ChannelConfig("back", 1, max_voltage_v=3000.0)
+    supervisor = Supervisor([CONFIG, back], link_timeout_s=0.2)
     supervisor.link_ok(0.0)
     supervisor.link_failed(0.05)
     supervisor.link_failed(0.1)  # the run of failures started at 0.05
@@ -159,7 +159,7 @@ def test_link_timeout_trips_every_channel():
 
 
 def test_a_stalled_host_with_a_healthy_link_does_not_trip():
-    supervisor = Supervisor([CONFIG], link_timeout=0.2)
+    supervisor = Supervisor([CONFIG], link_timeout_s=0.2)
     supervisor.link_ok(0.0)
     supervisor.step(5.0)  # the loop thread was descheduled for 5 s; no exchange failed
     supervisor.link_ok(5.0)
@@ -170,7 +170,7 @@ def test_a_stalled_host_with_a_healthy_link_does_not_trip():
 
 
 def test_lost_heartbeat_ramps_down_then_switches_off():
-    supervisor = Supervisor([CONFIG], link_timeout=100.0, heartbeat_timeout=0.5, nominal_period=0.05)
+    supervisor = Supervisor([CONFIG], link_timeout_s=100.0, heartbeat_timeout_s=0.5, nominal_period_s=0.05)
     supervisor.enable("front", 0.0)
     front = supervisor.channel("front")
     token = supervisor.claim_control("operator", 0.0)
@@ -190,7 +190,7 @@ def test_lost_heartbeat_ramps_down_then_switches_off():
 
 
 def test_heartbeat_is_needed_only_while_an_output_is_energised():
-    supervisor = Supervisor([CONFIG], link_timeout=100.0, heartbeat_timeout=0.5)
+    supervisor = Supervisor([CONFIG], link_timeout_s=100.0, heartbeat_timeout_s=0.5)
     supervisor.enable("front", 0.0)
     front = supervisor.channel("front")
     for t in (1.0, 5.0, 10.0):  # idle at 0 V with no client: nothing to protect
@@ -207,7 +207,7 @@ def test_heartbeat_is_needed_only_while_an_output_is_energised():
 
 def test_unknown_channel_names_the_choices():
     with pytest.raises(ValueError, match=r"channel='left': unknown, configured are \['front'\]"):
-        Supervisor([CONFIG], link_timeout=1.0).channel("left")
+        Supervisor([CONFIG], link_timeout_s=1.0).channel("left")
 
 
 def test_time_running_backwards_moves_nothing():
@@ -236,10 +236,10 @@ class SupervisorMachine(RuleBasedStateMachine):
 
     @initialize(hb=st.one_of(st.just(math.inf), st.floats(min_value=0.05, max_value=2.0)))
     def setup(self, hb):
-        configs = [ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=1000.0, mismatch_time=0.3),
-                   ChannelConfig("back", 1, max_voltage=2500.0, slew_rate=300.0,
-                                 creep_voltage=1000.0, max_time_at_voltage=2.0)]
-        self.sup = Supervisor(configs, link_timeout=0.5, heartbeat_timeout=hb, now=0.0)
+        configs = [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=1000.0, mismatch_time_s=0.3),
+                   ChannelConfig("back", 1, max_voltage_v=2500.0, slew_rate_v_per_s=300.0,
+                                 creep_voltage_v=1000.0, max_time_at_voltage_s=2.0)]
+        self.sup = Supervisor(configs, link_timeout_s=0.5, heartbeat_timeout_s=hb, now=0.0)
         self.now = 0.0
         self.clock = 0.0  # the supervisor's monotonic view of time
         self.last = {n: (0.0, False) for n in NAMES}
@@ -375,7 +375,7 @@ class SupervisorMachine(RuleBasedStateMachine):
         for name, command in commands.items():
             channel = self.sup.channel(name)
             last_setpoint, _ = self.last[name]
-            slew = channel.config.slew_rate
+            slew = channel.config.slew_rate_v_per_s
             assert 0.0 <= command.setpoint <= channel.ceiling
             assert command.setpoint - last_setpoint <= slew * allowance_dt + 1e-9
             fault_free = not channel.faults and not self.exempt_fall[name]
@@ -399,7 +399,7 @@ class SupervisorMachine(RuleBasedStateMachine):
     @invariant()
     def snapshot_is_consistent(self):
         for channel in self.sup.channels.values():
-            assert channel.ceiling <= channel.config.max_voltage
+            assert channel.ceiling <= channel.config.max_voltage_v
             assert bool(channel.fault_text) == bool(channel.faults)
         assert self.sup.estop_latched == any(Fault.ESTOP in c.faults for c in self.sup.channels.values())
 

@@ -15,10 +15,10 @@ from softblock_interfaces.msg import HvChannelState, HvHeartbeat, HvState
 from softblock_interfaces.srv import ClaimControl, InjectFault
 from std_srvs.srv import Trigger
 
+from recording.playback import PlaybackOptions
 from softblock_ros.client import ActionClient, ClientError, run_action
 from softblock_ros.hv_control import HvControl
 from softblock_ros.hv_driver_node import HvDriverNode
-from softblock_ros.recording.playback import PlaybackOptions
 from softblock_ros.recording.player_node import PlayerNode
 from softblock_ros.recording.recorder_node import RecorderNode
 
@@ -29,10 +29,10 @@ RAMP_TIMEOUT = 20.0  # [s] for a ramp's result on two loaded cores
 class Clients:
     def __init__(self, ros_context, spin):
         self.driver = HvDriverNode(context=ros_context, parameter_overrides=[
-            Parameter("slew_rate", value=8000.0), Parameter("link_timeout", value=1.0),
-            Parameter("heartbeat_timeout", value=HEARTBEAT_TIMEOUT)])
+            Parameter("slew_rate_v_per_s", value=8000.0), Parameter("link_timeout_s", value=1.0),
+            Parameter("heartbeat_timeout_s", value=HEARTBEAT_TIMEOUT)])
         self.node = n = rclpy.create_node("hv_control_test_client", context=ros_context)
-        self.owner = HvControl(n, "sequencer", heartbeat_rate=20.0)
+        self.owner = HvControl(n, "sequencer", heartbeat_rate_hz=20.0)
         self.claim = n.create_client(ClaimControl, "hv/claim_control")
         self.estop = n.create_client(Trigger, "hv/estop")
         self.reset = n.create_client(Trigger, "hv/reset_faults")

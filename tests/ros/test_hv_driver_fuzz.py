@@ -48,8 +48,8 @@ class Fuzz:
 
     def __init__(self, ros_context, spin):
         self.driver = HvDriverNode(context=ros_context, parameter_overrides=[
-            Parameter("slew_rate", value=8000.0), Parameter("link_timeout", value=1.0),
-            Parameter("heartbeat_timeout", value=1.0)])
+            Parameter("slew_rate_v_per_s", value=8000.0), Parameter("link_timeout_s", value=1.0),
+            Parameter("heartbeat_timeout_s", value=1.0)])
         self.node = n = rclpy.create_node("hv_fuzz_client", context=ros_context)
         self.ramp = ActionClient(n, RampChannel, "hv/ramp")
         self.services = {name: n.create_client(kind, f"hv/{name}") for name, kind in (

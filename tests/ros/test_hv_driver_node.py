@@ -32,8 +32,8 @@ class Client:
 
     def __init__(self, ros_context, spin):
         self.driver = HvDriverNode(context=ros_context, parameter_overrides=[
-            Parameter("autostart", value=False), Parameter("slew_rate", value=8000.0),
-            Parameter("link_timeout", value=1.0)])  # generous: the suite runs on two loaded cores
+            Parameter("autostart", value=False), Parameter("slew_rate_v_per_s", value=8000.0),
+            Parameter("link_timeout_s", value=1.0)])  # generous: the suite runs on two loaded cores
         self.node = rclpy.create_node("hv_driver_test_client", context=ros_context)
         n = self.node
         self.change_state = n.create_client(ChangeState, "hv_driver/change_state")
@@ -42,7 +42,7 @@ class Client:
         self.reset = n.create_client(Trigger, "hv/reset_faults")
         self.inject = n.create_client(InjectFault, "hv/inject_fault")
         self.ramp = ActionClient(n, RampChannel, "hv/ramp")
-        self.control = HvControl(n, "hv_driver_test_client", heartbeat_rate=20.0)
+        self.control = HvControl(n, "hv_driver_test_client", heartbeat_rate_hz=20.0)
         self.safe_voltage = n.create_publisher(Float64, "assembly/safe_voltage", LATCHED)
         self.state = Inbox(n, HvState, "hv/state")
         self.diagnostics = Inbox(n, DiagnosticArray, "/diagnostics")
@@ -198,15 +198,15 @@ def test_cancel_ramps_the_channel_back_to_zero(active):
     cancel = goal.cancel_goal_async()
     wait_for(cancel.done, what="the cancel reply")
     future = goal.get_result_async()
-    wait_for(future.done, what="the cancelled result")
+    wait_for(future.done, what="the canceled result")
     assert future.result().status == GoalStatus.STATUS_CANCELED
-    assert future.result().result.message == "cancelled: reached 0 V"
+    assert future.result().result.message == "canceled: reached 0 V"
     assert active.latest_state().channels[0].setpoint == 0.0
 
 
 def test_a_channel_index_the_simulated_supply_does_not_have_is_refused_at_configure(ros_context):
     node = HvDriverNode(context=ros_context, parameter_overrides=[
-        Parameter("autostart", value=False), Parameter("channel_indices", value=[0, 999])])
+        Parameter("autostart", value=False), Parameter("channel_indices", value=[0, 5])])
     try:
         assert node.trigger_configure() == TransitionCallbackReturn.FAILURE
         assert node._sim is None and node._supply is None  # the simulated supply process was stopped

@@ -1,26 +1,26 @@
 """The heartbeat watchdog with the quick start's parameters (docs/sequences.md: the launcher with
 `--params config/sequencer.yaml`, which has no hv_driver section): it is on, and a SIGKILLed sequencer
 holding control at 2.4 kV leaves the output ramped down with HEARTBEAT latched. Switching it off takes
-`heartbeat_timeout: .inf` and is warned when the driver starts; 0 does not switch it off."""
+`heartbeat_timeout_s: .inf` and is warned when the driver starts; 0 does not switch it off."""
 import io
 
 import pytest
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.exceptions import InvalidParameterValueException
 from rclpy.parameter import Parameter
 from ros_testing import Inbox, call, wait_for
 from softblock_interfaces.action import MoveArm, RunSequence
 from softblock_interfaces.msg import HvChannelState, HvState
 from std_srvs.srv import Trigger
 
-from planner.table import REPO_ROOT
+from softblock_config import config_file
 from softblock_ros.client import ActionClient, ClientError
 from softblock_ros.hv_driver_node import HvDriverNode
 from softblock_ros.launcher import Stack
+from softblock_ros.parameters import ParameterError
 
 NAMESPACE = "/watchdog"
-QUICK_START_PARAMS = REPO_ROOT / "config/sequencer.yaml"
+QUICK_START_PARAMS = config_file("sequencer.yaml")
 STARTUP_TIMEOUT = 60.0  # [s] three node processes on two loaded cores
 # Heartbeat timeout (2 s default) + the ramp down from 2.4 kV at 1000 V/s (4.5 s), with room for the load.
 RAMP_DOWN_TIMEOUT = 30.0
@@ -90,7 +90,7 @@ def test_a_sigkilled_sequencer_leaves_the_output_ramped_down_and_heartbeat_latch
 
 def test_switching_the_watchdog_off_takes_inf_and_is_warned_at_start(tmp_path):
     params = tmp_path / "watchdog_off.yaml"
-    params.write_text("/**/hv_driver:\n  ros__parameters:\n    heartbeat_timeout: .inf\n")
+    params.write_text("/**/hv_driver:\n  ros__parameters:\n    heartbeat_timeout_s: .inf\n")
     output = io.StringIO()
     with Stack(nodes=["hv_driver"], params=params, namespace="/watchdog_off", output=output) as stack:
         wait_for(lambda: "configured:" in output.getvalue() or stack.dead(), STARTUP_TIMEOUT, "the driver to start")
@@ -98,7 +98,7 @@ def test_switching_the_watchdog_off_takes_inf_and_is_warned_at_start(tmp_path):
     assert "[WARN]" in log and "heartbeat watchdog OFF (heartbeat_timeout_s=inf)" in log, log
 
 
-@pytest.mark.parametrize("timeout", [0.0, -1.0])
-def test_a_zero_or_negative_heartbeat_timeout_is_refused(ros_context, timeout):
-    with pytest.raises(InvalidParameterValueException, match="heartbeat_timeout"):
-        HvDriverNode(context=ros_context, parameter_overrides=[Parameter("heartbeat_timeout", value=timeout)])
+@pytest.mark.parametrize("timeout", [0.0, -1.0, float("nan"), -float("inf")])
+def test_a_zero_negative_or_nan_heartbeat_timeout_is_refused_naming_the_range(ros_context, timeout):
+    with pytest.raises(ParameterError, match=rf"parameter heartbeat_timeout_s={timeout!r} refused: allowed 0.05..inf s"):
+        HvDriverNode(context=ros_context, parameter_overrides=[Parameter("heartbeat_timeout_s", value=timeout)])

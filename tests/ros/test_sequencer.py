@@ -28,11 +28,11 @@ RUN_TIMEOUT = 40.0
 def stack(ros_context, spin, tmp_path_factory):
     directory = tmp_path_factory.mktemp("sequences")
     sequencer = SequencerNode(context=ros_context, parameter_overrides=[
-        Parameter("sequences_dir", value=str(SEQUENCES)), Parameter("settle_time", value=2.0),
-        Parameter("safe_stop_timeout", value=5.0)])
+        Parameter("sequences_dir", value=str(SEQUENCES)), Parameter("settle_time_s", value=2.0),
+        Parameter("safe_stop_timeout_s", value=5.0)])
     arm = SimArmNode(context=ros_context, parameter_overrides=[
-        Parameter("max_speed", value=2.0), Parameter("max_acceleration", value=20.0),
-        Parameter("publish_rate", value=100.0)])
+        Parameter("max_speed_m_per_s", value=2.0), Parameter("max_acceleration_m_per_s2", value=20.0),
+        Parameter("publish_rate_hz", value=100.0)])
     hv = FakeHv(CHANNELS, context=ros_context)
     client = rclpy.create_node("sequencer_test_client", context=ros_context)
     events = Inbox(client, SequenceEvent, "sequencer/events", 100)

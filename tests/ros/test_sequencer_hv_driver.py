@@ -24,11 +24,11 @@ RUN_TIMEOUT = 40.0
 @pytest.fixture(scope="module")
 def stack(ros_context, spin, tmp_path_factory):
     driver = HvDriverNode(context=ros_context, parameter_overrides=[
-        Parameter("autostart", value=False), Parameter("slew_rate", value=15_000.0),
-        Parameter("heartbeat_timeout", value=0.5)])
-    sequencer = SequencerNode(context=ros_context, parameter_overrides=[Parameter("settle_time", value=2.0)])
+        Parameter("autostart", value=False), Parameter("slew_rate_v_per_s", value=15_000.0),
+        Parameter("heartbeat_timeout_s", value=0.5)])
+    sequencer = SequencerNode(context=ros_context, parameter_overrides=[Parameter("settle_time_s", value=2.0)])
     arm = SimArmNode(context=ros_context, parameter_overrides=[
-        Parameter("max_speed", value=2.0), Parameter("max_acceleration", value=20.0)])
+        Parameter("max_speed_m_per_s", value=2.0), Parameter("max_acceleration_m_per_s2", value=20.0)])
     client = rclpy.create_node("sequencer_hv_test_client", context=ros_context)
     spin(driver, sequencer, arm, client)
     assert driver.trigger_configure() == TransitionCallbackReturn.SUCCESS

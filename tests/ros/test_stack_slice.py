@@ -31,7 +31,7 @@ TARGET = 1000.0  # [V]
 @pytest.fixture(scope="module")
 def stack(tmp_path_factory):
     params = tmp_path_factory.mktemp("slice") / "params.yaml"
-    params.write_text("/**/hv_driver:\n  ros__parameters:\n    backend: sim\n    slew_rate: 5000.0\n    link_timeout: 2.0\n")
+    params.write_text("/**/hv_driver:\n  ros__parameters:\n    backend: sim\n    slew_rate_v_per_s: 5000.0\n    link_timeout_s: 2.0\n")
     output = io.StringIO()
     with Stack(nodes=["hv_driver", "assembly_state"], params=params, namespace=NAMESPACE, output=output) as stack:
         yield stack
@@ -45,7 +45,7 @@ def client(ros_context, spin, stack):
     node.assembly_states = Inbox(node, AssemblyState, "assembly/state")
     node.safe_voltages = Inbox(node, Float64, "assembly/safe_voltage",
                                QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
-    node.control = HvControl(node, "slice_client", timeout=15.0)
+    node.control = HvControl(node, "slice_client", timeout_s=15.0)
     spin(node)
     node.control.claim()
     return node

@@ -17,10 +17,10 @@ HEARTBEATS_PER_TIMEOUT = 2  # at least this many heartbeats within the driver's 
 
 
 class HvControl:
-    def __init__(self, node: Node, client: str, heartbeat_rate: float = 10.0, callback_group=None,
-                 timeout: float = 5.0):
-        self.client, self.timeout = client, timeout
-        self._period = 1.0 / heartbeat_rate
+    def __init__(self, node: Node, client: str, heartbeat_rate_hz: float = 10.0, callback_group=None,
+                 timeout_s: float = 5.0):
+        self.client, self.timeout_s = client, timeout_s
+        self._period = 1.0 / heartbeat_rate_hz
         self._claim = node.create_client(ClaimControl, "hv/claim_control", callback_group=callback_group)
         self._release = node.create_client(ReleaseControl, "hv/release_control", callback_group=callback_group)
         self._heartbeat = node.create_publisher(HvHeartbeat, "hv/heartbeat", 10)
@@ -34,7 +34,7 @@ class HvControl:
 
     def claim(self) -> str:
         """Take control of the driver; ClientError naming the holder when it is refused."""
-        reply = call_service(self._claim, ClaimControl.Request(client=self.client), self.timeout)
+        reply = call_service(self._claim, ClaimControl.Request(client=self.client), self.timeout_s)
         if not reply.success:
             raise ClientError(f"hv/claim_control refused: {reply.message}")
         self.token = reply.token
@@ -50,4 +50,4 @@ class HvControl:
         token, self.token = self.token, ""
         if not token:
             return "no control held"
-        return call_service(self._release, ReleaseControl.Request(token=token), self.timeout).message
+        return call_service(self._release, ReleaseControl.Request(token=token), self.timeout_s).message

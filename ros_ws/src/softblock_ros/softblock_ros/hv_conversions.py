@@ -26,16 +26,16 @@ def hv_state_msg(snapshot: SupplySnapshot, backend: str, stamp: Time) -> HvState
 
 def control_status(snapshot: SupplySnapshot, node_name: str) -> DiagnosticStatus:
     """Who holds control and how fresh its heartbeat is; WARN when the heartbeat watchdog is off."""
-    timeout = snapshot.heartbeat_timeout
+    timeout = snapshot.heartbeat_timeout_s
     if snapshot.controller:
-        message = f"held by {snapshot.controller!r}, last heartbeat {snapshot.heartbeat_age:.2f} s ago"
+        message = f"held by {snapshot.controller!r}, last heartbeat {snapshot.heartbeat_age_s:.2f} s ago"
     else:
         message = "no client holds control"
     level = DiagnosticStatus.OK
     if math.isinf(timeout):
         level, message = DiagnosticStatus.WARN, message + "; heartbeat watchdog OFF"
     values = {"controller": snapshot.controller,
-              "heartbeat_age_s": "" if snapshot.heartbeat_age is None else f"{snapshot.heartbeat_age:.3f}",
+              "heartbeat_age_s": "" if snapshot.heartbeat_age_s is None else f"{snapshot.heartbeat_age_s:.3f}",
               "heartbeat_timeout_s": timeout}
     return DiagnosticStatus(level=level, name=f"{node_name}: control", message=message,
                             hardware_id=snapshot.device_id,

@@ -16,10 +16,11 @@ from softblock_interfaces.action import MoveArm, RampChannel
 from softblock_interfaces.msg import HvChannelState, HvState
 from std_srvs.srv import Trigger
 
+from sequencing.ports import ChannelReading, Outcome, RobotError
+
 from .client import ActionClient, ClientError
 from .conversions import pose_msg
 from .hv_control import HvControl
-from .sequencing.engine import ChannelReading, Outcome, RobotError
 
 
 class ActionMotion:
@@ -77,9 +78,9 @@ class RosRobot:
     """Adapts ROS clients of the arm and the HV driver to the engine's `Robot` interface."""
 
     def __init__(self, node: Node, callback_group, server_timeout: float, state_timeout: float,
-                 heartbeat_rate: float = 10.0):
+                 heartbeat_rate_hz: float = 10.0):
         self._server_timeout, self._state_timeout = server_timeout, state_timeout
-        self._control = HvControl(node, node.get_name(), heartbeat_rate, callback_group, server_timeout)
+        self._control = HvControl(node, node.get_name(), heartbeat_rate_hz, callback_group, server_timeout)
         self._ramp = ActionClient(node, RampChannel, "hv/ramp", callback_group=callback_group)
         self._move = ActionClient(node, MoveArm, "arm/move", callback_group=callback_group)
         self._estop = node.create_client(Trigger, "hv/estop", callback_group=callback_group)
