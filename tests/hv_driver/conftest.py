@@ -63,6 +63,13 @@ CHANNELS = [ChannelConfig("front", 0, **FAST), ChannelConfig("back", 1, **FAST)]
 
 
 @pytest.fixture
+def channels():
+    """The fast two-channel configuration (a fixture: test modules cannot import a conftest by name when
+    several test folders, each with its own conftest, run together)."""
+    return CHANNELS
+
+
+@pytest.fixture
 def sim():
     supply = SimulatedSupply(channels=2, watchdog_s=0.5).start()
     yield supply

@@ -2,7 +2,6 @@
 import math
 
 import pytest
-from conftest import CHANNELS
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -26,8 +25,8 @@ def test_a_bad_channel_setting_is_an_hv_error_naming_it(field, value):
         ChannelConfig("front", 0, **{field: value})
 
 
-def test_refused_requests_are_hv_errors():
-    supervisor = Supervisor(CHANNELS, link_timeout_s=1.0)
+def test_refused_requests_are_hv_errors(channels):
+    supervisor = Supervisor(channels, link_timeout_s=1.0)
     token = supervisor.claim_control("operator", 0.0)
     with pytest.raises(StateError, match="output not enabled"):
         supervisor.ramp_to("front", 0.0, 100.0, token=token)
@@ -39,24 +38,24 @@ def test_refused_requests_are_hv_errors():
     with pytest.raises(SettingError, match="channel='left'"):
         supervisor.channel("left")
     with pytest.raises(SettingError, match="loop_rate_hz"):
-        HvSupply("loop://", channels=CHANNELS, loop_rate_hz=0.0)
+        HvSupply("loop://", channels=channels, loop_rate_hz=0.0)
 
 
-def test_a_port_that_cannot_be_opened_is_a_link_error():
+def test_a_port_that_cannot_be_opened_is_a_link_error(channels):
     with pytest.raises(LinkError, match="cannot open '/dev/no-such-supply'"):
-        HvSupply("/dev/no-such-supply", channels=CHANNELS, handle_signals=False).open()
+        HvSupply("/dev/no-such-supply", channels=channels, handle_signals=False).open()
 
 
-def test_open_refuses_a_device_whose_identity_lacks_the_expected_text(sim):
-    supply = HvSupply(sim.port, channels=CHANNELS, handle_signals=False, expected_identity="SHR 4060")
+def test_open_refuses_a_device_whose_identity_lacks_the_expected_text(sim, channels):
+    supply = HvSupply(sim.port, channels=channels, handle_signals=False, expected_identity="SHR 4060")
     with pytest.raises(ConfigurationError, match=r"identifies as .*NHR 42 50r.*expected_identity='SHR 4060'"):
         supply.open()
     assert not any(channel.output_on for channel in sim.plant)
 
 
-def test_open_accepts_the_expected_identity_and_an_empty_one_checks_nothing(sim):
+def test_open_accepts_the_expected_identity_and_an_empty_one_checks_nothing(sim, channels):
     for expected in ("NHR 42 50r", ""):
-        supply = HvSupply(sim.port, channels=CHANNELS, handle_signals=False, expected_identity=expected).open()
+        supply = HvSupply(sim.port, channels=channels, handle_signals=False, expected_identity=expected).open()
         try:
             assert supply.device_id == IDENTITY
         finally:
