@@ -56,7 +56,8 @@ def diagnostics_msg(snapshot: SupplySnapshot, node_name: str, backend: str, stam
         values = {"port": snapshot.port, "backend": backend, "channel_index": c.index,
                   "setpoint_v": c.setpoint, "measured_voltage_v": c.measured_voltage,
                   "measured_current_a": c.measured_current, "ceiling_v": c.ceiling,
-                  "output_enabled": c.output_enabled, "faults": int(c.faults), "estop": snapshot.estop}
+                  "output_enabled": c.output_enabled, "faults": int(c.faults), "estop": snapshot.estop,
+                  "link_error": snapshot.link_error}  # "" once the supply answers: a latched LINK may be reset
         statuses.append(DiagnosticStatus(level=level, name=f"{node_name}: channel {c.name}", message=message,
                                          hardware_id=snapshot.device_id,
                                          values=[KeyValue(key=k, value=str(v)) for k, v in values.items()]))
