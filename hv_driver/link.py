@@ -5,12 +5,13 @@ import time
 import serial
 
 from .dialects import Dialect, ProtocolError
+from .errors import HvError
 
 # Longest line the driver accepts; anything longer is garbage.
 MAX_LINE = 256
 
 
-class LinkError(ConnectionError):
+class LinkError(HvError, ConnectionError):
     """No reply, a partial reply within the timeout, or the port failed."""
 
 

@@ -14,6 +14,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
+from softblock_config import config_file
 
 from planner.atomic_file import atomic_write
 from planner.geometry import (
@@ -24,8 +25,7 @@ from planner.geometry import (
     ROD_LENGTH_VALUES,
 )
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
-DEFAULT_TABLE_PATH = REPO_ROOT / "config" / "block_table.csv"
+DEFAULT_TABLE_PATH = config_file("block_table.csv")
 
 SCALAR_COLUMNS = (
     ("id", "ids"),

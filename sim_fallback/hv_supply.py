@@ -249,6 +249,8 @@ class SimulatedSupply:
         now = time.monotonic()
         if header == "*IDN?":
             return IDENTITY
+        if header == ":READ:MOD:CHAN?":
+            return str(len(self.plant))
         if header == "*OPC?":
             return "1"
         if header == "*RST":

@@ -11,6 +11,8 @@ import subprocess
 import sys
 import threading
 
+from .hv_supply import FAULTS
+
 START_TIMEOUT = 30.0  # [s] for the child to print its pty path (interpreter start-up on a loaded machine)
 REPLY_TIMEOUT = 10.0  # [s] for the answer to one command
 
@@ -56,6 +58,10 @@ class SimulatedSupplyProcess:
 
     def inject(self, fault: str, channel: int | None = None) -> None:
         """Inject ``fault`` (see ``sim_fallback.hv_supply.FAULTS``); ValueError for an unknown one."""
+        if fault not in FAULTS:  # checked here too: the name goes into the child's command line
+            raise ValueError(f"fault={fault!r}: one of {', '.join(FAULTS)}")
+        if channel is not None and not (isinstance(channel, int) and 0 <= channel < self.channels):
+            raise ValueError(f"channel={channel!r}: between 0 and {self.channels - 1}")
         self._command(fault if channel is None else f"{fault} {channel}")
 
     def clear_faults(self) -> None:

@@ -16,9 +16,9 @@ from recording_helpers import hv_state, read_decoded, stamp, wait_for, write_rec
 from rosbags.highlevel import AnyReader
 from softblock_interfaces.msg import HvState
 
-from softblock_ros.recording import mcap_file
+from recording import mcap_file
+from recording.mcap_file import describe, recover
 from softblock_ros.recording.cli import main
-from softblock_ros.recording.mcap_file import describe, recover
 
 
 def start_recorder(path: Path) -> subprocess.Popen:

@@ -13,17 +13,17 @@ from rclpy.serialization import serialize_message
 from recording_helpers import (LATCHED, Spinner, assembly, hv_state, sequence_event, stamp,
                                wait_for, write_recording)
 from rosgraph_msgs.msg import Clock
-from softblock_interfaces.msg import Assembly, HvState
-from std_msgs.msg import Empty, Float64
+from softblock_interfaces.msg import Assembly, HvHeartbeat, HvState
+from std_msgs.msg import Float64
 
 from softblock_ros.hv_driver_node import HvDriverNode
 from softblock_ros.recording.message_types import UnknownMessageTypeError
-from softblock_ros.recording.mcap_file import RecordingWriter
-from softblock_ros.recording.playback import PlaybackOptions
+from recording.mcap_file import RecordingWriter
+from recording.playback import PlaybackOptions
+from recording.topics import is_command_topic
 from softblock_ros.recording.player_node import PlayerNode
 from softblock_ros.recording.qos_metadata import (offered_qos_yaml, parse_offered_qos,
                                                   playback_qos)
-from softblock_ros.recording.topics import is_command_topic
 
 START = 1_700_000_000_000_000_000
 STEP = 10_000_000  # 10 ms between hv/state samples
@@ -73,7 +73,7 @@ def test_replay_in_order_and_latched_topic_reaches_a_late_subscriber(ros_context
 
 def test_topic_filters_and_start_offset_select_what_is_played(ros_context, grasp_recording):
     options = PlaybackOptions(rate=20.0, include="^/(hv|sequencer)/", exclude="events$",
-                              start_offset=10 * STEP / 1e9)
+                              start_offset_s=10 * STEP / 1e9)
     player = PlayerNode(grasp_recording, options, context=ros_context)
     try:
         assert [p.topic_name for p in player.publishers_by_channel.values()] == ["/hv/state"]
@@ -86,7 +86,7 @@ def test_topic_filters_and_start_offset_select_what_is_played(ros_context, grasp
 
 def test_loop_replays_until_stopped_and_clock_follows_recorded_time(ros_context,
                                                                     grasp_recording):
-    options = PlaybackOptions(rate=20.0, loop=True, include="hv", clock_frequency=50.0)
+    options = PlaybackOptions(rate=20.0, loop=True, include="hv", clock_frequency_hz=50.0)
     player = PlayerNode(grasp_recording, options, context=ros_context)
     listener = rclpy.create_node("listener", context=ros_context)
     hv = collect(listener, HvState, "/hv/state", QoSProfile(depth=100))
@@ -158,8 +158,8 @@ def test_recorded_qos_round_trips_to_playback_qos():
         parse_offered_qos("history: keep_last")
 
 
-@pytest.mark.parametrize("field, value", [("rate", 0.0), ("start_offset", -1.0),
-                                          ("clock_frequency", -5.0), ("delay", -1.0),
+@pytest.mark.parametrize("field, value", [("rate", 0.0), ("start_offset_s", -1.0),
+                                          ("clock_frequency_hz", -5.0), ("delay_s", -1.0),
                                           ("include", "("), ("namespace", "replay/")])
 def test_bad_playback_options_name_the_parameter(field, value):
     with pytest.raises(ValueError, match=field):
@@ -170,7 +170,8 @@ def test_bad_playback_options_name_the_parameter(field, value):
 def recording_with_commands(tmp_path):
     """A stack's recording: hv/state, and what a live driver obeys (heartbeat, safe voltage)."""
     entries = [("/assembly/safe_voltage", Float64(data=2901.0), START)]
-    entries += [("/hv/heartbeat", Empty(), START + i * STEP) for i in range(SAMPLES)]
+    entries += [("/hv/heartbeat", HvHeartbeat(token="recorded session"), START + i * STEP)
+                for i in range(SAMPLES)]
     entries += [("/hv/state", stamp(START + i * STEP, hv_state({"front": float(i)})),
                  START + i * STEP) for i in range(SAMPLES)]
     return write_recording(str(tmp_path / "stack.mcap"), sorted(entries, key=lambda e: e[2]),
@@ -182,7 +183,7 @@ class DriverLike:
 
     def __init__(self, ros_context, namespace="/"):
         self.node = rclpy.create_node("driver_like", namespace=namespace, context=ros_context)
-        self.heartbeats = collect(self.node, Empty, "hv/heartbeat", QoSProfile(depth=10))
+        self.heartbeats = collect(self.node, HvHeartbeat, "hv/heartbeat", QoSProfile(depth=10))
         self.safe_voltages = collect(self.node, Float64, "assembly/safe_voltage", LATCHED)
         self.states = collect(self.node, HvState, "hv/state", QoSProfile(depth=100))
 
@@ -252,21 +253,25 @@ def test_cli_says_which_command_topics_it_leaves_out_or_plays(recording_with_com
 
 
 def test_the_hv_drivers_inputs_are_all_command_topics(ros_context):
-    """Whatever topics the real HV driver subscribes to are left out of a default replay."""
+    """Whatever topics the real HV driver subscribes to are left out of a default replay: the
+    token-carrying heartbeat and the safe voltage. Its other inputs (claim and release of control, the
+    ramp action) are services, which a player cannot call."""
     driver = HvDriverNode(context=ros_context,
                           parameter_overrides=[Parameter("autostart", value=False)])
     try:
         assert driver.trigger_configure() == TransitionCallbackReturn.SUCCESS
-        topics = [name for name, _ in
-                  driver.get_subscriber_names_and_types_by_node("hv_driver", "/")]
+        topics = dict(driver.get_subscriber_names_and_types_by_node("hv_driver", "/"))
+        services = {name for name, _ in driver.get_service_names_and_types_by_node("hv_driver", "/")}
     finally:
         driver.trigger_shutdown()
         driver.destroy_node()
     assert topics and all(is_command_topic(topic) for topic in topics), topics
+    assert topics["/hv/heartbeat"] == ["softblock_interfaces/msg/HvHeartbeat"]
+    assert {"/hv/claim_control", "/hv/release_control", "/hv/ramp/_action/send_goal"} <= services
 
 
 def test_clock_during_the_delay_stands_at_the_recordings_start(ros_context, grasp_recording):
-    options = PlaybackOptions(delay=1.0, clock_frequency=50.0, include="hv")
+    options = PlaybackOptions(delay_s=1.0, clock_frequency_hz=50.0, include="hv")
     player = PlayerNode(grasp_recording, options, context=ros_context)
     listener = rclpy.create_node("clock_listener", context=ros_context)
     clock = collect(listener, Clock, "/clock", QoSProfile(depth=100))

@@ -33,7 +33,7 @@ def table():
 
 @pytest.fixture(scope="module")
 def client(ros_context, spin):
-    node = AssemblyStateNode(context=ros_context, parameter_overrides=[Parameter("rate", value=50.0)])
+    node = AssemblyStateNode(context=ros_context, parameter_overrides=[Parameter("publish_rate_hz", value=50.0)])
     client = rclpy.create_node("assembly_state_test_client", context=ros_context)
     spin(node, client)
     return client
@@ -182,7 +182,7 @@ def calibrated(tmp_path):
 
 def start_node(ros_context, spin, namespace, **parameters):
     node = AssemblyStateNode(context=ros_context, namespace=namespace, parameter_overrides=[
-        Parameter(name, value=value) for name, value in {"rate": 50.0, **parameters}.items()])
+        Parameter(name, value=value) for name, value in {"publish_rate_hz": 50.0, **parameters}.items()])
     spin(node)
     return node
 
@@ -216,7 +216,7 @@ def test_a_block_placed_as_another_design_than_calibrated_is_refused(ros_context
 def test_block_calibration_defaults_to_the_config_file_and_a_missing_file_stops_the_start(ros_context, tmp_path):
     node = AssemblyStateNode(context=ros_context, namespace="/default_calibration")
     try:
-        assert node.get_parameter("block_calibration").value == "config/block_calibration.yaml"
+        assert node.get_parameter("block_calibration").value == "block_calibration.yaml"
     finally:
         node.destroy_node()
     with pytest.raises(ValueError, match=r"block_calibration file .*none.yaml not found \(empty = no calibration\)"):

@@ -51,7 +51,7 @@ def mostly(usual, other):
 UNIT_QUATERNIONS = st.sampled_from([(0.0, 0.0, 0.0, 1.0), (1.0, 0.0, 0.0, 0.0), (0.0, 0.7071068, 0.0, 0.7071068)])
 ANY_NUMBER = st.floats() | st.sampled_from([0.0, -1.0, 1e-300, 1e300])
 TIME_BUDGET = mostly(st.floats(0.05, 0.3), st.floats(-1.0, 0.5) | st.sampled_from([0.0, math.inf, math.nan]))
-OPTIMIZER = mostly(st.sampled_from(["", "exact", "pso"]), st.just("annealing") | TEXT)
+METHOD = mostly(st.sampled_from(["", "exact", "pso"]), st.just("annealing") | TEXT)
 NUM_BLOCKS = mostly(st.integers(1, 2), st.integers(0, 255))
 
 
@@ -62,13 +62,14 @@ def nodes(ros_context, spin, tmp_path_factory):
     (sequences / "loop.yaml").write_text(SELF_REFERENCE)
     (sequences / "passwd.yaml").symlink_to("/etc/passwd")
     planner = PlannerNode(context=ros_context, parameter_overrides=[
-        Parameter("max_blocks", value=2), Parameter("default_time_budget", value=0.5)])
-    assembly_state = AssemblyStateNode(context=ros_context, parameter_overrides=[Parameter("rate", value=20.0)])
+        Parameter("max_blocks", value=2), Parameter("default_time_budget_s", value=0.5)])
+    assembly_state = AssemblyStateNode(context=ros_context, parameter_overrides=[Parameter("publish_rate_hz", value=20.0)])
     sequencer = SequencerNode(context=ros_context, parameter_overrides=[
         Parameter("sequences_dir", value=str(sequences))])
     arm = SimArmNode(context=ros_context, parameter_overrides=[
-        Parameter("max_speed", value=2.0), Parameter("max_acceleration", value=20.0),
-        Parameter("max_angular_speed", value=10.0), Parameter("max_angular_acceleration", value=50.0)])
+        Parameter("max_speed_m_per_s", value=2.0), Parameter("max_acceleration_m_per_s2", value=20.0),
+        Parameter("max_angular_speed_rad_per_s", value=10.0),
+        Parameter("max_angular_acceleration_rad_per_s2", value=50.0)])
     client = rclpy.create_node("fuzz_client", context=ros_context)
     spin(planner, assembly_state, sequencer, arm, client)
     return SimpleNamespace(
@@ -113,7 +114,7 @@ def sane_chain(chain: Chain) -> bool:
                                             "config", "../../../etc/shadow"]) | TEXT,
                 pixel_size=mostly(st.sampled_from([0.00025, 0.001]), ANY_NUMBER), num_blocks=NUM_BLOCKS,
                 num_stiff_top=mostly(st.integers(0, 2), st.integers(0, 255)),
-                min_stiff_rod_diameter=mostly(st.just(0.0), ANY_NUMBER), optimizer=OPTIMIZER,
+                min_stiff_rod_diameter=mostly(st.just(0.0), ANY_NUMBER), method=METHOD,
                 time_budget=TIME_BUDGET, inventory_ids=mostly(st.just([]), st.lists(st.integers(0, 90), max_size=3)),
                 inventory_counts=mostly(st.just([]), st.lists(st.integers(0, 3), max_size=3))))
 def test_design_fingers_answers_every_request(nodes, request_message):
@@ -130,7 +131,7 @@ def test_design_fingers_answers_every_request(nodes, request_message):
 @given(messages(DesignPath.Request,
                 path=st.lists(messages(Point, x=mostly(st.floats(-0.05, 0.05), ANY_NUMBER), y=st.floats(-0.05, 0.05),
                                        z=mostly(st.floats(0.0, 0.05), ANY_NUMBER)), max_size=5),
-                num_blocks=NUM_BLOCKS, optimizer=OPTIMIZER, time_budget=TIME_BUDGET))
+                num_blocks=NUM_BLOCKS, method=METHOD, time_budget=TIME_BUDGET))
 def test_design_path_answers_every_request(nodes, request_message):
     reply = call(nodes.design_path, request_message, ANSWER)
     event(f"success={reply.success}")
