@@ -32,7 +32,7 @@ def test_stack_runs_nodes_with_the_params_file_and_stops_them_cleanly(ros_contex
         spin(client)
         assert inbox.wait().header.frame_id == "launcher_test_frame"
         assert stack.dead() == {}
-    assert stack.stop() == {"assembly_state": 0}
+    assert stack.stop() == {"assembly_state": 0}, output.getvalue()[-3000:]
     lines = output.getvalue().splitlines()
     assert lines and all(line.startswith("[assembly_state] ") for line in lines)
     assert any("publishing at" in line for line in lines)
