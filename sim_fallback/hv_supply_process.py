@@ -18,7 +18,7 @@ REPLY_TIMEOUT = 10.0  # [s] for the answer to one command
 
 
 class SimulatedSupplyProcess:
-    def __init__(self, channels: int = 2, watchdog_s: float | None = 1.0):
+    def __init__(self, channels: int = 2, watchdog_s: float | None = None):
         if channels < 1:
             raise ValueError(f"channels={channels}: at least 1")
         self.channels = channels

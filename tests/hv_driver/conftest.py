@@ -71,7 +71,7 @@ def channels():
 
 @pytest.fixture
 def sim():
-    supply = SimulatedSupply(channels=2, watchdog_s=0.5).start()
+    supply = SimulatedSupply(channels=2).start()
     yield supply
     supply.stop()
 
