@@ -36,11 +36,13 @@ def main() -> int:
     with SimulatedSupply(channels=2) as sim, HvSupply(sim.port, channels=configs, handle_signals=False) as hv:
         for name in ("front", "back"):
             hv.enable(name)
+        token = hv.claim_control("hv_ramp benchmark")
         start, pending = time.monotonic(), list(SCHEDULE)
         while (now := time.monotonic() - start) < DURATION:
             while pending and pending[0][0] <= now:
                 _, name, target = pending.pop(0)
-                hv.ramp_to(name, target)
+                hv.ramp_to(name, target, token=token)
+            hv.heartbeat(token)  # the watchdog ramps a silent client's outputs down
             snap = hv.snapshot()
             samples.append([snap.stamp - start] + [v for c in snap.channels for v in (c.setpoint, c.measured_voltage,
                                                                          c.measured_current)])

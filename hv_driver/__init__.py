@@ -6,6 +6,7 @@ errors, all `HvError`: `SettingError` (and its `LimitError`), `StateError`, `Fau
 `ConfigurationError`, `LinkError`, `ProtocolError`.
 """
 from .config import ChannelConfig
+from .control import ControlError
 from .dialects import Dialect, IsegEdcp, ProtocolError
 from .driver import ChannelSnapshot, ConfigurationError, HvSupply, RampHandle, SupplySnapshot
 from .errors import HvError, SettingError, StateError
@@ -13,6 +14,6 @@ from .faults import Fault, fault_names
 from .link import LinkError
 from .supervisor import FaultLatchedError, LimitError, Supervisor
 
-__all__ = ["ChannelConfig", "ChannelSnapshot", "ConfigurationError", "Dialect", "Fault", "FaultLatchedError",
-           "HvError", "HvSupply", "IsegEdcp", "LimitError", "LinkError", "ProtocolError", "RampHandle", "SettingError",
-           "StateError", "Supervisor", "SupplySnapshot", "fault_names"]
+__all__ = ["ChannelConfig", "ChannelSnapshot", "ConfigurationError", "ControlError", "Dialect", "Fault",
+           "FaultLatchedError", "HvError", "HvSupply", "IsegEdcp", "LimitError", "LinkError", "ProtocolError",
+           "RampHandle", "SettingError", "StateError", "Supervisor", "SupplySnapshot", "fault_names"]

@@ -3,6 +3,7 @@ import math
 from dataclasses import dataclass
 
 from .errors import SettingError
+from .ramp import MAX_RAMP_DURATION_S, slowest_slew_rate
 
 
 def _require(condition: bool, parameter: str, value, expectation: str) -> None:
@@ -18,7 +19,8 @@ class ChannelConfig:
     index: channel number on the supply (0-based, as in ``(@0)``).
     max_voltage_v: hard maximum [V]; the ceiling never exceeds it (the assembly's safe voltage and the
         supply's own limit may lower it further).
-    slew_rate_v_per_s: maximum rate of change of the commanded voltage [V/s].
+    slew_rate_v_per_s: maximum rate of change of the commanded voltage [V/s]; at least the rate that
+        ramps max_voltage_v within ramp.MAX_RAMP_DURATION_S.
     current_trip_a: measured current above this trips OVER_CURRENT [A].
     mismatch_tolerance_v, mismatch_time_s: measured voltage further than ``mismatch_tolerance_v`` [V]
         from the commanded one for longer than ``mismatch_time_s`` [s] trips READBACK_MISMATCH.
@@ -45,6 +47,9 @@ class ChannelConfig:
             value = getattr(self, parameter)
             _require(isinstance(value, (int, float)) and math.isfinite(value) and value > 0,
                      parameter, value, "finite number > 0")
+        _require(self.slew_rate_v_per_s >= slowest_slew_rate(self.max_voltage_v), "slew_rate_v_per_s",
+                 self.slew_rate_v_per_s, f">= {slowest_slew_rate(self.max_voltage_v):g} V/s, so a ramp over "
+                 f"max_voltage_v={self.max_voltage_v:g} V ends within {MAX_RAMP_DURATION_S:g} s")
         _require((self.creep_voltage_v is None) == (self.max_time_at_voltage_s is None),
                  "creep_voltage_v", self.creep_voltage_v, "set together with max_time_at_voltage_s")
         for parameter in ("creep_voltage_v", "max_time_at_voltage_s"):

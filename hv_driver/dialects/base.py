@@ -12,7 +12,7 @@ from ..errors import HvError
 
 # Operations the driver uses; every dialect's table must define all of them.
 OPERATIONS = (
-    "identify", "reset", "set_voltage", "output_on", "output_off", "emergency_off",
+    "identify", "read_channel_count", "reset", "set_voltage", "output_on", "output_off", "emergency_off",
     "emergency_clear", "clear_events", "measure_voltage", "measure_current", "read_status",
     "read_event_status", "read_voltage_limit", "set_ramp_up", "set_ramp_down", "read_ramp",
     "set_current_limit", "read_current_limit", "set_trip_time", "read_trip_time", "set_trip_action",

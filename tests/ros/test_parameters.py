@@ -1,6 +1,7 @@
 """Node parameters: one schema per node, checked at start. The params files, the docs' tables and the declared
 parameters agree; a misspelt key, a bad value or an empty channel list stops a node with one line that names
 the parameter, the value and what is allowed."""
+import math
 import os
 import re
 import signal
@@ -37,18 +38,33 @@ def test_the_docs_table_of_each_node_is_its_declared_schema(node):
         f"regenerate the table with `python -m softblock_ros.parameters` and paste it after the {node} marker")
 
 
-@pytest.mark.parametrize("path", sorted(config_file().glob("*.yaml")), ids=lambda p: p.name)
-def test_every_key_of_the_shipped_parameter_files_is_a_valid_declared_parameter(path):
-    document = yaml.safe_load(path.read_text())
+def check_parameter_sections(document: dict, where: str) -> int:
+    """Check every node section of a parameter file against the node's schema; returns how many there were."""
     sections = {node: body["ros__parameters"] for node, body in document.items()
                 if isinstance(body, dict) and "ros__parameters" in body}
-    if path.name in ("hv_driver.yaml", "sequencer.yaml"):
-        assert sections, path
     for node, values in sections.items():
         schema = {param.name: param for param in node_schema(node)}
-        assert set(values) <= set(schema), f"{path.name}: {sorted(set(values) - set(schema))} not declared by {node}"
+        assert set(values) <= set(schema), f"{where}: {sorted(set(values) - set(schema))} not declared by {node}"
         for name, value in values.items():
             schema[name].check(value)
+    return len(sections)
+
+
+@pytest.mark.parametrize("path", sorted(config_file().glob("*.yaml")), ids=lambda p: p.name)
+def test_every_key_of_the_shipped_parameter_files_is_a_valid_declared_parameter(path):
+    sections = check_parameter_sections(yaml.safe_load(path.read_text()), path.name)
+    if path.name in ("hv_driver.yaml", "sequencer.yaml"):
+        assert sections, path
+
+
+DOCS_PARAMETER_BLOCKS = [(path.name, block) for path in sorted(DOCS.glob("*.md"))
+                         for block in re.findall(r"```yaml\n(.*?)```", path.read_text(), re.S)
+                         if "ros__parameters" in block]
+
+
+@pytest.mark.parametrize("page, block", DOCS_PARAMETER_BLOCKS, ids=[page for page, _ in DOCS_PARAMETER_BLOCKS])
+def test_every_parameter_file_shown_in_the_docs_is_valid(page, block):
+    assert check_parameter_sections(yaml.safe_load(block), page)
 
 
 @pytest.fixture
@@ -94,6 +110,15 @@ def test_a_bad_parameter_is_one_line_naming_it_and_nothing_is_declared(make_node
         declare(node, SCHEMA)
     assert str(raised.value).startswith(message) and "\n" not in str(raised.value)
     assert not node.has_parameter("max_voltage_v")
+
+
+def test_infinity_is_accepted_only_where_the_range_reaches_it(make_node):
+    schema = SCHEMA + (Param("watchdog_timeout_s", 2.0, "watchdog timeout; .inf = off", "s", 0.05, math.inf),)
+    assert declare(make_node([("watchdog_timeout_s", math.inf)]), schema)["watchdog_timeout_s"] == math.inf
+    with pytest.raises(ParameterError, match=r"parameter max_voltage_v=inf refused: allowed 1\.\.10000 V"):
+        declare(make_node([("max_voltage_v", math.inf)]), schema)
+    with pytest.raises(ParameterError, match=r"parameter watchdog_timeout_s=-inf refused: allowed 0\.05\.\.inf s"):
+        declare(make_node([("watchdog_timeout_s", -math.inf)]), schema)
 
 
 def start_node(node: str, params_text: str, tmp_path, timeout: float = 60.0) -> subprocess.CompletedProcess:

@@ -30,7 +30,6 @@ from rclpy.qos import qos_profile_sensor_data
 from softblock_interfaces.action import RampChannel, RunSequence
 from softblock_interfaces.msg import HvState
 from softblock_interfaces.srv import DesignFingers, InjectFault, SetAssembly
-from std_msgs.msg import Empty
 from std_srvs.srv import Trigger
 
 from planner.assembly import load_assembly
@@ -44,6 +43,7 @@ from softblock_config import config_file
 
 from .client import ActionClient, ClientError, call_service, run_action, status_name, wait_until
 from .conversions import assembly_msg, chain_from_msg
+from .hv_control import HvControl
 from .launcher import Stack
 
 DEMO_ASSEMBLY = "assemblies/gripper.yaml"
@@ -84,10 +84,9 @@ class DemoClient:
         self.reset_faults = self.node.create_client(Trigger, "hv/reset_faults")
         self.run_sequence = ActionClient(self.node, RunSequence, "sequencer/run")
         self.ramp = ActionClient(self.node, RampChannel, "hv/ramp")
-        # The demo is the controlling client of the HV driver: without this sign of life an energised
-        # output ramps down (heartbeat_timeout in config/hv_driver.yaml).
-        heartbeat = self.node.create_publisher(Empty, "hv/heartbeat", 10)
-        self.node.create_timer(0.1, lambda: heartbeat.publish(Empty()))
+        # The sequencer holds control of the HV driver during the grasp; the demo claims it for its own
+        # fault drill (heartbeats while it holds it).
+        self.control = HvControl(self.node, "demo", heartbeat_rate_hz=10.0, timeout_s=SERVICE_TIMEOUT)
         self.executor = MultiThreadedExecutor(num_threads=4)
         self.executor.add_node(self.node)
         self._spinner = threading.Thread(target=self.executor.spin, daemon=True)
@@ -160,12 +159,21 @@ def run_grasp(client: DemoClient) -> dict:
 
 
 def fault_drill(client: DemoClient) -> dict:
+    """The fault drill with the demo holding control of the HV driver (claimed, then released)."""
+    token = client.control.claim()
+    try:
+        return inject_fault_mid_ramp(client, token)
+    finally:
+        say(f"  HV control: {client.control.release()}")
+
+
+def inject_fault_mid_ramp(client: DemoClient, token: str) -> dict:
     """Ramp a channel, inject an over-current (film breakdown) into the simulated supply mid-ramp,
     and time how long the driver takes to switch the output off with a named fault."""
     say(f"fault drill: ramping {FAULT_CHANNEL} toward 1.2 kV, then injecting {FAULT}")
     outcome = {}
     ramp = threading.Thread(target=lambda: outcome.setdefault("ramp", run_action(
-        client.ramp, RampChannel.Goal(channel=FAULT_CHANNEL, target=1200.0), timeout=60.0,
+        client.ramp, RampChannel.Goal(channel=FAULT_CHANNEL, target=1200.0, token=token), timeout=60.0,
         server_timeout=SERVICE_TIMEOUT)), daemon=True)
     ramp.start()
     wait_until(lambda: (c := client.channel(FAULT_CHANNEL)) and c.measured_voltage > 600.0, 30.0,

@@ -1,6 +1,8 @@
 """Parameters of the hv_driver node (defaults from hv_driver's ChannelConfig and HvSupply) and what they give."""
 from __future__ import annotations
 
+import math
+
 from hv_driver import ChannelConfig, HvSupply, IsegEdcp
 
 from .parameters import Param, ParameterError
@@ -18,8 +20,8 @@ PARAMETERS = (
     Param.of(ChannelConfig, "max_voltage_v", "hard maximum of every channel", "V", 1.0, 10000.0),
     Param.of(ChannelConfig, "slew_rate_v_per_s", "maximum slew rate", "V/s", 1.0, 100000.0),
     Param.of(ChannelConfig, "current_trip_a", "over-current trip level", "A", 1e-9, 0.1),
-    Param.of(ChannelConfig, "mismatch_tolerance_v", "readback further than this from the setpoint ...", "V",
-             1.0, 1000.0),
+    Param.of(ChannelConfig, "mismatch_tolerance_v", "readback further than this from the command, allowing for "
+             "the device's own ramp ...", "V", 1.0, 1000.0),
     Param.of(ChannelConfig, "mismatch_time_s", "... for longer than this trips READBACK_MISMATCH", "s", 0.01, 10.0),
     Param.of(ChannelConfig, "creep_voltage_v", "creep guard: continuous time at or above this voltage ...; "
              "0 = no creep guard", "V", 0.0, 10000.0, none_as=0.0),
@@ -27,8 +29,9 @@ PARAMETERS = (
              "s", 0.0, 1e6, none_as=0.0),
     Param.of(HvSupply, "loop_rate_hz", "control loop rate (lower it for a 9600-baud link)", "Hz", 1.0, 1000.0),
     Param.of(HvSupply, "link_timeout_s", "no valid reply for this long trips LINK", "s", 0.1, 10.0),
-    Param.of(HvSupply, "heartbeat_timeout_s", "no hv/heartbeat or ramp request for this long ramps energised outputs "
-             "to 0 V; 0 = off (logged)", "s", 0.0, 60.0, none_as=0.0),
+    Param.of(HvSupply, "heartbeat_timeout_s", "the client holding control (hv/claim_control) must send hv/heartbeat "
+             "this often or its control lapses and its energised outputs ramp to 0 V; .inf = off (logged)", "s",
+             0.05, math.inf),
     Param("publish_rate_hz", 50.0, "hv/state rate", "Hz", 20.0, 200.0),
     Param("autostart", True, "configure and activate at start (console script / python -m)", kind=bool),
 )

@@ -9,11 +9,12 @@ FEEDBACK_PERIOD = 0.05  # [s]
 
 
 def execute_ramp_goal(supply: HvSupply, goal_handle) -> RampChannel.Result:
-    """Run the goal to its end; a refused request (limit, fault, unknown channel) aborts with the reason."""
+    """Run the goal to its end; a refused request (limit, fault, unknown channel, not the client holding
+    control) aborts with the reason."""
     goal, result = goal_handle.request, RampChannel.Result()
     try:
-        handle = supply.ramp_to(goal.channel, goal.target, goal.slew_rate or None)
-    except HvError as error:  # a limit, a latched fault, the output off, an unknown channel
+        handle = supply.ramp_to(goal.channel, goal.target, goal.slew_rate or None, token=goal.token)
+    except HvError as error:  # a limit, a latched fault, the output off, an unknown channel, not in control
         result.message = str(error)
         goal_handle.abort()
         return result

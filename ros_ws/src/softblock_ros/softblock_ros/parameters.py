@@ -98,8 +98,9 @@ class Param:
             self._fail(shown, f"must be a {self.kind.__name__}" + (f" ({self._range_text()})"
                                                                     if self.kind in (int, float) else ""))
         if self.kind in (int, float):
-            if not math.isfinite(value) or (self.low is not None and value < self.low) or (
-                    self.high is not None and value > self.high):
+            # Infinity only where the range reaches it (a watchdog switched off with .inf), NaN never.
+            if math.isnan(value) or (math.isinf(value) and value not in (self.low, self.high)) or (
+                    self.low is not None and value < self.low) or (self.high is not None and value > self.high):
                 self._fail(shown, f"allowed {self._range_text()}")
         if self.choices and value not in self.choices:
             self._fail(shown, f"allowed {self._range_text()}")

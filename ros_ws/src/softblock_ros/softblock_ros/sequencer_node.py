@@ -1,8 +1,9 @@
 """Sequencer node: action `sequencer/run` executes a YAML manipulation sequence step by step.
 
-Loads <sequences_dir>/<name>.yaml (or a path), runs it with the sequencing engine against the arm
-(`arm/move`) and the HV driver (`hv/ramp`, `hv/state`, `hv/estop`), publishes feedback and a
-`sequencer/events` message per step transition, and `hv/heartbeat` at `heartbeat_rate_hz` while it runs.
+Loads <sequences_dir>/<name>.yaml (a goal names a sequence, never a path), runs it with the sequencing
+engine against the arm (`arm/move`) and the HV driver (`hv/ramp`, `hv/state`, `hv/estop`), publishes
+feedback and a `sequencer/events` message per step transition. It holds control of the HV driver while a sequence runs
+(`hv/claim_control`, then `hv/heartbeat` at `heartbeat_rate_hz`, `hv/release_control` at the end).
 One goal at a time: a second goal is rejected while one runs. See docs/sequences.md.
 """
 import threading
@@ -13,10 +14,9 @@ from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from softblock_interfaces.action import RunSequence
 from softblock_interfaces.msg import SequenceEvent
-from std_msgs.msg import Empty
 
 from sequencing.engine import SequenceEngine, StepEvent
-from sequencing.ports import RunOptions
+from sequencing.ports import RobotError, RunOptions
 from sequencing.schema import Limits, SequenceError, StepDefaults, load_sequence
 
 from .parameters import Param, declare
@@ -28,8 +28,8 @@ FEEDBACK_PHASES = {"precondition", "running", "succeeded"}
 EVENT_PHASES = {"running": "started", "succeeded": "succeeded", "failed": "failed", "canceled": "canceled"}
 
 PARAMETERS = (
-    Param("sequences_dir", "sequences", "directory of <name>.yaml files (relative and not found from the working "
-          "directory: the shipped config/sequences)", kind=str),
+    Param("sequences_dir", "sequences", "directory of <name>.yaml files, the only ones a goal can name (relative "
+          "and not found from the working directory: the shipped config/sequences)", kind=str),
     Param("heartbeat_rate_hz", 10.0, "hv/heartbeat rate while a sequence runs", "Hz", 1.0, 100.0),
     Param.of(Limits, "voltage_ceiling_v", "highest voltage a sequence may command", "V", 0.0, 10000.0),
     Param.of(Limits, "max_pulse_frequency_hz", "highest pulse-train frequency", "Hz", 0.1, 50.0),
@@ -60,21 +60,15 @@ class SequencerNode(Node):
         self._options = RunOptions(value["poll_period_s"], value["settle_time_s"], value["safe_stop_timeout_s"],
                                    value["off_voltage_v"])
         group = ReentrantCallbackGroup()
-        self._robot = RosRobot(self, group, value["server_timeout_s"], value["state_timeout_s"])
+        self._robot = RosRobot(self, group, value["server_timeout_s"], value["state_timeout_s"],
+                               value["heartbeat_rate_hz"])
         self._events = self.create_publisher(SequenceEvent, "sequencer/events", 10)
-        self._heartbeat = self.create_publisher(Empty, "hv/heartbeat", 10)
-        self.create_timer(1.0 / value["heartbeat_rate_hz"], self._beat, callback_group=group)
         self._busy = threading.Lock()
-        self._running = False
         self._cancel = threading.Event()
         self._running_name = ""
         self._server = ActionServer(self, RunSequence, "sequencer/run", execute_callback=self._execute,
                                     goal_callback=self._on_goal, cancel_callback=self._on_cancel,
                                     callback_group=group)
-
-    def _beat(self) -> None:
-        if self._running:
-            self._heartbeat.publish(Empty())
 
     def _on_goal(self, goal: RunSequence.Goal) -> GoalResponse:
         if not self._busy.acquire(blocking=False):
@@ -113,9 +107,16 @@ class SequencerNode(Node):
             except SequenceError as error:
                 goal_handle.abort()
                 return RunSequence.Result(success=False, message=f"rejected: {error}")
-            self._running = True
-            engine = SequenceEngine(self._robot, self._options, lambda event: self._on_step(goal_handle, event))
-            outcome = engine.run(sequence, self._cancel)
+            try:
+                self._robot.take_control()
+            except RobotError as error:
+                goal_handle.abort()
+                return RunSequence.Result(success=False, message=str(error))
+            try:
+                engine = SequenceEngine(self._robot, self._options, lambda event: self._on_step(goal_handle, event))
+                outcome = engine.run(sequence, self._cancel)
+            finally:
+                self.get_logger().info(f"HV control: {self._robot.give_up_control()}")
             if outcome.canceled:
                 goal_handle.canceled()
             elif outcome.success:
@@ -126,7 +127,6 @@ class SequencerNode(Node):
                                       failed_step=outcome.failed_step, step_names=outcome.step_names,
                                       step_durations=outcome.step_durations)
         finally:
-            self._running = False
             self._busy.release()
 
 
