@@ -4,8 +4,8 @@ fields).
 A file is named after a digest of everything its arrays depend on: the caller's key (the inputs), the
 source of the modules that build them (the code version) and the numpy and scipy versions. The file holds
 that digest and a checksum of its arrays; a file whose digest or checksum does not match (stale, truncated,
-corrupt, renamed) is reported, rebuilt and replaced, never used. Files are written to a temporary name and
-renamed, so a concurrent process never reads half a file.
+corrupt, renamed) is reported, rebuilt and replaced, never used. Files are written atomically
+(``planner.atomic_file``), so a concurrent process never reads half a file.
 """
 from __future__ import annotations
 
@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 import scipy
+
+from planner.atomic_file import atomic_write
 
 LOG = logging.getLogger(__name__)
 FORMAT = 1  # bump when the file layout below changes
@@ -73,11 +75,9 @@ def load_or_build(name: str, digest: str, build: Callable[[], dict[str, np.ndarr
         LOG.warning("cache file %s %s: rebuilding it", path, problem)
     arrays = build()
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        temporary = path.with_name(f"{path.stem}.{os.getpid()}.tmp.npz")
-        np.savez(temporary, **arrays, **{_DIGEST: np.array(digest), _CHECKSUM: np.array(checksum(arrays))})
-        temporary.replace(path)
-    except OSError as error:
+        with atomic_write(path, "wb") as stream:
+            np.savez(stream, **arrays, **{_DIGEST: np.array(digest), _CHECKSUM: np.array(checksum(arrays))})
+    except (OSError, ValueError) as error:
         LOG.warning("cannot store cache file %s (%s); the next process builds it again", path, error)
     return arrays
 

@@ -61,7 +61,8 @@ class PlannerNode(Node):
             design.prepare_finger_search(table=self._table)
             self.get_logger().info(f"finger search prepared in {time.perf_counter() - started:.1f} s")
         except Exception as error:  # noqa: BLE001 - requests still work, they load what they need themselves
-            self.get_logger().error(f"preparing the finger search failed: {error!r}")
+            self.get_logger().error(f"preparing the finger search failed: {type(error).__name__}: {error} "
+                                    f"(at {where(error)})")
         finally:
             self.prepared.set()
 
