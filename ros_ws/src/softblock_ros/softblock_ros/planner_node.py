@@ -2,15 +2,12 @@
 
 Optimizations run in the service callbacks on a reentrant group of a MultiThreadedExecutor, so other
 requests, parameter services and shutdown are served meanwhile. A bad request gets success=false and the
-core's message; the node carries on. Shutting down cancels running optimizations. At start, a background
-thread loads the finger search's compiled kernels and lookahead fields (planner.design.prepare_finger_search),
-so the first request is as fast as later ones.
+core's message; the node carries on. Shutting down cancels running optimizations.
 """
 from __future__ import annotations
 
 import sys
 import threading
-import time
 from functools import partial
 
 from rclpy.callback_groups import ReentrantCallbackGroup
@@ -52,19 +49,6 @@ class PlannerNode(Node):
         self.create_service(DesignPath, "planner/design_path", partial(self._serve, self._design_path),
                             callback_group=group)
         self.get_logger().info(f"ready, table of {len(self._table.ids)} designs")
-        self.prepared = threading.Event()  # set once the finger search is prepared (or preparing it failed)
-        threading.Thread(target=self._prepare_finger_search, name="prepare_finger_search", daemon=True).start()
-
-    def _prepare_finger_search(self) -> None:
-        started = time.perf_counter()
-        try:
-            design.prepare_finger_search(table=self._table)
-            self.get_logger().info(f"finger search prepared in {time.perf_counter() - started:.1f} s")
-        except Exception as error:  # noqa: BLE001 - requests still work, they load what they need themselves
-            self.get_logger().error(f"preparing the finger search failed: {type(error).__name__}: {error} "
-                                    f"(at {where(error)})")
-        finally:
-            self.prepared.set()
 
     def destroy_node(self):
         self._stopping.set()
