@@ -1,0 +1,314 @@
+"""Fit one block structure to a silhouette: bending angles (and a small base correction) by robust least squares.
+
+Parameters x = [theta_1 .. theta_N [rad], base shift x, y [pixels], base turn [rad]]. Residuals, in units of
+the outline noise ``edge_sigma``: the signed distance of every visible outline sample of the model from the
+observed outline, and Gaussian priors on each angle (the table's prediction) and on the base correction.
+
+1. ``track``: block by block from the base, each angle by a coarse-to-fine grid search over both bending
+   sides against that block's own outline samples and the start of the next block (the chain is serial, so
+   every block starts where the fitted ones end), on the silhouette's coarse distance map. This finds the
+   basin even when many blocks deviate by several degrees.
+2. ``refine``: ``scipy.optimize.least_squares`` (trust region reflective, Cauchy loss so an occluded part
+   only loosely pulls) from the tracked start; Jacobian = outline normal x d(sample)/d(parameter), the
+   sample derivatives from one batched call of the kinematics.
+3. ``score``: the robust cost both ways (model outline -> image outline and image outline -> model
+   outline, each weighted by the outline length it stands for) plus the priors; this is what hypotheses
+   with different block counts are compared by.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.spatial import cKDTree
+
+from estimation.hypotheses import Hypothesis
+from estimation.outline import OutlineLayout, outline_layout, outline_points, start_frame, visible
+from estimation.silhouette import Silhouette
+from estimation.view import ImagePose
+
+FD_STEP = 1e-6  # [rad] forward-difference step of the sample derivatives
+BASE_PARAMETERS = 3
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    sample_spacing: float = 3.0  # [pixels] between outline samples along the centreline
+    edge_sigma: float = 1.0  # [pixels] noise of an outline position
+    robust_scale: float = 2.0  # Cauchy loss scale, in units of edge_sigma
+    angle_sigma: float = math.radians(2.5)  # spread of a block's angle about its design's [rad]
+    unknown_angle_sigma: float = math.radians(20.0)  # prior width of a block whose design is open [rad]
+    base_shift_sigma: float = 1e-3  # [m] prior on the base position correction
+    base_turn_sigma: float = math.radians(1.0)  # [rad] prior on the base angle correction
+    fit_base: bool = True
+    track_range: float = math.radians(60.0)  # the grid spans +-this around zero, both bending sides [rad]
+    track_steps: tuple[float, float] = (math.radians(5.0), math.radians(1.0))  # coarse and fine grid steps
+    track_stride: int = 2  # tracking scores every this many outline samples
+    lookahead: float = 0.5  # tracking also scores this fraction of the next block (it pins the end heading)
+    max_nfev: int = 40
+    xtol: float = 1e-5  # least_squares tolerances: 1e-5 of a radian-sized step is far below a pixel
+    ftol: float = 1e-6
+    unexplained_distance: float = 2.0  # [pixels] an outline point farther than this is unexplained
+
+
+@dataclass(frozen=True)
+class Score:
+    total: float  # image terms + priors (no mistake penalty)
+    model_to_image: float
+    image_to_model: float
+    prior: float
+    unexplained_length: float  # [m] of outline (model and image) farther than unexplained_distance
+    block_residual: np.ndarray  # (N,) RMS distance of each block's outline from the image outline [m]
+    block_unexplained: np.ndarray  # (N,) unexplained outline length of each block (model side) [m]
+    designs: tuple[int, ...]  # best-fitting design of each block
+
+
+@dataclass(frozen=True)
+class Fit:
+    hypothesis: Hypothesis
+    x: np.ndarray
+    theta_std: np.ndarray  # (N,) [rad]
+    score: Score
+    nfev: int
+    refined: bool
+
+    @property
+    def theta(self) -> np.ndarray:
+        return self.x[: len(self.hypothesis.blocks)]
+
+
+def cauchy(residual: np.ndarray, scale: float) -> np.ndarray:
+    """scipy's Cauchy loss per residual: 0.5 C^2 ln(1 + (r / C)^2)."""
+    return 0.5 * scale**2 * np.log1p((residual / scale) ** 2)
+
+
+def _polyline_lengths(points: np.ndarray, slices) -> np.ndarray:
+    """Length of outline each sample stands for: half of each adjacent segment, per open polyline."""
+    lengths = np.zeros(len(points))
+    for part in slices:
+        step = np.linalg.norm(np.diff(points[part], axis=0), axis=1)
+        lengths[part] = np.concatenate([[0.0], step]) * 0.5 + np.concatenate([step, [0.0]]) * 0.5
+    return lengths
+
+
+class ChainModel:
+    """One hypothesis in one image: parameters -> outline samples (image frame), residuals and Jacobian."""
+
+    def __init__(self, hypothesis: Hypothesis, silhouette: Silhouette, pose: ImagePose, options: FitOptions,
+                 layout: OutlineLayout | None = None):
+        self.hypothesis = hypothesis
+        self.silhouette = silhouette
+        self.pose = pose
+        self.options = options
+        self.pixel = silhouette.pixel_size
+        self.layout = layout or outline_layout(hypothesis.length, hypothesis.phi, options.sample_spacing * self.pixel)
+        self.blocks = self.layout.blocks
+        self.mean, self.sigma = hypothesis.prior(options.unknown_angle_sigma, options.angle_sigma)
+        self.size = self.blocks + (BASE_PARAMETERS if options.fit_base else 0)
+        self.shown = np.ones(len(self.layout.block), dtype=bool)
+        self.edge = options.edge_sigma * self.pixel  # [m]
+        self._cache = None
+
+    def start(self) -> np.ndarray:
+        return np.concatenate([self.mean, np.zeros(self.size - self.blocks)])
+
+    def _base(self, x) -> tuple[np.ndarray, float]:
+        if not self.options.fit_base:
+            return np.zeros(2), 0.0
+        return np.asarray(x[self.blocks : self.blocks + 2]) * self.pixel, float(x[self.blocks + 2])
+
+    def image_points(self, x, theta=None) -> np.ndarray:
+        """Outline samples in the image (..., M, 2) [m]; ``theta`` (..., N) overrides the angles of x."""
+        shift, turn = self._base(x)
+        angles = x[: self.blocks] if theta is None else theta
+        return self.pose.to_image(outline_points(self.layout, angles), shift, turn)
+
+    def update_visibility(self, x) -> bool:
+        """Recompute which samples are hidden by the body itself; True if that changed."""
+        shown = visible(self.layout, x[: self.blocks])
+        changed = not np.array_equal(shown, self.shown)
+        self.shown = shown
+        self._cache = None
+        return changed
+
+    def _evaluate(self, x):
+        key = np.asarray(x, dtype=float).tobytes()
+        if self._cache is None or self._cache[0] != key:
+            points = self.image_points(x)[self.shown]
+            distance, normals = self.silhouette.signed_distance(points)
+            self._cache = (key, points, distance, normals)
+        return self._cache[1:]
+
+    def prior_residuals(self, x) -> np.ndarray:
+        parts = [(x[: self.blocks] - self.mean) / self.sigma]
+        if self.options.fit_base:
+            shift, turn = self._base(x)
+            parts.append(np.append(shift / self.options.base_shift_sigma, turn / self.options.base_turn_sigma))
+        return np.concatenate(parts)
+
+    def residuals(self, x) -> np.ndarray:
+        _, distance, _ = self._evaluate(x)
+        return np.concatenate([distance / self.edge, self.prior_residuals(x)])
+
+    def jacobian(self, x) -> np.ndarray:
+        points, _, normals = self._evaluate(x)
+        theta = np.asarray(x[: self.blocks], dtype=float)
+        batch = theta + np.vstack([np.zeros(self.blocks), FD_STEP * np.eye(self.blocks)])
+        moved = self.image_points(x, batch)[:, self.shown]  # (N + 1, M, 2)
+        derivative = (moved[1:] - moved[:1]) / FD_STEP  # (N, M, 2)
+        image_rows = np.einsum("nmk,mk->mn", derivative, normals) / self.edge
+        jacobian = np.zeros((len(points) + self.size, self.size))
+        jacobian[: len(points), : self.blocks] = image_rows
+        prior = np.arange(self.blocks)
+        jacobian[len(points) + prior, prior] = 1.0 / self.sigma
+        if self.options.fit_base:
+            shift, _ = self._base(x)
+            arm = points - (self.pose.position + shift)
+            columns = slice(self.blocks, self.size)
+            jacobian[: len(points), columns] = np.column_stack([
+                normals[:, 0] * self.pixel, normals[:, 1] * self.pixel, normals[:, 1] * arm[:, 0] - normals[:, 0] * arm[:, 1],
+            ]) / self.edge
+            rows = len(points) + self.blocks + np.arange(BASE_PARAMETERS)
+            jacobian[rows, self.blocks + np.arange(BASE_PARAMETERS)] = [
+                self.pixel / self.options.base_shift_sigma, self.pixel / self.options.base_shift_sigma, 1.0 / self.options.base_turn_sigma,
+            ]
+        return jacobian
+
+
+def _tracking_window(model: ChainModel, k: int) -> tuple[OutlineLayout, np.ndarray]:
+    """Layout of blocks k, k + 1 and the samples that judge block k: its sides (its end faces only where they
+    are the chain's), and the first ``lookahead`` of the next block, whose start rests on block k's end."""
+    stop = min(k + 2, model.blocks)
+    layout = outline_layout(model.layout.length[k:stop], model.layout.phi[k:stop], model.options.sample_spacing * model.pixel)
+    p = layout.centreline_samples
+    sides = np.zeros(len(layout.block), dtype=bool)
+    sides[: 2 * p] = True
+    own = (layout.block == 0) & (sides | ((k == 0) & (np.arange(len(sides)) < 2 * p + len(layout.face))))
+    if stop == k + 1:
+        own |= layout.block == 0  # the last block: its tip face is the chain's
+        own[2 * p : 2 * p + len(layout.face)] = k == 0
+    ahead = sides & (layout.block == 1) & (layout.fraction <= model.options.lookahead)
+    return layout, np.flatnonzero(own | ahead)[:: model.options.track_stride]
+
+
+def track(model: ChainModel, x: np.ndarray, first: int = 0) -> tuple[np.ndarray, int]:
+    """Angles of blocks ``first``.. found one after the other by a coarse-to-fine grid search over both
+    bending sides; returns x and the number of shapes evaluated."""
+    x = np.array(x, dtype=float)
+    options = model.options
+    coarse, fine = options.track_steps
+    shift, turn = model._base(x)
+    layout = model.layout
+    evaluations = 0
+    for k in range(first, model.blocks):
+        window, samples = _tracking_window(model, k)
+        frame = start_frame(x[: model.blocks], layout.length, layout.phi, k)
+        grid = np.append(np.arange(-options.track_range, options.track_range + 0.5 * coarse, coarse), x[k])
+        for _ in range(2):
+            theta = np.repeat(x[None, k : k + window.blocks], len(grid), axis=0)
+            theta[:, 0] = grid
+            points = model.pose.to_image(outline_points(window, theta, frame)[:, samples], shift, turn)
+            distance = model.silhouette.coarse_distance(points)
+            cost = cauchy(distance / model.edge, options.robust_scale).sum(axis=1)
+            cost += 0.5 * ((grid - model.mean[k]) / model.sigma[k]) ** 2
+            best = grid[int(np.argmin(cost))]
+            evaluations += len(grid)
+            grid = best + np.arange(-coarse, coarse + 0.5 * fine, fine)
+        x[k] = best
+    return x, evaluations
+
+
+def refine(model: ChainModel, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Robust least squares from x; returns x, the angles' standard deviations [rad] and evaluations."""
+    evaluations = 0
+    for _ in range(2):  # a second pass only if the fitted shape hides other samples than the start did
+        model.update_visibility(x)
+        result = least_squares(
+            model.residuals, x, jac=model.jacobian, method="trf", loss="cauchy", f_scale=model.options.robust_scale,
+            x_scale="jac", max_nfev=model.options.max_nfev, xtol=model.options.xtol, ftol=model.options.ftol,
+        )
+        x, evaluations = result.x, evaluations + result.nfev
+        if not model.update_visibility(x):
+            break
+    return x, _angle_std(model, result), evaluations
+
+
+def _angle_std(model: ChainModel, result) -> np.ndarray:
+    """Standard deviations of the angles from the Gauss-Newton covariance, with the residual variance
+    estimated from the fit and inflated for correlation between neighbouring outline samples."""
+    jacobian = result.jac
+    image = result.fun[: len(result.fun) - model.size]
+    dof = max(len(result.fun) - model.size, 1)
+    variance = 2.0 * result.cost / dof
+    centred = image - image.mean()
+    lag = float(np.dot(centred[1:], centred[:-1]) / max(np.dot(centred, centred), 1e-300))
+    lag = min(max(lag, 0.0), 0.95)
+    inflation = (1.0 + lag) / (1.0 - lag)
+    try:
+        covariance = np.linalg.pinv(jacobian.T @ jacobian) * variance * inflation
+    except np.linalg.LinAlgError:
+        return np.full(model.blocks, np.inf)
+    return np.sqrt(np.maximum(np.diag(covariance)[: model.blocks], 0.0))
+
+
+def score(model: ChainModel, x: np.ndarray) -> Score:
+    """Both-way robust outline cost, priors and unexplained outline of the hypothesis at parameters x."""
+    options = model.options
+    silhouette = model.silhouette
+    layout = model.layout
+    theta = x[: model.blocks]
+    spacing = options.sample_spacing * model.pixel
+    points = model.image_points(x)
+    shown = visible(layout, theta)
+    lengths = _polyline_lengths(points, layout.polylines)
+    distance, _ = silhouette.signed_distance(points[shown])
+    scale, far = options.robust_scale, options.unexplained_distance * model.pixel
+    model_cost = float(np.sum(lengths[shown] / spacing * cauchy(distance / model.edge, scale)))
+    # image -> model: distance from each image outline vertex to the model outline (samples densified 4x)
+    dense = []
+    for part in layout.polylines:
+        segment, keep = points[part], shown[part]
+        pairs = keep[:-1] & keep[1:]
+        fractions = np.arange(4)[:, None, None] / 4.0
+        dense.append((segment[:-1][pairs] * (1 - fractions) + segment[1:][pairs] * fractions).reshape(-1, 2))
+        dense.append(segment[keep])
+    dense = np.concatenate(dense)
+    gap, _ = cKDTree(dense).query(silhouette.outline)
+    image_cost = float(np.sum(silhouette.lengths / spacing * cauchy(gap / model.edge, scale)))
+    prior, designs = model.hypothesis.prior_cost(theta, options.angle_sigma)
+    if options.fit_base:
+        base = model.prior_residuals(x)[model.blocks:]
+        prior += 0.5 * float(np.dot(base, base))
+    blocks = layout.block[shown]
+    residual = np.array([np.sqrt(np.mean(distance[blocks == k] ** 2)) if np.any(blocks == k) else np.nan for k in range(model.blocks)])
+    unexplained_model = np.bincount(blocks, weights=lengths[shown] * (np.abs(distance) > far), minlength=model.blocks)
+    unexplained_image = float(np.sum(silhouette.lengths[gap > far]))
+    return Score(
+        total=model_cost + image_cost + prior,
+        model_to_image=model_cost,
+        image_to_model=image_cost,
+        prior=prior,
+        unexplained_length=float(unexplained_model.sum()) + unexplained_image,
+        block_residual=residual,
+        block_unexplained=unexplained_model,
+        designs=designs,
+    )
+
+
+def fit(hypothesis: Hypothesis, silhouette: Silhouette, pose: ImagePose, options: FitOptions,
+        start: np.ndarray | None = None, *, polish: bool = True) -> Fit:
+    """Track (from ``hypothesis.start`` when a start is given, else from the base), optionally refine, score."""
+    model = ChainModel(hypothesis, silhouette, pose, options)
+    x, first = model.start(), 0
+    if start is not None:  # the parent's fit: same blocks before hypothesis.start, same base correction
+        first = hypothesis.start
+        x[:first] = start[:first]
+        x[model.blocks :] = start[len(start) - (model.size - model.blocks) :]
+    x, nfev = track(model, x, first)
+    theta_std = np.full(model.blocks, np.nan)
+    if polish:
+        x, theta_std, evaluations = refine(model, x)
+        nfev += evaluations
+    return Fit(hypothesis=hypothesis, x=x, theta_std=theta_std, score=score(model, x), nfev=nfev, refined=polish)
