@@ -17,7 +17,8 @@ from enum import IntEnum
 
 import numpy as np
 
-from estimation.fit import ChainModel, Fit, FitOptions, fit, score
+from estimation.fit import ChainModel, Fit, FitOptions, TrackingTables, fit, inherited_start, quick_cost, score, track
+from estimation.outline import is_planar
 from estimation.hypotheses import DesignBook, Hypothesis, MistakeKind, alternatives, believed_hypothesis
 from estimation.silhouette import Silhouette, check_base, silhouette_from_image
 from estimation.view import ImagePose
@@ -35,6 +36,9 @@ class EstimateOptions(FitOptions):
     search_trigger: float = 8.0  # [pixels] of unexplained outline that start the search for mistakes
     max_unexplained: float = 0.1  # fraction of the outline that may stay unexplained for success
     refine_candidates: int = 3  # candidates refined by least squares after tracking
+
+
+BASE_SHIFT_LIMIT = 3.0  # base corrections beyond this many prior sigmas mean a wrong base pose
 
 
 class Status(IntEnum):
@@ -127,6 +131,51 @@ class ChainEstimate:
     def theta_std(self) -> np.ndarray:
         return np.array([b.theta_std for b in self.blocks])
 
+    def to_dict(self) -> dict:
+        """JSON-ready structure, SI units."""
+        return {
+            "success": self.success,
+            "status": self.status.name.lower(),
+            "message": self.message,
+            "mistakes": [
+                {
+                    "kind": m.kind.value,
+                    "position": m.position,
+                    "believed_design_id": m.believed_design_id,
+                    "likely_design_ids": list(m.likely_design_ids),
+                    "believed_rotation_step": m.believed_rotation_step,
+                    "likely_rotation_steps": list(m.likely_rotation_steps),
+                    "evidence": m.evidence,
+                    "description": m.describe(),
+                }
+                for m in self.mistakes
+            ],
+            "blocks": [
+                {
+                    "position": b.position,
+                    "design_id": b.design_id,
+                    "rotation_steps": b.rotation_steps,
+                    "serial": b.serial,
+                    "believed_position": b.believed_position,
+                    "theta_rad": b.theta,
+                    "theta_std_rad": b.theta_std,
+                    "predicted_theta_rad": b.predicted_theta,
+                    "offset_rad": b.offset,
+                    "residual_predicted_m": b.residual_predicted,
+                    "residual_m": b.residual,
+                }
+                for b in self.blocks
+            ],
+            "base_shift_m": list(self.base_shift),
+            "base_turn_rad": self.base_turn,
+            "residual_m": self.residual,
+            "unexplained_length_m": self.unexplained_length,
+            "outline_length_m": self.outline_length,
+            "hypotheses": self.hypotheses,
+            "nfev": self.nfev,
+            "solve_time_s": self.solve_time,
+        }
+
 
 def make_options(options) -> EstimateOptions:
     """EstimateOptions from None, an EstimateOptions or a mapping of its fields (unknown keys: ValueError)."""
@@ -161,15 +210,24 @@ class _Search:
         self.silhouette, self.pose, self.book, self.believed, self.options = silhouette, pose, book, believed, options
         self.hypotheses = 0
         self.nfev = 0
+        self.tables = TrackingTables(options, silhouette.pixel_size)
 
     def penalised(self, candidate: Fit) -> float:
         return candidate.score.total + self.options.mistake_penalty * len(candidate.hypothesis.changes)
 
-    def fit(self, hypothesis: Hypothesis, parent: Fit | None = None, polish: bool = True) -> Fit:
-        result = fit(hypothesis, self.silhouette, self.pose, self.options, None if parent is None else parent.x, polish=polish)
+    def fit(self, hypothesis: Hypothesis, start: np.ndarray | None = None, first: int = 0) -> Fit:
+        result = fit(hypothesis, self.silhouette, self.pose, self.options, start, first, self.tables)
         self.hypotheses += 1
         self.nfev += result.nfev
         return result
+
+    def tracked(self, hypothesis: Hypothesis, parent: Fit) -> tuple[float, Hypothesis, np.ndarray]:
+        """Quick look at a candidate: track its changed blocks from the parent's fit, coarse cost only."""
+        model = ChainModel(hypothesis, self.silhouette, self.pose, self.options)
+        x, evaluations = track(model, inherited_start(model, parent.x, hypothesis.start), hypothesis.start, self.tables)
+        self.hypotheses += 1
+        self.nfev += evaluations
+        return quick_cost(model, x) + self.options.mistake_penalty * len(hypothesis.changes), hypothesis, x
 
     def rescored(self, parent: Fit, hypothesis: Hypothesis) -> Fit:
         """A hypothesis with the parent's shape (another design of the same length): only the prior differs."""
@@ -195,22 +253,29 @@ class _Search:
         return positions[-1] if positions else 0
 
     def improve(self, current: Fit) -> Fit | None:
-        """The best chain with one mistake more than ``current`` if it scores better, else None."""
+        """The best chain with one mistake more than ``current`` if it scores better, else None.
+
+        Candidates with the parent's shape (another design of the same length) are scored exactly; the
+        others are tracked and ranked by a coarse cost, and the best few refined and scored. Rotations out
+        of the image plane are tried only if no in-plane candidate explains the image.
+        """
         misfit = self.first_misfit(current)
         if misfit is None:
             return None
         candidates = alternatives(current.hypothesis, len(self.believed.blocks), self.book,
                                   out_of_plane=self.options.out_of_plane, last_position=misfit + 1)
-        tracked = []
-        for hypothesis in candidates:
-            if hypothesis.structure == current.hypothesis.structure:
-                tracked.append(self.rescored(current, hypothesis))
-            else:
-                tracked.append(self.fit(hypothesis, current, polish=False))
-        tracked.sort(key=self.penalised)
-        finalists = [c if c.refined else self.fit(c.hypothesis, current) for c in tracked[: self.options.refine_candidates]]
-        best = min(finalists, key=self.penalised)
+        in_plane = [h for h in candidates if is_planar(h.phi) or not is_planar(current.hypothesis.phi)]
+        best = self._best_of(current, in_plane)
+        if len(in_plane) < len(candidates) and self.first_misfit(best) is not None:
+            best = min(best, self._best_of(current, [h for h in candidates if h not in in_plane]), key=self.penalised)
         return best if self.penalised(best) < self.penalised(current) else None
+
+    def _best_of(self, current: Fit, candidates: list[Hypothesis]) -> Fit:
+        same_shape = [self.rescored(current, h) for h in candidates if h.structure == current.hypothesis.structure]
+        ranked = sorted((self.tracked(h, current) for h in candidates if h.structure != current.hypothesis.structure),
+                        key=lambda item: item[0])
+        finalists = same_shape + [self.fit(h, x, len(h.blocks)) for _, h, x in ranked[: self.options.refine_candidates]]
+        return min(finalists, key=self.penalised)
 
 
 def estimate_chain(image, chain: Chain, pixel_size: float, pose: ImagePose, *, voltage: float = 0.0,
@@ -234,6 +299,7 @@ def estimate_chain(image, chain: Chain, pixel_size: float, pose: ImagePose, *, v
     check_base(silhouette, pose, BLOCK_RADIUS, CAP_LENGTH)
     search = _Search(silhouette, pose, book, chain, options)
     current = search.fit(believed)
+    _check_base_correction(current, options, silhouette.pixel_size)
     first = current
     for _ in range(options.max_mistakes):
         better = search.improve(current)
@@ -241,6 +307,21 @@ def estimate_chain(image, chain: Chain, pixel_size: float, pose: ImagePose, *, v
             break
         current = better
     return _result(search, believed, first, current, time.perf_counter() - started)
+
+
+def _check_base_correction(first: Fit, options: EstimateOptions, pixel_size: float) -> None:
+    """ValueError if the fit had to move the base far: the chain does not start at the given base."""
+    if not options.fit_base:
+        return
+    blocks = len(first.hypothesis.blocks)
+    shift = float(np.hypot(*first.x[blocks : blocks + 2])) * pixel_size
+    turn = abs(float(first.x[blocks + 2]))
+    if shift > BASE_SHIFT_LIMIT * options.base_shift_sigma or turn > BASE_SHIFT_LIMIT * options.base_turn_sigma:
+        raise ValueError(
+            f"the chain does not start at the given base: the silhouette fits a base {1e3 * shift:.1f} mm away "
+            f"({shift / pixel_size:.0f} pixels) and turned by {math.degrees(turn):.1f} deg; check the base position, "
+            "angle and mirrored flag"
+        )
 
 
 def _mistakes(search: _Search, current: Fit, first: Fit) -> tuple[Mistake, ...]:

@@ -25,7 +25,16 @@ from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 
 from estimation.hypotheses import Hypothesis
-from estimation.outline import OutlineLayout, outline_layout, outline_points, start_frame, visible
+from estimation.outline import (
+    OutlineLayout,
+    centreline,
+    outline_from_centreline,
+    outline_layout,
+    outline_points,
+    start_frame,
+    visible,
+)
+from planner.kinematics import block_transforms
 from estimation.silhouette import Silhouette
 from estimation.view import ImagePose
 
@@ -48,8 +57,8 @@ class FitOptions:
     track_stride: int = 2  # tracking scores every this many outline samples
     lookahead: float = 0.5  # tracking also scores this fraction of the next block (it pins the end heading)
     max_nfev: int = 40
-    xtol: float = 1e-5  # least_squares tolerances: 1e-5 of a radian-sized step is far below a pixel
-    ftol: float = 1e-6
+    xtol: float = 1e-4  # least_squares tolerances: steps of 1e-4 rad move the outline far less than a pixel
+    ftol: float = 1e-4
     unexplained_distance: float = 2.0  # [pixels] an outline point farther than this is unexplained
 
 
@@ -72,7 +81,6 @@ class Fit:
     theta_std: np.ndarray  # (N,) [rad]
     score: Score
     nfev: int
-    refined: bool
 
     @property
     def theta(self) -> np.ndarray:
@@ -177,47 +185,93 @@ class ChainModel:
         return jacobian
 
 
-def _tracking_window(model: ChainModel, k: int) -> tuple[OutlineLayout, np.ndarray]:
-    """Layout of blocks k, k + 1 and the samples that judge block k: its sides (its end faces only where they
-    are the chain's), and the first ``lookahead`` of the next block, whose start rests on block k's end."""
-    stop = min(k + 2, model.blocks)
-    layout = outline_layout(model.layout.length[k:stop], model.layout.phi[k:stop], model.options.sample_spacing * model.pixel)
-    p = layout.centreline_samples
-    sides = np.zeros(len(layout.block), dtype=bool)
-    sides[: 2 * p] = True
-    own = (layout.block == 0) & (sides | ((k == 0) & (np.arange(len(sides)) < 2 * p + len(layout.face))))
-    if stop == k + 1:
-        own |= layout.block == 0  # the last block: its tip face is the chain's
-        own[2 * p : 2 * p + len(layout.face)] = k == 0
-    ahead = sides & (layout.block == 1) & (layout.fraction <= model.options.lookahead)
-    return layout, np.flatnonzero(own | ahead)[:: model.options.track_stride]
+@dataclass(frozen=True)
+class TrackingWindow:
+    """Block k and the start of block k + 1 over a grid of block k's angle, in block k's start frame."""
+
+    layout: OutlineLayout  # blocks k (and k + 1)
+    samples: np.ndarray  # outline samples that judge block k
+    points: np.ndarray  # (G, P, 3) centreline
+    tangent: np.ndarray  # (G, P, 3)
+    local: np.ndarray | None  # (G, S, 2) the judging samples' outline when the window is planar
 
 
-def track(model: ChainModel, x: np.ndarray, first: int = 0) -> tuple[np.ndarray, int]:
+class TrackingTables:
+    """Tracking windows by block structure, shared by every hypothesis fitted to one image."""
+
+    def __init__(self, options: FitOptions, pixel_size: float):
+        coarse, fine = options.track_steps
+        self.options = options
+        self.spacing = options.sample_spacing * pixel_size
+        self.grid = np.arange(-options.track_range, options.track_range + 0.5 * fine, fine)
+        self.coarse = max(1, round(coarse / fine))  # coarse grid = every this many fine values; the fine
+        self._windows = {}  # search then spans +-this many fine values around the coarse best
+
+    def window(self, model: ChainModel, k: int) -> TrackingWindow:
+        stop = min(k + 2, model.blocks)
+        following = float(model.mean[k + 1]) if stop > k + 1 else 0.0
+        key = (tuple(np.round(model.layout.length[k:stop], 9)), tuple(np.round(model.layout.phi[k:stop], 9)),
+               round(following, 9), k == 0)
+        if key not in self._windows:
+            self._windows[key] = self._build(model.layout.length[k:stop], model.layout.phi[k:stop], following, k == 0)
+        return self._windows[key]
+
+    def _build(self, length, phi, following: float, base: bool) -> TrackingWindow:
+        layout = outline_layout(length, phi, self.spacing)
+        p, f = layout.centreline_samples, len(layout.face)
+        index = np.arange(len(layout.block))
+        # block k's sides, the chain's base face if k = 0, the chain's tip face if k is the last block
+        own = (layout.block == 0) & ((index < 2 * p) | (base & (index < 2 * p + f)))
+        if layout.blocks == 1:
+            own |= index >= 2 * p + f
+        ahead = (index < 2 * p) & (layout.block == 1) & (layout.fraction <= self.options.lookahead)
+        samples = np.flatnonzero(own | ahead)[:: self.options.track_stride]
+        theta = np.column_stack([self.grid, np.full((len(self.grid), layout.blocks - 1), following)])
+        points, tangent = centreline(layout, theta)
+        local = outline_from_centreline(layout, points, tangent)[:, samples] if layout.planar else None
+        return TrackingWindow(layout, samples, points, tangent, local)
+
+
+def _in_plane(rotation: np.ndarray) -> bool:
+    return abs(abs(rotation[1, 1]) - 1.0) < 1e-12
+
+
+def track(model: ChainModel, x: np.ndarray, first: int = 0, tables: TrackingTables | None = None) -> tuple[np.ndarray, int]:
     """Angles of blocks ``first``.. found one after the other by a coarse-to-fine grid search over both
-    bending sides; returns x and the number of shapes evaluated."""
+    bending sides (the next block held at its prior); returns x and the number of shapes evaluated."""
     x = np.array(x, dtype=float)
-    options = model.options
-    coarse, fine = options.track_steps
+    tables = tables or TrackingTables(model.options, model.pixel)
     shift, turn = model._base(x)
     layout = model.layout
+    rotation, position = start_frame(x[: model.blocks], layout.length, layout.phi, first)
     evaluations = 0
     for k in range(first, model.blocks):
-        window, samples = _tracking_window(model, k)
-        frame = start_frame(x[: model.blocks], layout.length, layout.phi, k)
-        grid = np.append(np.arange(-options.track_range, options.track_range + 0.5 * coarse, coarse), x[k])
-        for _ in range(2):
-            theta = np.repeat(x[None, k : k + window.blocks], len(grid), axis=0)
-            theta[:, 0] = grid
-            points = model.pose.to_image(outline_points(window, theta, frame)[:, samples], shift, turn)
-            distance = model.silhouette.coarse_distance(points)
-            cost = cauchy(distance / model.edge, options.robust_scale).sum(axis=1)
-            cost += 0.5 * ((grid - model.mean[k]) / model.sigma[k]) ** 2
-            best = grid[int(np.argmin(cost))]
-            evaluations += len(grid)
-            grid = best + np.arange(-coarse, coarse + 0.5 * fine, fine)
-        x[k] = best
+        window = tables.window(model, k)
+        chosen = None
+        for rows in (np.arange(0, len(tables.grid), tables.coarse), None):
+            if rows is None:
+                rows = np.arange(max(chosen - tables.coarse, 0), min(chosen + tables.coarse + 1, len(tables.grid)))
+            if window.local is not None and _in_plane(rotation):  # a rigid motion of the x-z plane
+                outline = window.local[rows] @ rotation[np.ix_([0, 2], [0, 2])].T + position[[0, 2]]
+            else:
+                outline = outline_from_centreline(window.layout, window.points[rows], window.tangent[rows],
+                                                  (rotation, position))[:, window.samples]
+            distance = model.silhouette.coarse_distance(model.pose.to_image(outline, shift, turn))
+            cost = cauchy(distance / model.edge, model.options.robust_scale).sum(axis=1)
+            cost += 0.5 * ((tables.grid[rows] - model.mean[k]) / model.sigma[k]) ** 2
+            chosen = int(rows[np.argmin(cost)])
+            evaluations += len(rows)
+        x[k] = tables.grid[chosen]
+        step = block_transforms(x[k : k + 1], layout.length[k : k + 1], layout.phi[k : k + 1])[0]  # block k's end
+        rotation, position = rotation @ step[:3, :3], rotation @ step[:3, 3] + position
     return x, evaluations
+
+
+def quick_cost(model: ChainModel, x: np.ndarray) -> float:
+    """Robust model -> image cost on the coarse distance map plus priors: ranks tracked candidates cheaply."""
+    distance = model.silhouette.coarse_distance(model.image_points(x))
+    prior, _ = model.hypothesis.prior_cost(x[: model.blocks], model.options.angle_sigma)
+    return float(cauchy(distance / model.edge, model.options.robust_scale).sum()) + prior
 
 
 def refine(model: ChainModel, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
@@ -297,18 +351,21 @@ def score(model: ChainModel, x: np.ndarray) -> Score:
     )
 
 
+def inherited_start(model: ChainModel, parent_x: np.ndarray, first: int) -> np.ndarray:
+    """Start of a hypothesis derived from a fitted one: the parent's angles of the (shared) blocks before
+    ``first``, the prior beyond, the parent's base correction."""
+    x = model.start()
+    x[:first] = parent_x[:first]
+    extra = model.size - model.blocks
+    if extra:
+        x[model.blocks :] = parent_x[len(parent_x) - extra :]
+    return x
+
+
 def fit(hypothesis: Hypothesis, silhouette: Silhouette, pose: ImagePose, options: FitOptions,
-        start: np.ndarray | None = None, *, polish: bool = True) -> Fit:
-    """Track (from ``hypothesis.start`` when a start is given, else from the base), optionally refine, score."""
+        start: np.ndarray | None = None, first: int = 0, tables: TrackingTables | None = None) -> Fit:
+    """Track blocks ``first``.. from ``start`` (default: the prior), refine by least squares, score."""
     model = ChainModel(hypothesis, silhouette, pose, options)
-    x, first = model.start(), 0
-    if start is not None:  # the parent's fit: same blocks before hypothesis.start, same base correction
-        first = hypothesis.start
-        x[:first] = start[:first]
-        x[model.blocks :] = start[len(start) - (model.size - model.blocks) :]
-    x, nfev = track(model, x, first)
-    theta_std = np.full(model.blocks, np.nan)
-    if polish:
-        x, theta_std, evaluations = refine(model, x)
-        nfev += evaluations
-    return Fit(hypothesis=hypothesis, x=x, theta_std=theta_std, score=score(model, x), nfev=nfev, refined=polish)
+    x, nfev = track(model, model.start() if start is None else start, first, tables)
+    x, theta_std, evaluations = refine(model, x)
+    return Fit(hypothesis=hypothesis, x=x, theta_std=theta_std, score=score(model, x), nfev=nfev + evaluations)

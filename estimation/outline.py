@@ -93,27 +93,27 @@ def start_frame(theta, length, phi, block: int) -> tuple[np.ndarray, np.ndarray]
     return rotations[-1], positions[-1]
 
 
-def centreline(layout: OutlineLayout, theta, frame=None) -> tuple[np.ndarray, np.ndarray]:
-    """Projected centreline (..., P, 2) [m] and unit 3D tangents (..., P, 3), optionally from a start frame."""
+def centreline(layout: OutlineLayout, theta) -> tuple[np.ndarray, np.ndarray]:
+    """Centreline samples (..., P, 3) [m] and unit tangents (..., P, 3) in the chain's base frame."""
     theta = np.asarray(theta, dtype=float)
     if layout.planar:
         shape = planar_chain(theta, layout.length, layout.phi, samples_per_block=layout.samples_per_block)
         flat, heading = shape.points, shape.headings
         points = np.stack([flat[..., 0], np.zeros_like(heading), flat[..., 1]], axis=-1)
         tangent = np.stack([np.sin(heading), np.zeros_like(heading), np.cos(heading)], axis=-1)
-    else:
-        shape = chain_shape(theta, layout.length, layout.phi, samples_per_block=layout.samples_per_block)
-        points, tangent = shape.points, shape.sample_rotations()[..., :, 2]
+        return points, tangent
+    shape = chain_shape(theta, layout.length, layout.phi, samples_per_block=layout.samples_per_block)
+    return shape.points, shape.sample_rotations()[..., :, 2]
+
+
+def outline_from_centreline(layout: OutlineLayout, points: np.ndarray, tangent: np.ndarray, frame=None) -> np.ndarray:
+    """Outline samples (..., M, 2) [m] from centreline samples and tangents (..., P, 3), optionally first
+    moved by ``frame`` = (rotation (3, 3), position (3,)) (blocks placed at their start frame)."""
     if frame is not None:
         rotation, position = frame
         points = points @ rotation.T + position
         tangent = tangent @ rotation.T
-    return points[..., [0, 2]], tangent
-
-
-def outline_points(layout: OutlineLayout, theta, frame=None) -> np.ndarray:
-    """Outline samples (..., M, 2) [m] in the chain frame for bending angles ``theta`` (..., N) [rad]."""
-    points, tangent = centreline(layout, theta, frame)
+    points = points[..., [0, 2]]  # orthographic projection onto the x-z plane
     in_plane = np.maximum(np.hypot(tangent[..., 0], tangent[..., 2]), 1e-9)[..., None]
     across = np.stack([tangent[..., 2], -tangent[..., 0]], axis=-1) / in_plane  # half-width direction
     along = np.stack([tangent[..., 0], tangent[..., 2]], axis=-1) / in_plane  # projected tangent
@@ -128,11 +128,16 @@ def outline_points(layout: OutlineLayout, theta, frame=None) -> np.ndarray:
     return np.concatenate([points + r * across, points - r * across, face(0, -1.0), face(-1, 1.0)], axis=-2)
 
 
+def outline_points(layout: OutlineLayout, theta, frame=None) -> np.ndarray:
+    """Outline samples (..., M, 2) [m] in the chain frame for bending angles ``theta`` (..., N) [rad]."""
+    return outline_from_centreline(layout, *centreline(layout, theta), frame)
+
+
 def visible(layout: OutlineLayout, theta) -> np.ndarray:
     """(M,) False for side samples inside another part of the body (a chain touching itself)."""
-    points, _ = centreline(layout, theta)
+    points, tangent = centreline(layout, theta)
     sides = slice(0, 2 * layout.centreline_samples)
-    distance, _ = cKDTree(points).query(outline_points(layout, theta)[sides])
+    distance, _ = cKDTree(points[..., [0, 2]]).query(outline_from_centreline(layout, points, tangent)[sides])
     shown = np.ones(len(layout.block), dtype=bool)
     shown[sides] = distance >= (1.0 - HIDDEN_TOLERANCE) * layout.radius
     return shown

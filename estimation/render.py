@@ -117,6 +117,23 @@ def render_silhouette(theta, length, phi, pose: ImagePose, pixel_size: float, sh
     return canvas.reshape(rows, supersample, columns, supersample).mean(axis=(1, 3))
 
 
+def render_chain(design_ids, rotation_steps, table, pixel_size: float, *, offsets=None, voltage: float = 0.0,
+                 angle: float = 0.5 * np.pi, mirrored: bool = False, frame: tuple[ImagePose, tuple[int, int]] | None = None,
+                 supersample: int = 4) -> tuple[np.ndarray, ImagePose, np.ndarray]:
+    """Coverage image of a chain of table designs, its base pose and the angles drawn [rad].
+
+    ``offsets`` [rad] are added to the designs' angles at ``voltage``; ``frame`` (pose, (rows, cols)) fixes
+    the image, otherwise it is fitted around the chain (``framing``).
+    """
+    design_ids = np.asarray(design_ids)
+    theta, _ = table.angle_at(design_ids, voltage)
+    theta = np.asarray(theta, dtype=float) + (0.0 if offsets is None else np.asarray(offsets, dtype=float))
+    length = np.asarray(table.rod_length)[table.index_of(design_ids)]
+    phi = np.asarray(rotation_steps, dtype=float) * (np.pi / 6.0)
+    pose, shape = frame if frame is not None else framing(theta, length, phi, pixel_size, angle=angle, mirrored=mirrored)
+    return render_silhouette(theta, length, phi, pose, pixel_size, shape, supersample=supersample), pose, theta
+
+
 def to_binary(coverage: np.ndarray) -> np.ndarray:
     """uint8 silhouette (0 / 255): pixels at least half covered."""
     return np.where(coverage >= 0.5, 255, 0).astype(np.uint8)
