@@ -30,11 +30,11 @@ from planner.table import load_table
 
 @dataclass(frozen=True)
 class EstimateOptions(FitOptions):
-    mistake_penalty: float = 10.0  # score a mistake must save to be reported
+    mistake_penalty: float = 5.0  # score a mistake must save to be reported
     max_mistakes: int = 2
     out_of_plane: bool = True  # also consider rotation steps that take a block out of the image plane
-    search_trigger: float = 8.0  # [pixels] of unexplained outline that start the search for mistakes
-    max_unexplained: float = 0.1  # fraction of the outline that may stay unexplained for success
+    search_trigger: float = 8.0  # [pixels] of unexplained or hidden outline that start the search for mistakes
+    max_unexplained: float = 0.1  # fraction of the image outline that may stay unexplained for success
     refine_candidates: int = 3  # candidates refined by least squares after tracking
 
 
@@ -113,7 +113,8 @@ class ChainEstimate:
     base_shift: tuple[float, float]  # correction of the base position found by the fit [m]
     base_turn: float  # correction of the base angle [rad]
     residual: float  # RMS distance of the fitted outline from the image's [m]
-    unexplained_length: float  # outline (model and image) farther than unexplained_distance from the other [m]
+    unexplained_length: float  # image outline the fitted chain does not explain [m]
+    hidden_length: float  # outline of the fitted chain the image does not show (occluded or absent) [m]
     outline_length: float  # the image outline's length [m]
     hypotheses: int  # chains fitted
     nfev: int
@@ -170,6 +171,7 @@ class ChainEstimate:
             "base_turn_rad": self.base_turn,
             "residual_m": self.residual,
             "unexplained_length_m": self.unexplained_length,
+            "hidden_length_m": self.hidden_length,
             "outline_length_m": self.outline_length,
             "hypotheses": self.hypotheses,
             "nfev": self.nfev,
@@ -229,15 +231,6 @@ class _Search:
         self.nfev += evaluations
         return quick_cost(model, x) + self.options.mistake_penalty * len(hypothesis.changes), hypothesis, x
 
-    def rescored(self, parent: Fit, hypothesis: Hypothesis) -> Fit:
-        """A hypothesis with the parent's shape (another design of the same length): only the prior differs."""
-        blocks = len(hypothesis.blocks)
-        prior, designs = hypothesis.prior_cost(parent.theta, self.options.angle_sigma)
-        old, _ = parent.hypothesis.prior_cost(parent.theta, self.options.angle_sigma)
-        score = replace(parent.score, total=parent.score.total - old + prior, prior=parent.score.prior - old + prior, designs=designs)
-        self.hypotheses += 1
-        return replace(parent, hypothesis=hypothesis, score=score, x=parent.x.copy(), theta_std=parent.theta_std[:blocks])
-
     def first_misfit(self, current: Fit) -> int | None:
         """Believed index of the first block whose outline or angle is implausible; None if all fit."""
         limit = math.sqrt(2.0 * self.options.mistake_penalty)
@@ -245,8 +238,8 @@ class _Search:
         z = np.abs(current.theta - current.hypothesis.prior(self.options.unknown_angle_sigma, self.options.angle_sigma)[0])
         z = z / self.options.angle_sigma
         blocks = current.hypothesis.blocks
-        misfit = (current.score.block_unexplained > trigger) | ((z > limit) & np.array([len(b.designs) == 1 for b in blocks]))
-        if current.score.unexplained_length <= trigger and not misfit.any():
+        misfit = (current.score.block_misfit > trigger) | ((z > limit) & np.array([len(b.designs) == 1 for b in blocks]))
+        if current.score.unexplained_length + current.score.hidden_length <= trigger and not misfit.any():
             return None
         index = int(np.argmax(misfit)) if misfit.any() else len(blocks) - 1
         positions = [b.believed for b in blocks[: index + 1] if b.believed is not None]
@@ -255,9 +248,9 @@ class _Search:
     def improve(self, current: Fit) -> Fit | None:
         """The best chain with one mistake more than ``current`` if it scores better, else None.
 
-        Candidates with the parent's shape (another design of the same length) are scored exactly; the
-        others are tracked and ranked by a coarse cost, and the best few refined and scored. Rotations out
-        of the image plane are tried only if no in-plane candidate explains the image.
+        Every candidate is tracked from its first changed block (its changed block with a wide prior when its
+        design is open) and ranked by a coarse cost; the best few are refined and scored. Rotations out of
+        the image plane are tried only if no in-plane candidate explains the image.
         """
         misfit = self.first_misfit(current)
         if misfit is None:
@@ -271,20 +264,19 @@ class _Search:
         return best if self.penalised(best) < self.penalised(current) else None
 
     def _best_of(self, current: Fit, candidates: list[Hypothesis]) -> Fit:
-        same_shape = [self.rescored(current, h) for h in candidates if h.structure == current.hypothesis.structure]
-        ranked = sorted((self.tracked(h, current) for h in candidates if h.structure != current.hypothesis.structure),
-                        key=lambda item: item[0])
-        finalists = same_shape + [self.fit(h, x, len(h.blocks)) for _, h, x in ranked[: self.options.refine_candidates]]
-        return min(finalists, key=self.penalised)
+        ranked = sorted((self.tracked(h, current) for h in candidates), key=lambda item: item[0])
+        return min((self.fit(h, x, len(h.blocks)) for _, h, x in ranked[: self.options.refine_candidates]), key=self.penalised)
 
 
 def estimate_chain(image, chain: Chain, pixel_size: float, pose: ImagePose, *, voltage: float = 0.0,
-                   calibration=None, table=None, threshold: float | None = None, options=None) -> ChainEstimate:
+                   calibration=None, table=None, threshold: float | None = None, occlusion=None,
+                   options=None) -> ChainEstimate:
     """Block angles of ``chain`` seen in a side-view ``image``, and whether it was built as believed.
 
     image: path or 2D array, the chain brighter than the background (binary, or grey with ``threshold``);
     pixel_size [m / pixel]; pose: where the chain's base sits in the image (``ImagePose``); voltage [V] on
-    the chain's channel; calibration: ``BlockCalibration`` or mapping serial -> angle offset [rad].
+    the chain's channel; calibration: ``BlockCalibration`` or mapping serial -> angle offset [rad];
+    occlusion: optional boolean array of the image's shape, True where a known object may hide the chain.
     ValueError naming the problem for a bad image (see ``silhouette_from_image``), a chain that does
     not start at the given base, or unknown options.
     """
@@ -295,7 +287,7 @@ def estimate_chain(image, chain: Chain, pixel_size: float, pose: ImagePose, *, v
     table = load_table() if table is None else table
     book = DesignBook.at(table, float(voltage))
     believed = believed_hypothesis(chain, book, calibration_offsets(chain, calibration))
-    silhouette = silhouette_from_image(image, pixel_size, threshold)
+    silhouette = silhouette_from_image(image, pixel_size, threshold, occlusion=occlusion)
     check_base(silhouette, pose, BLOCK_RADIUS, CAP_LENGTH)
     search = _Search(silhouette, pose, book, chain, options)
     current = search.fit(believed)
@@ -363,6 +355,8 @@ def _result(search: _Search, believed: Hypothesis, first: Fit, current: Fit, ela
     message = MESSAGES[status]
     if mistakes:
         message += ": " + "; ".join(m.describe() for m in mistakes)
+    if current.score.hidden_length > search.options.search_trigger * search.silhouette.pixel_size:
+        message += f" ({1e3 * current.score.hidden_length:.0f} mm of the chain's outline not seen: occluded?)"
     shift = current.x[len(blocks) : len(blocks) + 2] * search.silhouette.pixel_size if search.options.fit_base else np.zeros(2)
     return ChainEstimate(
         success=status is not Status.UNEXPLAINED,
@@ -375,6 +369,7 @@ def _result(search: _Search, believed: Hypothesis, first: Fit, current: Fit, ela
         base_turn=float(current.x[len(blocks) + 2]) if search.options.fit_base else 0.0,
         residual=float(np.sqrt(np.nanmean(current.score.block_residual**2))),
         unexplained_length=current.score.unexplained_length,
+        hidden_length=current.score.hidden_length,
         outline_length=outline_length,
         hypotheses=search.hypotheses,
         nfev=search.nfev,

@@ -47,7 +47,7 @@ class FitOptions:
     sample_spacing: float = 3.0  # [pixels] between outline samples along the centreline
     edge_sigma: float = 1.0  # [pixels] noise of an outline position
     robust_scale: float = 2.0  # Cauchy loss scale, in units of edge_sigma
-    angle_sigma: float = math.radians(2.5)  # spread of a block's angle about its design's [rad]
+    angle_sigma: float = math.radians(2.0)  # spread of a block's angle about its design's [rad]
     unknown_angle_sigma: float = math.radians(20.0)  # prior width of a block whose design is open [rad]
     base_shift_sigma: float = 1e-3  # [m] prior on the base position correction
     base_turn_sigma: float = math.radians(1.0)  # [rad] prior on the base angle correction
@@ -60,6 +60,8 @@ class FitOptions:
     xtol: float = 1e-4  # least_squares tolerances: steps of 1e-4 rad move the outline far less than a pixel
     ftol: float = 1e-4
     unexplained_distance: float = 2.0  # [pixels] an outline point farther than this is unexplained
+    occlusion_start: float = 2.0  # [edge_sigma] model outline outside the silhouette beyond this counts less:
+    occlusion_span: float = 2.0  # an occluder may hide it; its residual saturates at start + span
 
 
 @dataclass(frozen=True)
@@ -68,9 +70,10 @@ class Score:
     model_to_image: float
     image_to_model: float
     prior: float
-    unexplained_length: float  # [m] of outline (model and image) farther than unexplained_distance
+    unexplained_length: float  # [m] of image outline the model leaves unexplained (chain where the model has none)
+    hidden_length: float  # [m] of model outline where the image shows no chain (occluded, or not there)
     block_residual: np.ndarray  # (N,) RMS distance of each block's outline from the image outline [m]
-    block_unexplained: np.ndarray  # (N,) unexplained outline length of each block (model side) [m]
+    block_misfit: np.ndarray  # (N,) each block's model outline farther than unexplained_distance from the image's [m]
     designs: tuple[int, ...]  # best-fitting design of each block
 
 
@@ -90,6 +93,19 @@ class Fit:
 def cauchy(residual: np.ndarray, scale: float) -> np.ndarray:
     """scipy's Cauchy loss per residual: 0.5 C^2 ln(1 + (r / C)^2)."""
     return 0.5 * scale**2 * np.log1p((residual / scale) ** 2)
+
+
+def bounded(z: np.ndarray, start: float, span: float) -> np.ndarray:
+    """Residual of model outline lying outside the silhouette (z > 0, in edge_sigma): unchanged up to
+    ``start``, then saturating smoothly at start + span. Occluders remove chain pixels, never add them, so
+    a part of the model the image does not show costs at most a bounded amount; a part of the image the
+    model does not cover (z < 0) keeps its full cost."""
+    over = np.maximum(z - start, 0.0)
+    return np.where(z > start, start + span * np.tanh(over / span), z)
+
+
+def bounded_slope(z: np.ndarray, start: float, span: float) -> np.ndarray:
+    return np.where(z > start, 1.0 / np.cosh(np.maximum(z - start, 0.0) / span) ** 2, 1.0)
 
 
 def _polyline_lengths(points: np.ndarray, slices) -> np.ndarray:
@@ -134,8 +150,8 @@ class ChainModel:
         return self.pose.to_image(outline_points(self.layout, angles), shift, turn)
 
     def update_visibility(self, x) -> bool:
-        """Recompute which samples are hidden by the body itself; True if that changed."""
-        shown = visible(self.layout, x[: self.blocks])
+        """Recompute which samples are hidden by the body itself or a known occluder; True if that changed."""
+        shown = visible(self.layout, x[: self.blocks]) & ~self.silhouette.occluded(self.image_points(x))
         changed = not np.array_equal(shown, self.shown)
         self.shown = shown
         self._cache = None
@@ -156,12 +172,16 @@ class ChainModel:
             parts.append(np.append(shift / self.options.base_shift_sigma, turn / self.options.base_turn_sigma))
         return np.concatenate(parts)
 
+    def outline_residuals(self, distance: np.ndarray) -> np.ndarray:
+        return bounded(distance / self.edge, self.options.occlusion_start, self.options.occlusion_span)
+
     def residuals(self, x) -> np.ndarray:
         _, distance, _ = self._evaluate(x)
-        return np.concatenate([distance / self.edge, self.prior_residuals(x)])
+        return np.concatenate([self.outline_residuals(distance), self.prior_residuals(x)])
 
     def jacobian(self, x) -> np.ndarray:
-        points, _, normals = self._evaluate(x)
+        points, distance, normals = self._evaluate(x)
+        normals = normals * bounded_slope(distance / self.edge, self.options.occlusion_start, self.options.occlusion_span)[:, None]
         theta = np.asarray(x[: self.blocks], dtype=float)
         batch = theta + np.vstack([np.zeros(self.blocks), FD_STEP * np.eye(self.blocks)])
         moved = self.image_points(x, batch)[:, self.shown]  # (N + 1, M, 2)
@@ -256,8 +276,9 @@ def track(model: ChainModel, x: np.ndarray, first: int = 0, tables: TrackingTabl
             else:
                 outline = outline_from_centreline(window.layout, window.points[rows], window.tangent[rows],
                                                   (rotation, position))[:, window.samples]
-            distance = model.silhouette.coarse_distance(model.pose.to_image(outline, shift, turn))
-            cost = cauchy(distance / model.edge, model.options.robust_scale).sum(axis=1)
+            image = model.pose.to_image(outline, shift, turn)
+            cost = cauchy(model.outline_residuals(model.silhouette.coarse_distance(image)), model.options.robust_scale)
+            cost = np.sum(cost * ~model.silhouette.occluded(image), axis=1)
             cost += 0.5 * ((tables.grid[rows] - model.mean[k]) / model.sigma[k]) ** 2
             chosen = int(rows[np.argmin(cost)])
             evaluations += len(rows)
@@ -269,9 +290,10 @@ def track(model: ChainModel, x: np.ndarray, first: int = 0, tables: TrackingTabl
 
 def quick_cost(model: ChainModel, x: np.ndarray) -> float:
     """Robust model -> image cost on the coarse distance map plus priors: ranks tracked candidates cheaply."""
-    distance = model.silhouette.coarse_distance(model.image_points(x))
+    points = model.image_points(x)
+    cost = cauchy(model.outline_residuals(model.silhouette.coarse_distance(points)), model.options.robust_scale)
     prior, _ = model.hypothesis.prior_cost(x[: model.blocks], model.options.angle_sigma)
-    return float(cauchy(distance / model.edge, model.options.robust_scale).sum()) + prior
+    return float(np.sum(cost * ~model.silhouette.occluded(points))) + prior
 
 
 def refine(model: ChainModel, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
@@ -308,45 +330,53 @@ def _angle_std(model: ChainModel, result) -> np.ndarray:
 
 
 def score(model: ChainModel, x: np.ndarray) -> Score:
-    """Both-way robust outline cost, priors and unexplained outline of the hypothesis at parameters x."""
+    """Both-way robust outline cost, priors, and the unexplained and hidden outline at parameters x."""
     options = model.options
     silhouette = model.silhouette
     layout = model.layout
     theta = x[: model.blocks]
+    shift, turn = model._base(x)
     spacing = options.sample_spacing * model.pixel
-    points = model.image_points(x)
-    shown = visible(layout, theta)
+    chain_points, chain_normals = outline_from_centreline(layout, *centreline(layout, theta), normals=True)
+    points = model.pose.to_image(chain_points, shift, turn)
+    normals = model.pose.directions_to_image(chain_normals, turn)
+    shown = visible(layout, theta) & ~silhouette.occluded(points)
     lengths = _polyline_lengths(points, layout.polylines)
     distance, _ = silhouette.signed_distance(points[shown])
     scale, far = options.robust_scale, options.unexplained_distance * model.pixel
-    model_cost = float(np.sum(lengths[shown] / spacing * cauchy(distance / model.edge, scale)))
-    # image -> model: distance from each image outline vertex to the model outline (samples densified 4x)
-    dense = []
+    model_cost = float(np.sum(lengths[shown] / spacing * cauchy(model.outline_residuals(distance), scale)))
+    # image -> model: signed distance of each image outline vertex from the model outline (samples densified
+    # 4x; the sign from the nearest sample's outward normal); image outline inside the model may be occluded
+    dense, dense_normals = [], []
+    fractions = np.arange(4)[:, None, None] / 4.0
     for part in layout.polylines:
-        segment, keep = points[part], shown[part]
+        segment, keep, outward = points[part], shown[part], normals[part]
         pairs = keep[:-1] & keep[1:]
-        fractions = np.arange(4)[:, None, None] / 4.0
-        dense.append((segment[:-1][pairs] * (1 - fractions) + segment[1:][pairs] * fractions).reshape(-1, 2))
-        dense.append(segment[keep])
-    dense = np.concatenate(dense)
-    gap, _ = cKDTree(dense).query(silhouette.outline)
-    image_cost = float(np.sum(silhouette.lengths / spacing * cauchy(gap / model.edge, scale)))
+        dense += [(segment[:-1][pairs] * (1 - fractions) + segment[1:][pairs] * fractions).reshape(-1, 2), segment[keep]]
+        dense_normals += [np.broadcast_to(outward[:-1][pairs], (4,) + outward[:-1][pairs].shape).reshape(-1, 2), outward[keep]]
+    dense, dense_normals = np.concatenate(dense), np.concatenate(dense_normals)
+    gap, nearest = cKDTree(dense).query(silhouette.outline)
+    inside = np.sum((silhouette.outline - dense[nearest]) * dense_normals[nearest], axis=1) < 0.0
+    image_z = np.where(inside, model.outline_residuals(gap), gap / model.edge)
+    counted = silhouette.lengths if silhouette.outline_occluded is None else silhouette.lengths * ~silhouette.outline_occluded
+    image_cost = float(np.sum(counted / spacing * cauchy(image_z, scale)))
     prior, designs = model.hypothesis.prior_cost(theta, options.angle_sigma)
     if options.fit_base:
         base = model.prior_residuals(x)[model.blocks:]
         prior += 0.5 * float(np.dot(base, base))
     blocks = layout.block[shown]
     residual = np.array([np.sqrt(np.mean(distance[blocks == k] ** 2)) if np.any(blocks == k) else np.nan for k in range(model.blocks)])
-    unexplained_model = np.bincount(blocks, weights=lengths[shown] * (np.abs(distance) > far), minlength=model.blocks)
-    unexplained_image = float(np.sum(silhouette.lengths[gap > far]))
+    misfit = np.bincount(blocks, weights=lengths[shown] * (np.abs(distance) > far), minlength=model.blocks)
+    image_far = gap > far
     return Score(
         total=model_cost + image_cost + prior,
         model_to_image=model_cost,
         image_to_model=image_cost,
         prior=prior,
-        unexplained_length=float(unexplained_model.sum()) + unexplained_image,
+        unexplained_length=float(np.sum(lengths[shown] * (distance < -far)) + np.sum(counted[image_far & ~inside])),
+        hidden_length=float(np.sum(lengths[shown] * (distance > far)) + np.sum(counted[image_far & inside])),
         block_residual=residual,
-        block_unexplained=unexplained_model,
+        block_misfit=misfit,
         designs=designs,
     )
 

@@ -106,9 +106,11 @@ def centreline(layout: OutlineLayout, theta) -> tuple[np.ndarray, np.ndarray]:
     return shape.points, shape.sample_rotations()[..., :, 2]
 
 
-def outline_from_centreline(layout: OutlineLayout, points: np.ndarray, tangent: np.ndarray, frame=None) -> np.ndarray:
+def outline_from_centreline(layout: OutlineLayout, points: np.ndarray, tangent: np.ndarray, frame=None,
+                            normals: bool = False):
     """Outline samples (..., M, 2) [m] from centreline samples and tangents (..., P, 3), optionally first
-    moved by ``frame`` = (rotation (3, 3), position (3,)) (blocks placed at their start frame)."""
+    moved by ``frame`` = (rotation (3, 3), position (3,)) (blocks placed at their start frame). With
+    ``normals``, also the outward unit normal of each sample (faces: along the end tangent)."""
     if frame is not None:
         rotation, position = frame
         points = points @ rotation.T + position
@@ -125,7 +127,12 @@ def outline_from_centreline(layout: OutlineLayout, points: np.ndarray, tangent: 
         end = [i]
         return points[..., end, :] + r * s * across[..., end, :] + outward * r * tilt[..., end, :] * bulge * along[..., end, :]
 
-    return np.concatenate([points + r * across, points - r * across, face(0, -1.0), face(-1, 1.0)], axis=-2)
+    outline = np.concatenate([points + r * across, points - r * across, face(0, -1.0), face(-1, 1.0)], axis=-2)
+    if not normals:
+        return outline
+    count = len(layout.face)
+    ends = [np.repeat(-along[..., :1, :], count, axis=-2), np.repeat(along[..., -1:, :], count, axis=-2)]
+    return outline, np.concatenate([across, -across] + ends, axis=-2)
 
 
 def outline_points(layout: OutlineLayout, theta, frame=None) -> np.ndarray:
@@ -134,10 +141,20 @@ def outline_points(layout: OutlineLayout, theta, frame=None) -> np.ndarray:
 
 
 def visible(layout: OutlineLayout, theta) -> np.ndarray:
-    """(M,) False for side samples inside another part of the body (a chain touching itself)."""
+    """(M,) False for outline samples inside another part of the body's side view (a chain touching or,
+    out of plane, crossing itself). An end face is judged against the centreline farther than one body
+    diameter along the chain from its own end."""
     points, tangent = centreline(layout, theta)
-    sides = slice(0, 2 * layout.centreline_samples)
-    distance, _ = cKDTree(points[..., [0, 2]]).query(outline_from_centreline(layout, points, tangent)[sides])
+    outline = outline_from_centreline(layout, points, tangent)
+    flat = points[..., [0, 2]]
+    limit = (1.0 - HIDDEN_TOLERANCE) * layout.radius
+    p, f = layout.centreline_samples, len(layout.face)
     shown = np.ones(len(layout.block), dtype=bool)
-    shown[sides] = distance >= (1.0 - HIDDEN_TOLERANCE) * layout.radius
+    distance, _ = cKDTree(flat).query(outline[: 2 * p])
+    shown[: 2 * p] = distance >= limit
+    along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    for face, far in ((slice(2 * p, 2 * p + f), along > 2 * layout.radius), (slice(2 * p + f, None), along < along[-1] - 2 * layout.radius)):
+        if far.any():
+            distance, _ = cKDTree(flat[far]).query(outline[face])
+            shown[face] = distance >= limit
     return shown

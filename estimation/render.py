@@ -122,6 +122,7 @@ def render_chain(design_ids, rotation_steps, table, pixel_size: float, *, offset
                  supersample: int = 4) -> tuple[np.ndarray, ImagePose, np.ndarray]:
     """Coverage image of a chain of table designs, its base pose and the angles drawn [rad].
 
+    ``rotation_steps``: snap-fit step of each block (None: all 0).
     ``offsets`` [rad] are added to the designs' angles at ``voltage``; ``frame`` (pose, (rows, cols)) fixes
     the image, otherwise it is fitted around the chain (``framing``).
     """
@@ -129,7 +130,8 @@ def render_chain(design_ids, rotation_steps, table, pixel_size: float, *, offset
     theta, _ = table.angle_at(design_ids, voltage)
     theta = np.asarray(theta, dtype=float) + (0.0 if offsets is None else np.asarray(offsets, dtype=float))
     length = np.asarray(table.rod_length)[table.index_of(design_ids)]
-    phi = np.asarray(rotation_steps, dtype=float) * (np.pi / 6.0)
+    steps = np.zeros(len(design_ids)) if rotation_steps is None else np.asarray(rotation_steps, dtype=float)
+    phi = steps * (np.pi / 6.0)  # 30 degree snap-fit steps
     pose, shape = frame if frame is not None else framing(theta, length, phi, pixel_size, angle=angle, mirrored=mirrored)
     return render_silhouette(theta, length, phi, pose, pixel_size, shape, supersample=supersample), pose, theta
 

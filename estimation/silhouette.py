@@ -25,7 +25,8 @@ from planner.contours import DEFAULT_SPECK_FRACTION, GREY_MODES, clean_mask, loa
 MAX_IMAGE_PIXELS = 25_000_000  # 5000 x 5000: far beyond any useful side view; bounds memory and time
 MIN_IMAGE_SIDE = 8
 COARSE_CELLS = 100_000  # the coarse distance map has at most about this many cells
-BINARY_SMOOTHING = 0.7  # [pixels] Gaussian blur before tracing a binary mask: sub-pixel edges from the staircase
+BINARY_SMOOTHING = 0.7
+OCCLUSION_MARGIN = 2  # [pixels] image outline this close to an occluder is its edge, not the chain's  # [pixels] Gaussian blur before tracing a binary mask: sub-pixel edges from the staircase
 
 
 def read_image(source) -> np.ndarray:
@@ -74,6 +75,8 @@ class Silhouette:
     tree: cKDTree
     coarse: np.ndarray  # signed distance map [m] on cells of coarse_factor x coarse_factor pixels
     coarse_factor: int
+    occlusion: np.ndarray | None = None  # (rows, cols) bool: pixels where something may hide the chain
+    outline_occluded: np.ndarray | None = None  # (K,) outline vertices at the edge of the occlusion
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -102,21 +105,34 @@ class Silhouette:
 
     def inside(self, points) -> np.ndarray:
         """Which image points (..., 2) [m] fall on an object pixel of the cleaned mask."""
+        return _lookup(self.mask, points, self.pixel_size)
+
+    def occluded(self, points) -> np.ndarray:
+        """Which image points (..., 2) [m] fall where the chain may be hidden (False without an occlusion)."""
         points = np.asarray(points, dtype=float)
-        column = np.floor(points[..., 0] / self.pixel_size).astype(int)
-        row = np.floor(points[..., 1] / self.pixel_size).astype(int)
-        rows, columns = self.mask.shape
-        within = (column >= 0) & (column < columns) & (row >= 0) & (row < rows)
-        result = np.zeros(points.shape[:-1], dtype=bool)
-        result[within] = self.mask[row[within], column[within]]
-        return result
+        if self.occlusion is None:
+            return np.zeros(points.shape[:-1], dtype=bool)
+        return _lookup(self.occlusion, points, self.pixel_size)
+
+
+def _lookup(mask: np.ndarray, points, pixel_size: float) -> np.ndarray:
+    points = np.asarray(points, dtype=float)
+    column = np.floor(points[..., 0] / pixel_size).astype(int)
+    row = np.floor(points[..., 1] / pixel_size).astype(int)
+    rows, columns = mask.shape
+    within = (column >= 0) & (column < columns) & (row >= 0) & (row < rows)
+    result = np.zeros(points.shape[:-1], dtype=bool)
+    result[within] = mask[row[within], column[within]]
+    return result
 
 
 def silhouette_from_image(image, pixel_size: float, threshold: float | None = None,
-                          speck_fraction: float = DEFAULT_SPECK_FRACTION) -> Silhouette:
+                          speck_fraction: float = DEFAULT_SPECK_FRACTION, occlusion=None) -> Silhouette:
     """The silhouette of one chain in ``image`` (path or 2D array; object brighter than background).
 
     A binary image needs no ``threshold``; a grey one does (pixels brighter than it are the chain).
+    ``occlusion``: optional boolean array of the image's shape, True where something in front may hide
+    the chain (the estimator then ignores model outline there and image outline along its edge).
     ValueError naming the problem for an unreadable, oversized, empty or non-binary image without
     threshold, several objects, or an object touching the image border.
     """
@@ -141,6 +157,13 @@ def silhouette_from_image(image, pixel_size: float, threshold: float | None = No
         lengths.append(0.5 * size * pixel_size)
     outline = np.concatenate(outline)
     factor, coarse = _coarse_distance_map(raw, pixel_size)
+    outline_occluded = None
+    if occlusion is not None:
+        occlusion = np.asarray(occlusion, dtype=bool)
+        if occlusion.shape != grey.shape:
+            raise ValueError(f"occlusion mask has shape {occlusion.shape}, the image {grey.shape}")
+        near = ndimage.binary_dilation(occlusion, iterations=OCCLUSION_MARGIN)  # the occluder's edge is no outline
+        outline_occluded = _lookup(near, outline, pixel_size)
     return Silhouette(
         mask=mask,
         pixel_size=float(pixel_size),
@@ -150,6 +173,8 @@ def silhouette_from_image(image, pixel_size: float, threshold: float | None = No
         tree=cKDTree(outline),
         coarse=coarse,
         coarse_factor=factor,
+        occlusion=occlusion,
+        outline_occluded=outline_occluded,
     )
 
 

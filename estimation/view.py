@@ -57,6 +57,12 @@ class ImagePose:
         points = np.asarray(points, dtype=float)
         return self.position + np.asarray(shift, dtype=float) + points[..., :1] * bend + points[..., 1:2] * growth
 
+    def directions_to_image(self, vectors, turn: float = 0.0) -> np.ndarray:
+        """Chain-frame directions (..., 2) -> image frame (the linear part of ``to_image``)."""
+        bend, growth = self.axes(turn)
+        vectors = np.asarray(vectors, dtype=float)
+        return vectors[..., :1] * bend + vectors[..., 1:2] * growth
+
     def to_chain(self, points) -> np.ndarray:
         """Image-frame points (..., 2) [m] -> chain-frame (x, z) [m] (inverse of ``to_image``)."""
         bend, growth = self.axes()
