@@ -70,8 +70,11 @@ def _check_chain(chain: Chain) -> None:
 
 
 def calibrate_chain(images: Sequence, chain: Chain, pixel_size: float, pose: ImagePose, *, table=None,
-                    threshold: float | None = None, options=None) -> CalibrationResult:
+                    threshold: float | None = None, calibration=None, options=None) -> CalibrationResult:
     """Offsets of every block of ``chain`` from ``images`` (``CalibrationImage`` or (image, voltage) pairs).
+
+    ``calibration`` (the current offsets, as for ``estimate_chain``) only sets what the images are judged
+    against; the offsets found are always relative to the table.
 
     ValueError for no images, blocks without (or with repeated) serials, a bad image, an image in which the
     chain is not as built (the message names the image and the mistakes), or an offset beyond the
@@ -86,14 +89,15 @@ def calibrate_chain(images: Sequence, chain: Chain, pixel_size: float, pose: Ima
     for number, item in enumerate(images, start=1):
         try:
             result = estimate_chain(item.image, chain, pixel_size, pose, voltage=item.voltage, table=table,
-                                    threshold=threshold, options=options)
+                                    threshold=threshold, calibration=calibration, options=options)
         except ValueError as error:
             raise ValueError(f"image {number} ({item.voltage:g} V): {error}") from None
         if not result.as_built:
             raise ValueError(f"image {number} ({item.voltage:g} V): {result.message}; fix the assembly (or the "
                              "assembly file) before calibrating")
         estimates.append(result)
-    offsets = np.array([[b.offset for b in e.blocks] for e in estimates])  # (images, blocks)
+    table_angles = np.array([table.angle_at(chain.design_ids, item.voltage)[0] for item in images])
+    offsets = np.array([e.theta for e in estimates]) - table_angles  # (images, blocks)
     spread = np.array([[b.theta_std for b in e.blocks] for e in estimates])
     weights = 1.0 / np.maximum(spread, 1e-6) ** 2
     mean = np.sum(weights * offsets, axis=0) / np.sum(weights, axis=0)

@@ -49,6 +49,7 @@ def _add_chain_arguments(parser, image_plane: bool = True) -> None:
                             help="base centre in the image [m] (origin top-left, y down) and growth direction [rad]")
         parser.add_argument("--mirrored", action="store_true", help="the chain's +x lies 90 deg counter-clockwise of its growth axis")
         parser.add_argument("--threshold", type=float, help="grey level above which a pixel is the chain (grey images)")
+        parser.add_argument("--calibration", type=Path, help="block calibration YAML the blocks' angles are expected from")
 
 
 def register(subparsers) -> None:
@@ -56,7 +57,6 @@ def register(subparsers) -> None:
     estimate.add_argument("image", type=Path)
     _add_chain_arguments(estimate)
     estimate.add_argument("--voltage", type=float, default=0.0, help="voltage on the chain's channel [V] (default 0)")
-    estimate.add_argument("--calibration", type=Path, help="block calibration YAML (config/block_calibration.yaml)")
     estimate.add_argument("--json", type=Path, help="write the result as JSON (SI units)")
     estimate.add_argument("--png", type=Path, help="draw the image with the predicted and fitted outlines")
     estimate.set_defaults(handler=run_estimate)
@@ -131,7 +131,9 @@ def run_calibrate(args) -> int:
     from planner.block_calibration import load_block_calibration
 
     chain, table = _load(args)
-    result = calibrate_chain(args.images, chain, args.pixel_size, _pose(args), table=table, threshold=args.threshold)
+    calibration = load_block_calibration(args.calibration) if args.calibration else None
+    result = calibrate_chain(args.images, chain, args.pixel_size, _pose(args), table=table, threshold=args.threshold,
+                             calibration=calibration)
     print(result.message)
     print("  block  serial        id  offset[deg]  +-[deg]  per image [deg]")
     for k, b in enumerate(result.blocks):

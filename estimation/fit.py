@@ -61,7 +61,7 @@ class FitOptions:
     ftol: float = 1e-4
     unexplained_distance: float = 2.0  # [pixels] an outline point farther than this is unexplained
     occlusion_start: float = 2.0  # [edge_sigma] model outline outside the silhouette beyond this counts less:
-    occlusion_span: float = 2.0  # an occluder may hide it; its residual saturates at start + span
+    occlusion_span: float = 1.0  # an occluder may hide it; its residual saturates at start + span
 
 
 @dataclass(frozen=True)
