@@ -17,7 +17,7 @@ from enum import IntEnum
 
 import numpy as np
 
-from estimation.fit import ChainModel, Fit, FitOptions, TrackingTables, fit, inherited_start, quick_cost, score, track
+from estimation.fit import ChainModel, Fit, FitOptions, TrackingTables, block_residuals, fit, inherited_start, quick_cost, track
 from estimation.outline import is_planar
 from estimation.hypotheses import DesignBook, Hypothesis, MistakeKind, alternatives, believed_hypothesis
 from estimation.silhouette import Silhouette, check_base, silhouette_from_image
@@ -382,4 +382,4 @@ def _predicted_residuals(search: _Search, hypothesis: Hypothesis, designs) -> np
     model = ChainModel(hypothesis, search.silhouette, search.pose, search.options)
     x = model.start()
     x[: model.blocks] = [spec.angles[spec.designs.index(d)] for spec, d in zip(hypothesis.blocks, designs)]
-    return score(model, x).block_residual
+    return block_residuals(model, x)

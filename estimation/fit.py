@@ -205,15 +205,26 @@ class ChainModel:
         return jacobian
 
 
-@dataclass(frozen=True)
 class TrackingWindow:
-    """Block k and the start of block k + 1 over a grid of block k's angle, in block k's start frame."""
+    """Block k and the start of block k + 1 over a grid of block k's angle, in block k's start frame; the
+    rows (angles) are computed when first asked for."""
 
-    layout: OutlineLayout  # blocks k (and k + 1)
-    samples: np.ndarray  # outline samples that judge block k
-    points: np.ndarray  # (G, P, 3) centreline
-    tangent: np.ndarray  # (G, P, 3)
-    local: np.ndarray | None  # (G, S, 2) the judging samples' outline when the window is planar
+    def __init__(self, layout: OutlineLayout, samples: np.ndarray, grid: np.ndarray, following: float):
+        self.layout, self.samples, self.grid, self.following = layout, samples, grid, following
+        count = len(grid)
+        self.points = np.empty((count, layout.centreline_samples, 3))
+        self.tangent = np.empty_like(self.points)
+        self.local = np.empty((count, len(samples), 2)) if layout.planar else None  # judging samples' outline
+        self.ready = np.zeros(count, dtype=bool)
+
+    def rows(self, rows: np.ndarray) -> None:
+        missing = rows[~self.ready[rows]]
+        if missing.size:
+            theta = np.column_stack([self.grid[missing], np.full((missing.size, self.layout.blocks - 1), self.following)])
+            self.points[missing], self.tangent[missing] = centreline(self.layout, theta)
+            if self.local is not None:
+                self.local[missing] = outline_from_centreline(self.layout, self.points[missing], self.tangent[missing])[:, self.samples]
+            self.ready[missing] = True
 
 
 class TrackingTables:
@@ -246,10 +257,7 @@ class TrackingTables:
             own |= index >= 2 * p + f
         ahead = (index < 2 * p) & (layout.block == 1) & (layout.fraction <= self.options.lookahead)
         samples = np.flatnonzero(own | ahead)[:: self.options.track_stride]
-        theta = np.column_stack([self.grid, np.full((len(self.grid), layout.blocks - 1), following)])
-        points, tangent = centreline(layout, theta)
-        local = outline_from_centreline(layout, points, tangent)[:, samples] if layout.planar else None
-        return TrackingWindow(layout, samples, points, tangent, local)
+        return TrackingWindow(layout, samples, self.grid, following)
 
 
 def _in_plane(rotation: np.ndarray) -> bool:
@@ -271,6 +279,7 @@ def track(model: ChainModel, x: np.ndarray, first: int = 0, tables: TrackingTabl
         for rows in (np.arange(0, len(tables.grid), tables.coarse), None):
             if rows is None:
                 rows = np.arange(max(chosen - tables.coarse, 0), min(chosen + tables.coarse + 1, len(tables.grid)))
+            window.rows(rows)
             if window.local is not None and _in_plane(rotation):  # a rigid motion of the x-z plane
                 outline = window.local[rows] @ rotation[np.ix_([0, 2], [0, 2])].T + position[[0, 2]]
             else:
@@ -379,6 +388,16 @@ def score(model: ChainModel, x: np.ndarray) -> Score:
         block_misfit=misfit,
         designs=designs,
     )
+
+
+def block_residuals(model: ChainModel, x: np.ndarray) -> np.ndarray:
+    """(N,) RMS distance [m] of each block's visible model outline from the image outline at parameters x."""
+    points = model.image_points(x)
+    shown = visible(model.layout, x[: model.blocks]) & ~model.silhouette.occluded(points)
+    distance, _ = model.silhouette.signed_distance(points[shown])
+    blocks = model.layout.block[shown]
+    return np.array([np.sqrt(np.mean(distance[blocks == k] ** 2)) if np.any(blocks == k) else np.nan
+                     for k in range(model.blocks)])
 
 
 def inherited_start(model: ChainModel, parent_x: np.ndarray, first: int) -> np.ndarray:

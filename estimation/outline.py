@@ -24,6 +24,7 @@ from scipy.spatial import cKDTree
 from planner.kinematics import BLOCK_RADIUS, chain_frames, chain_shape, planar_chain
 
 HIDDEN_TOLERANCE = 0.02  # a side sample closer than (1 - this) r to another part of the centreline is hidden
+UNCROSSABLE_BEND = math.radians(150.0)  # a planar chain bending less than this in all cannot reach itself
 
 
 @dataclass(frozen=True)
@@ -144,6 +145,8 @@ def visible(layout: OutlineLayout, theta) -> np.ndarray:
     """(M,) False for outline samples inside another part of the body's side view (a chain touching or,
     out of plane, crossing itself). An end face is judged against the centreline farther than one body
     diameter along the chain from its own end."""
+    if layout.planar and np.sum(np.abs(theta)) <= UNCROSSABLE_BEND:
+        return np.ones(len(layout.block), dtype=bool)
     points, tangent = centreline(layout, theta)
     outline = outline_from_centreline(layout, points, tangent)
     flat = points[..., [0, 2]]

@@ -26,6 +26,7 @@ MAX_IMAGE_PIXELS = 25_000_000  # 5000 x 5000: far beyond any useful side view; b
 MIN_IMAGE_SIDE = 8
 COARSE_CELLS = 100_000  # the coarse distance map has at most about this many cells
 BINARY_SMOOTHING = 0.7
+CROP_MARGIN = 4  # [pixels] kept around the objects' bounding box
 OCCLUSION_MARGIN = 2  # [pixels] image outline this close to an occluder is its edge, not the chain's  # [pixels] Gaussian blur before tracing a binary mask: sub-pixel edges from the staircase
 
 
@@ -140,11 +141,23 @@ def silhouette_from_image(image, pixel_size: float, threshold: float | None = No
         raise ValueError(f"pixel_size must be a positive number of m/pixel, got {pixel_size!r}")
     grey = read_image(image)
     raw = load_mask(grey, threshold)
-    mask = clean_mask(raw, speck_fraction)
+    if occlusion is not None:
+        occlusion = np.asarray(occlusion, dtype=bool)
+        if occlusion.shape != grey.shape:
+            raise ValueError(f"occlusion mask has shape {occlusion.shape}, the image {grey.shape}")
+    # Work on the objects' bounding box and a margin (clean_mask's checks come out the same: whatever
+    # touches the image border still touches the crop's); coordinates are shifted back at the end.
+    rows, columns = np.flatnonzero(raw.any(axis=1)), np.flatnonzero(raw.any(axis=0))
+    if rows.size == 0:
+        clean_mask(raw, speck_fraction)  # raises: empty image
+    top, left = max(rows[0] - CROP_MARGIN, 0), max(columns[0] - CROP_MARGIN, 0)
+    crop = (slice(top, rows[-1] + CROP_MARGIN + 1), slice(left, columns[-1] + CROP_MARGIN + 1))
+    mask = np.zeros(raw.shape, dtype=bool)
+    mask[crop] = clean_mask(raw[crop], speck_fraction)
     if threshold is None or grey.dtype == bool:
-        field, level = ndimage.gaussian_filter(raw.astype(float), BINARY_SMOOTHING), 0.5
+        field, level = ndimage.gaussian_filter(raw[crop].astype(float), BINARY_SMOOTHING), 0.5
     else:
-        field, level = grey.astype(float), float(threshold)
+        field, level = grey[crop].astype(float), float(threshold)
     loops = [loop[:-1] for loop in contourpy.contour_generator(z=field, line_type="Separate").lines(level) if len(loop) > 3]
     areas = np.array([_loop_area(loop) for loop in loops])
     keep = [loop for loop, area in zip(loops, areas) if area >= speck_fraction * areas.max()]
@@ -152,16 +165,13 @@ def silhouette_from_image(image, pixel_size: float, threshold: float | None = No
     for loop in keep:
         tangent = np.roll(loop, -1, axis=0) - np.roll(loop, 1, axis=0)  # central differences on the closed loop
         size = np.linalg.norm(tangent, axis=1)
-        outline.append((loop + 0.5) * pixel_size)  # contourpy puts pixel centres at integers
+        outline.append((loop + [left + 0.5, top + 0.5]) * pixel_size)  # contourpy puts pixel centres at integers
         normals.append(np.column_stack([tangent[:, 1], -tangent[:, 0]]) / np.maximum(size, 1e-12)[:, None])
         lengths.append(0.5 * size * pixel_size)
     outline = np.concatenate(outline)
     factor, coarse = _coarse_distance_map(raw, pixel_size)
     outline_occluded = None
     if occlusion is not None:
-        occlusion = np.asarray(occlusion, dtype=bool)
-        if occlusion.shape != grey.shape:
-            raise ValueError(f"occlusion mask has shape {occlusion.shape}, the image {grey.shape}")
         near = ndimage.binary_dilation(occlusion, iterations=OCCLUSION_MARGIN)  # the occluder's edge is no outline
         outline_occluded = _lookup(near, outline, pixel_size)
     return Silhouette(
