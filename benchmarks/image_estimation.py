@@ -12,7 +12,7 @@ chain. Four studies:
               and the built chain's silhouettes, same angles) in pixels
   time        CPU time per image against the number of blocks (one core)
 
-Writes docs/figures/image_estimation.json and .png.
+Writes docs/figures/image_estimation.json and .png (--quick: a smoke run into out/benchmarks/).
     scripts/with_env.sh python benchmarks/image_estimation.py [--quick] [--seed 0]
 """
 from __future__ import annotations
@@ -45,6 +45,7 @@ from planner.assembly import Chain, PlacedBlock  # noqa: E402
 from planner.table import load_table  # noqa: E402
 
 FIGURES = Path(__file__).resolve().parent.parent / "docs" / "figures"
+QUICK_OUTPUT = Path(__file__).resolve().parent.parent / "out" / "benchmarks"
 PIXEL = 0.25e-3
 OFFSET_DEG = 5.0  # as-built angle offsets: uniform in +-this per block
 MISTAKE_OFFSET_DEG = 2.5  # offsets in the mistake study (the paper's calibration range)
@@ -373,10 +374,10 @@ def main() -> None:
         "resolution": resolution, "faults": faults, "mistakes": mistakes, "time": times,
         "total_s": time.perf_counter() - started,
     }
-    FIGURES.mkdir(parents=True, exist_ok=True)
-    name = "image_estimation_quick" if args.quick else "image_estimation"
-    (FIGURES / f"{name}.json").write_text(json.dumps(results, indent=1))
-    plot(results, FIGURES / f"{name}.png")
+    folder = QUICK_OUTPUT if args.quick else FIGURES
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "image_estimation.json").write_text(json.dumps(results, indent=1))
+    plot(results, folder / "image_estimation.png")
     for row in resolution["rows"]:
         print(f"{1e3 * row['pixel_size_m']:.2f} mm/px: median |error| {row['median_abs_error_deg']:.3f} deg, "
               f"95% {row['p95_abs_error_deg']:.3f}, max {row['max_abs_error_deg']:.3f}; false alarms {row['false_alarms']}/{row['cases']}")
@@ -386,7 +387,7 @@ def main() -> None:
     for label, row in mistakes["summary"].items():
         print(f"{label}: found {row['found']} / equivalent {row['equivalent']} of {row['counted']} (block shapes differ > 2 px); "
               f"found {row['found_all']:.2f} of all {row['cases']}")
-    print(f"wrote {FIGURES / (name + '.json')} and .png in {time.perf_counter() - started:.0f} s")
+    print(f"wrote {folder / 'image_estimation.json'} and .png in {time.perf_counter() - started:.0f} s")
 
 
 if __name__ == "__main__":
