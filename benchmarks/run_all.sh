@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Every benchmark of the README, one after the other (`make bench`). Each writes JSON + PNG into
-# docs/figures/. Run inside the project environment (scripts/with_env.sh). Takes about 15-25 minutes.
+# docs/figures/. Run inside the project environment (scripts/with_env.sh). Takes about 45-60 minutes.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 benchmarks=(
@@ -8,6 +8,7 @@ benchmarks=(
     block_table_overview.py
     ogden_fit.py
     kinematics_throughput.py
+    image_estimation.py
     finger_optimizers.py
     path_optimizers.py
     hv_loop.py

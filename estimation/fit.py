@@ -105,7 +105,7 @@ def bounded(z: np.ndarray, start: float, span: float) -> np.ndarray:
 
 
 def bounded_slope(z: np.ndarray, start: float, span: float) -> np.ndarray:
-    return np.where(z > start, 1.0 / np.cosh(np.maximum(z - start, 0.0) / span) ** 2, 1.0)
+    return np.where(z > start, 1.0 - np.tanh(np.maximum(z - start, 0.0) / span) ** 2, 1.0)
 
 
 def _polyline_lengths(points: np.ndarray, slices) -> np.ndarray:
@@ -322,20 +322,31 @@ def refine(model: ChainModel, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, in
 
 def _angle_std(model: ChainModel, result) -> np.ndarray:
     """Standard deviations of the angles from the Gauss-Newton covariance, with the residual variance
-    estimated from the fit and inflated for correlation between neighbouring outline samples."""
+    estimated from the fit and inflated by the residuals' integrated autocorrelation time along the
+    outline (pixel quantisation makes neighbouring samples err alike, more so at coarse resolution)."""
     jacobian = result.jac
     image = result.fun[: len(result.fun) - model.size]
-    dof = max(len(result.fun) - model.size, 1)
-    variance = 2.0 * result.cost / dof
-    centred = image - image.mean()
-    lag = float(np.dot(centred[1:], centred[:-1]) / max(np.dot(centred, centred), 1e-300))
-    lag = min(max(lag, 0.0), 0.95)
-    inflation = (1.0 + lag) / (1.0 - lag)
+    variance = 2.0 * result.cost / max(len(result.fun) - model.size, 1)
     try:
-        covariance = np.linalg.pinv(jacobian.T @ jacobian) * variance * inflation
+        covariance = np.linalg.pinv(jacobian.T @ jacobian) * variance * correlation_time(image)
     except np.linalg.LinAlgError:
         return np.full(model.blocks, np.inf)
     return np.sqrt(np.maximum(np.diag(covariance)[: model.blocks], 0.0))
+
+
+def correlation_time(residuals: np.ndarray, max_lag: int = 100) -> float:
+    """1 + 2 sum of the autocorrelations, summed up to the first lag where they stop being positive."""
+    centred = residuals - residuals.mean()
+    power = float(np.dot(centred, centred))
+    if power <= 0.0:
+        return 1.0
+    total = 1.0
+    for lag in range(1, min(max_lag, len(centred) - 1)):
+        rho = float(np.dot(centred[lag:], centred[:-lag])) / power
+        if rho <= 0.0:
+            break
+        total += 2.0 * rho
+    return total
 
 
 def score(model: ChainModel, x: np.ndarray) -> Score:
