@@ -147,8 +147,9 @@ def fault_study(table, rng, cases: int) -> dict:
 
 def _occlude_tip(coverage, pose, ids, theta, table, rng, shape: str):
     """The image with part of the last block hidden, and the hidden pixels. ``disc``: a disc of one block
-    radius near the tip; ``edge``/``edge given``: everything beyond a line across the last block, 3-10 mm
-    from the tip, at a random angle within +-45 deg of square to the block's axis."""
+    radius near the tip; ``edge``/``edge given``: an occluder with a straight edge across the last block,
+    3-10 mm from the tip, at a random angle within +-45 deg of square to the block's axis, covering the
+    tip out to two block radii (so it never reaches back to the rest of a curled chain)."""
     from estimation.render import cross_section_frames
 
     rows = table.index_of(ids)
@@ -163,7 +164,8 @@ def _occlude_tip(coverage, pose, ids, theta, table, rng, shape: str):
         cut = tip - axis * rng.uniform(3e-3, 10e-3) / PIXEL
         tilt = rng.uniform(-np.pi / 4, np.pi / 4)
         normal = np.array([[np.cos(tilt), -np.sin(tilt)], [np.sin(tilt), np.cos(tilt)]]) @ axis
-        hidden = (columns - cut[0]) * normal[0] + (rows_ - cut[1]) * normal[1] > 0
+        near_tip = (columns - tip[0]) ** 2 + (rows_ - tip[1]) ** 2 <= (25e-3 / PIXEL) ** 2
+        hidden = near_tip & ((columns - cut[0]) * normal[0] + (rows_ - cut[1]) * normal[1] > 0)
     return np.where(hidden, 0, to_binary(coverage)).astype(np.uint8), hidden
 
 
@@ -370,7 +372,7 @@ def main() -> None:
     print("[3/4] assembly mistakes")
     mistakes = mistake_study(table, rng, count(40))
     print("[4/4] time per image")
-    times = time_study(table, rng, count(10))
+    times = time_study(table, rng, count(20))
     results = {
         "machine": {"platform": platform.platform(), "python": platform.python_version(), "load_before": load,
                     "load_after": [round(v, 2) for v in __import__("os").getloadavg()]},
