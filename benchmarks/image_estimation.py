@@ -35,7 +35,6 @@ from estimation.estimate import estimate_chain  # noqa: E402
 from estimation.hypotheses import MistakeKind, rotation_class  # noqa: E402
 from estimation.render import (  # noqa: E402
     blurred,
-    framing,
     render_chain,
     to_binary,
     with_grey_noise,
@@ -294,7 +293,7 @@ def time_study(table, rng, cases: int) -> dict:
 
 # ------------------------------------------------------------------------------------------- output
 def plot(results: dict, path: Path) -> None:
-    figure, axes = plt.subplots(2, 2, figsize=(11, 8.5))
+    figure, axes = plt.subplots(2, 2, figsize=(12, 9))
     ax = axes[0, 0]
     rows = results["resolution"]["rows"]
     ax.boxplot([np.abs(r["errors_deg"]) for r in rows], positions=range(len(rows)), whis=(5, 95), showfliers=True)
@@ -314,22 +313,25 @@ def plot(results: dict, path: Path) -> None:
     ax.legend(fontsize="small")
     ax = axes[1, 0]
     records = results["mistakes"]["records"]
-    edges = np.array([0, 1, 2, 4, 8, 16, 1e9])
-    centres = np.sqrt(np.maximum(edges[:-1], 0.5) * np.minimum(edges[1:], 32))
+    edges = [0, 1, 2, 4, 8, 16, math.inf]
+    labels = ["<1", "1-2", "2-4", "4-8", "8-16", ">16"]
     for condition, style in zip(CONDITIONS, ("-", "--")):
         for group, kinds, colour in (("wrong design", ("wrong design",), "tab:blue"),
                                      ("wrong rotation", ("flip (180 deg)", "out of plane"), "tab:orange")):
             rows = [r for r in records if r["condition"] == condition and r["kind"] in kinds]
             difference = np.array([r["block_difference_px"] for r in rows])
-            found = np.array([r["found"] or r["equivalent"] for r in rows], dtype=float)
+            found = np.array([r["found"] for r in rows], dtype=float)
             which = np.digitize(difference, edges) - 1
-            rate = [found[which == i].mean() if np.any(which == i) else np.nan for i in range(len(centres))]
-            ax.plot(centres, rate, style, marker="o", color=colour, label=f"{group}, {condition}")
-    ax.axvline(2.0, color="tab:red", ls=":", lw=1)
+            rate = [found[which == i].mean() if np.any(which == i) else np.nan for i in range(len(labels))]
+            counts = [int(np.sum(which == i)) for i in range(len(labels))]
+            ax.plot(range(len(labels)), rate, style, marker="o", color=colour,
+                    label=f"{group}, {condition} (n per bin {counts})")
+    ax.axvline(1.5, color="tab:red", ls=":", lw=1)
     ax.axhline(0.95, color="tab:red", ls=":", lw=1)
-    ax.set(xscale="log", xlabel="the two block shapes differ by [pixels] (Hausdorff)", ylabel="found (or equivalent)",
+    ax.set_xticks(range(len(labels)), labels)
+    ax.set(xlabel="believed and built block differ by [pixels] (Hausdorff, side view)", ylabel="found at the right block",
            ylim=(-0.05, 1.05), title="one mistake per chain, 0.25 mm/px")
-    ax.legend(fontsize="small", loc="lower right")
+    ax.legend(fontsize="x-small", loc="center right")
     ax = axes[1, 1]
     rows = results["time"]["rows"]
     ax.plot([r["blocks"] for r in rows], [1e3 * r["median_cpu_s"] for r in rows], "o-", label="as built: median CPU")
@@ -349,8 +351,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="few cases per point (a smoke run)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--replot", action="store_true", help="redraw the PNG from the JSON written before")
     parser.add_argument("--only", choices=["resolution", "faults", "mistakes", "time"], help="run one study (no files written)")
     args = parser.parse_args()
+    if args.replot:
+        plot(json.loads((FIGURES / "image_estimation.json").read_text()), FIGURES / "image_estimation.png")
+        return
     rng = np.random.default_rng(args.seed)
     table = load_table()
     scale = 0.2 if args.quick else 1.0

@@ -20,17 +20,6 @@ CALIBRATION_HEADER = """\
 """
 
 
-def _image_at_voltage(text: str) -> tuple[Path, float]:
-    path, sep, value = text.rpartition("=")
-    try:
-        volts = float(value)
-    except ValueError:
-        volts = math.nan
-    if not sep or not path or not math.isfinite(volts) or volts < 0:
-        raise argparse.ArgumentTypeError(f"expected IMAGE=VOLTS with VOLTS >= 0, got {text!r}")
-    return Path(path), volts
-
-
 def _block_offset(text: str) -> tuple[int, float]:
     block, sep, value = text.partition("=")
     try:
@@ -62,7 +51,8 @@ def register(subparsers) -> None:
     estimate.set_defaults(handler=run_estimate)
 
     calibrate = subparsers.add_parser("calibrate", help="per-block angle offsets from images at known voltages")
-    calibrate.add_argument("images", type=_image_at_voltage, nargs="+", metavar="IMAGE=VOLTS")
+    calibrate.add_argument("--image", nargs=2, action="append", required=True, metavar=("IMAGE", "VOLTS"),
+                           help="an image and the voltage on the chain's channel [V]; repeat per image")
     _add_chain_arguments(calibrate)
     calibrate.add_argument("--write", type=Path, help="calibration YAML to update (other blocks' entries are kept)")
     calibrate.set_defaults(handler=run_calibrate)
@@ -95,6 +85,16 @@ def _load(args):
         except KeyError as error:
             raise ValueError(error.args[0]) from None
     return chain, load_table(args.table)
+
+
+def _volts(text: str) -> float:
+    try:
+        volts = float(text)
+    except ValueError:
+        volts = math.nan
+    if not (math.isfinite(volts) and volts >= 0):
+        raise ValueError(f"--image: the voltage must be a number >= 0 V, got {text!r}")
+    return volts
 
 
 def _pose(args) -> ImagePose:
@@ -132,7 +132,8 @@ def run_calibrate(args) -> int:
 
     chain, table = _load(args)
     calibration = load_block_calibration(args.calibration) if args.calibration else None
-    result = calibrate_chain(args.images, chain, args.pixel_size, _pose(args), table=table, threshold=args.threshold,
+    images = [(Path(path), _volts(volts)) for path, volts in args.image]
+    result = calibrate_chain(images, chain, args.pixel_size, _pose(args), table=table, threshold=args.threshold,
                              calibration=calibration)
     print(result.message)
     print("  block  serial        id  offset[deg]  +-[deg]  per image [deg]")

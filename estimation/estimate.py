@@ -12,14 +12,14 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, fields
 from enum import IntEnum
 
 import numpy as np
 
 from estimation.fit import ChainModel, Fit, FitOptions, TrackingTables, block_residuals, fit, inherited_start, quick_cost, track
-from estimation.outline import is_planar
 from estimation.hypotheses import DesignBook, Hypothesis, MistakeKind, alternatives, believed_hypothesis
+from estimation.outline import is_planar
 from estimation.silhouette import Silhouette, check_base, silhouette_from_image
 from estimation.view import ImagePose
 from planner.assembly import Chain

@@ -24,7 +24,7 @@ from planner.contours import DEFAULT_SPECK_FRACTION, GREY_MODES, clean_mask, loa
 
 MAX_IMAGE_PIXELS = 25_000_000  # 5000 x 5000: far beyond any useful side view; bounds memory and time
 MIN_IMAGE_SIDE = 8
-COARSE_CELLS = 100_000  # the coarse distance map has at most about this many cells
+COARSE_CELLS = 40_000  # the coarse distance map has at most about this many cells
 BINARY_SMOOTHING = 0.7
 CROP_MARGIN = 4  # [pixels] kept around the objects' bounding box
 OCCLUSION_MARGIN = 2  # [pixels] image outline this close to an occluder is its edge, not the chain's  # [pixels] Gaussian blur before tracing a binary mask: sub-pixel edges from the staircase
