@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Every benchmark of the README, one after the other (`make bench`). Each writes JSON + PNG into
-# docs/figures/. Run inside the project environment (scripts/with_env.sh). Takes about 45-60 minutes.
+# docs/figures/. Run inside the project environment (scripts/with_env.sh). Takes about 40-50 minutes.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 benchmarks=(

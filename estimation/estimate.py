@@ -282,6 +282,10 @@ def estimate_chain(image, chain: Chain, pixel_size: float, pose: ImagePose, *, v
     """
     started = time.perf_counter()
     options = make_options(options)
+    if not isinstance(chain, Chain):
+        raise ValueError(f"chain must be a planner.assembly.Chain, got {type(chain).__name__}")
+    if not isinstance(pose, ImagePose):
+        raise ValueError(f"pose must be an estimation.ImagePose (base centre [m], growth angle [rad]), got {type(pose).__name__}")
     if not (isinstance(voltage, (int, float)) and math.isfinite(voltage) and voltage >= 0):
         raise ValueError(f"voltage must be a finite number >= 0 V, got {voltage!r}")
     table = load_table() if table is None else table

@@ -215,5 +215,9 @@ def test_bad_input_gets_errors_naming_the_problem(table):
         estimate_chain(binary, chain, PIXEL, pose, table=table, calibration=[1, 2])
     with pytest.raises(ValueError, match="occlusion mask has shape"):
         estimate_chain(binary, chain, PIXEL, pose, table=table, occlusion=np.zeros((3, 3), bool))
+    with pytest.raises(ValueError, match="pose must be an estimation.ImagePose"):
+        estimate_chain(binary, chain, PIXEL, (pose.x, pose.y, pose.angle), table=table)
+    with pytest.raises(ValueError, match="chain must be a planner.assembly.Chain"):
+        estimate_chain(binary, ids, PIXEL, pose, table=table)
     with pytest.raises(ValueError, match="unknown design"):
         estimate_chain(binary, make_chain([36, 99]), PIXEL, pose, table=table)
