@@ -24,24 +24,25 @@ from sim_fallback.hv_supply import SimulatedSupply  # noqa: E402
 
 FIGURES = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "docs", "figures")
 LOOP_RATE_HZ = 100.0
-CHANNELS = [ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=8000.0),
-            ChannelConfig("back", 1, max_voltage=3000.0, slew_rate=8000.0)]
+CHANNELS = [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=8000.0),
+            ChannelConfig("back", 1, max_voltage_v=3000.0, slew_rate_v_per_s=8000.0)]
+CLIENT = "hv_loop benchmark"  # the client holding control of the supply
 
 
-def measure_loop(sim, hv, seconds: float) -> np.ndarray:
+def measure_loop(sim, hv, token: str, seconds: float) -> np.ndarray:
     """Stream ramps on both channels for ``seconds``; return the cycle intervals seen by the device [s]."""
     for name in ("front", "back"):
         hv.enable(name)
     start, targets = time.monotonic(), [2400.0, 0.0]
     k = 0
     while time.monotonic() - start < seconds:
-        handles = [hv.ramp_to(name, targets[k % 2]) for name in ("front", "back")]
+        handles = [hv.ramp_to(name, targets[k % 2], token=token) for name in ("front", "back")]
         for handle in handles:
             handle.wait(5.0)
         k += 1
         print(f"loop: {time.monotonic() - start:5.1f} / {seconds:g} s", flush=True)
     for name in ("front", "back"):
-        hv.ramp_to(name, 0.0).wait(5.0)
+        hv.ramp_to(name, 0.0, token=token).wait(5.0)
     arrivals = np.array([t for t, line in sim.command_log if t >= start and line.startswith(":MEAS:VOLT?")])
     return np.diff(arrivals)
 
@@ -53,7 +54,8 @@ def fault_latency(sim, hv, trials: int, cause: str, rng: np.random.Generator) ->
         hv.reset_faults()
         hv.wait_cycles(3)
         hv.enable("front")
-        hv.ramp_to("front", 500.0).wait(5.0)
+        token = hv.claim_control(CLIENT)  # a fresh session: an e-stop ends the last one
+        hv.ramp_to("front", 500.0, token=token).wait(5.0)
         hv.wait_cycles(1)
         time.sleep(rng.uniform(0.0, 1.0 / LOOP_RATE_HZ))  # spread the fault over the loop phase
         if cause == "estop":
@@ -67,6 +69,8 @@ def fault_latency(sim, hv, trials: int, cause: str, rng: np.random.Generator) ->
         sim.clear_faults()
         while abs(hv.snapshot().channel("front").measured_current) > 1e-6:  # averaged readback settles
             hv.wait_cycles(1)
+        if hv.snapshot().controller:
+            hv.release_control(token)
         if (trial + 1) % 10 == 0:
             print(f"{cause}: trial {trial + 1}/{trials}", flush=True)
     return np.array(latencies)
@@ -87,7 +91,9 @@ def main(argv=None) -> int:
     rng = np.random.default_rng(args.seed)
     with SimulatedSupply(channels=2) as sim:
         with HvSupply(sim.port, channels=CHANNELS, loop_rate_hz=LOOP_RATE_HZ, handle_signals=False) as hv:
-            intervals = measure_loop(sim, hv, args.seconds)
+            token = hv.claim_control(CLIENT)
+            intervals = measure_loop(sim, hv, token, args.seconds)
+            hv.release_control(token)
             latencies = {cause: fault_latency(sim, hv, args.trials, cause, rng) for cause in ("over_current", "estop")}
     period_ms = 1e3 / LOOP_RATE_HZ
     result = {

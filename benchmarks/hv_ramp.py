@@ -30,17 +30,19 @@ DURATION = 15.0
 
 def main() -> int:
     os.makedirs(FIGURES, exist_ok=True)
-    configs = [ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=SLEW),
-               ChannelConfig("back", 1, max_voltage=3000.0, slew_rate=SLEW)]
+    configs = [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=SLEW),
+               ChannelConfig("back", 1, max_voltage_v=3000.0, slew_rate_v_per_s=SLEW)]
     samples = []
     with SimulatedSupply(channels=2) as sim, HvSupply(sim.port, channels=configs, handle_signals=False) as hv:
         for name in ("front", "back"):
             hv.enable(name)
+        token = hv.claim_control("hv_ramp benchmark")
         start, pending = time.monotonic(), list(SCHEDULE)
         while (now := time.monotonic() - start) < DURATION:
             while pending and pending[0][0] <= now:
                 _, name, target = pending.pop(0)
-                hv.ramp_to(name, target)
+                hv.ramp_to(name, target, token=token)
+            hv.heartbeat(token)  # the watchdog ramps a silent client's outputs down
             snap = hv.snapshot()
             samples.append([snap.stamp - start] + [v for c in snap.channels for v in (c.setpoint, c.measured_voltage,
                                                                          c.measured_current)])

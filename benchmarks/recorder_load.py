@@ -28,7 +28,7 @@ from mcap.reader import make_reader  # noqa: E402
 from mcap_ros2.decoder import DecoderFactory  # noqa: E402
 from softblock_interfaces.msg import HvChannelState, HvState  # noqa: E402
 
-from softblock_ros.recording.mcap_file import recover  # noqa: E402
+from recording.mcap_file import recover  # noqa: E402
 
 FIGURES = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "docs", "figures")
 

@@ -35,13 +35,14 @@ from std_msgs.msg import Header  # noqa: E402
 from planner import design  # noqa: E402
 from planner.assembly import load_assembly  # noqa: E402
 from planner.kinematics import assembly_centerlines, chain_shape  # noqa: E402
-from planner.table import REPO_ROOT, load_table  # noqa: E402
+from planner.table import load_table  # noqa: E402
+from softblock_config import config_file  # noqa: E402
 from softblock_ros.assembly_state_node import AssemblyStateNode  # noqa: E402
 from softblock_ros.conversions import chain_state_msg, points_msg  # noqa: E402
 from softblock_ros.markers import assembly_markers  # noqa: E402
 from softblock_ros.planner_node import PlannerNode  # noqa: E402
 
-FIGURES = REPO_ROOT / "docs" / "figures"
+FIGURES = Path(__file__).resolve().parent.parent / "docs" / "figures"
 
 
 def median_ms(samples) -> float:
@@ -50,7 +51,7 @@ def median_ms(samples) -> float:
 
 def prediction_cost(table, repeats: int) -> dict[str, dict]:
     results = {}
-    for path in sorted((REPO_ROOT / "config" / "assemblies").glob("*.yaml")):
+    for path in sorted(config_file("assemblies").glob("*.yaml")):
         assembly = load_assembly(path)
         voltages = {channel: 1000.0 for channel in assembly.hv_channels}
         samples = []
@@ -97,7 +98,7 @@ def state_latency(client, samples: int) -> list[float]:
 def planner_overhead(client, table, samples: int) -> dict:
     shape = chain_shape([table.design(15).theta0, table.design(57).theta0],
                         [table.design(15).rod_length, table.design(57).rod_length], 0.0)
-    request = DesignPath.Request(path=points_msg(shape.points), num_blocks=2, allow_rotation=False, optimizer="exact")
+    request = DesignPath.Request(path=points_msg(shape.points), num_blocks=2, allow_rotation=False, method="exact")
     service = client.create_client(DesignPath, "planner/design_path")
     assert service.wait_for_service(timeout_sec=30.0)
     direct, round_trip = [], []
@@ -153,7 +154,7 @@ def main() -> None:
     context = rclpy.Context()
     rclpy.init(context=context)
     nodes = [AssemblyStateNode(context=context), PlannerNode(context=context, parameter_overrides=[
-        Parameter("default_time_budget", value=60.0)]), rclpy.create_node("benchmark_client", context=context)]
+        Parameter("default_time_budget_s", value=60.0)]), rclpy.create_node("benchmark_client", context=context)]
     executor = MultiThreadedExecutor(num_threads=4, context=context)
     for node in nodes:
         executor.add_node(node)

@@ -61,9 +61,9 @@ def wait(predicate, timeout=60.0, what="condition"):
 
 PARAMS = {
     "hv_driver": {"channel_names": CHANNELS, "channel_indices": list(range(len(CHANNELS))),
-                  "slew_rate": 16_000.0, "state_rate": 100.0},
-    "sim_arm": {"max_speed": 2.0, "max_acceleration": 20.0},
-    "sequencer": {"heartbeat_rate": 10.0},
+                  "slew_rate_v_per_s": 16_000.0, "publish_rate_hz": 100.0},
+    "sim_arm": {"max_speed_m_per_s": 2.0, "max_acceleration_m_per_s2": 20.0},
+    "sequencer": {"heartbeat_rate_hz": 10.0},
 }
 
 

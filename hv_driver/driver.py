@@ -4,6 +4,7 @@ Thread model: one loop thread does all serial I/O; the public methods (thread-sa
 the supervisor's state under a lock and wake the loop, which applies the change within one cycle.
 """
 import atexit
+import logging
 import math
 import signal
 import threading
@@ -16,9 +17,10 @@ import serial
 from .config import ChannelConfig
 from .dialects import Dialect, IsegEdcp, ProtocolError
 from .dialects.iseg_edcp import TRIP_ACTION_OFF_WITHOUT_RAMP
+from .errors import HvError, SettingError, StateError
 from .faults import Fault
 from .link import Link, LinkError
-from .supervisor import ChannelCommand, Supervisor
+from .supervisor import DEFAULT_HEARTBEAT_TIMEOUT_S, ChannelCommand, Supervisor
 
 # The device-side ramp is set this much faster than the host slew limit: fast enough to follow the
 # streamed setpoints, slow enough to cap the slew if the host misbehaves.
@@ -28,8 +30,10 @@ DEVICE_RAMP_MARGIN = 1.2
 DEVICE_CURRENT_MARGIN = 1.5
 DEVICE_TRIP_TIME_S = 0.1
 
+log = logging.getLogger(__name__)
 
-class ConfigurationError(RuntimeError):
+
+class ConfigurationError(HvError, RuntimeError):
     """The device did not accept or read back the configured limits."""
 
 
@@ -56,6 +60,9 @@ class SupplySnapshot:
     link_error: str            # last failed exchange, "" when the last one succeeded
     stamp: float               # clock time [s] of the last control cycle's setpoints
     channels: tuple[ChannelSnapshot, ...]
+    controller: str = ""       # name of the client holding control, "" when none
+    heartbeat_age_s: float | None = None  # since the controlling client's last sign of life
+    heartbeat_timeout_s: float = DEFAULT_HEARTBEAT_TIMEOUT_S  # inf = watchdog off
 
     def channel(self, name: str) -> ChannelSnapshot:
         return next(c for c in self.channels if c.name == name)
@@ -140,28 +147,36 @@ class HvSupply:
     loop_rate_hz: control loop rate; each cycle sends new setpoints and reads voltage, current
         and status of every channel.
     link_timeout_s: no valid reply for this long trips LINK.
-    heartbeat_timeout_s: None, or no `heartbeat()` for this long ramps enabled outputs to 0 V.
+    heartbeat_timeout_s: the client holding control (`claim_control`) must call `heartbeat(token)` (or
+        ramp) this often, or its control lapses and its energised outputs ramp to 0 V (HEARTBEAT).
+        math.inf switches the watchdog off on purpose; the driver then warns at every `open()`.
     reply_timeout_s: time allowed for one echoed answer (default: a quarter of link_timeout_s).
+    expected_identity: text the device's identification (``*IDN?``) must contain, e.g. its model, checked at
+        `open`; "" checks nothing.
     """
 
     def __init__(self, port: str, baudrate: int | None = None, channels: list[ChannelConfig] = (),
                  loop_rate_hz: float = 100.0, link_timeout_s: float = 0.5,
-                 heartbeat_timeout_s: float | None = None, reply_timeout_s: float | None = None,
-                 dialect: Dialect | None = None, handle_signals: bool = True, clock=time.monotonic):
+                 heartbeat_timeout_s: float = DEFAULT_HEARTBEAT_TIMEOUT_S, reply_timeout_s: float | None = None,
+                 dialect: Dialect | None = None, handle_signals: bool = True, clock=time.monotonic,
+                 expected_identity: str = ""):
         if not (math.isfinite(loop_rate_hz) and 1.0 <= loop_rate_hz <= 1000.0):
-            raise ValueError(f"loop_rate_hz={loop_rate_hz!r}: between 1 and 1000")
+            raise SettingError(f"loop_rate_hz={loop_rate_hz!r}: between 1 and 1000")
         reply_timeout_s = link_timeout_s / 4 if reply_timeout_s is None else reply_timeout_s
         if not (math.isfinite(reply_timeout_s) and 0 < reply_timeout_s < link_timeout_s):
-            raise ValueError(f"reply_timeout_s={reply_timeout_s!r}: > 0 and below link_timeout_s")
+            raise SettingError(f"reply_timeout_s={reply_timeout_s!r}: > 0 and below link_timeout_s")
         self.port_name = port
+        self.expected_identity = expected_identity
         self.dialect = dialect or IsegEdcp()
         self.baudrate = baudrate or self.dialect.default_baudrate
         self.configs = list(channels)
         self._clock = clock
-        self._supervisor = Supervisor(self.configs, link_timeout=link_timeout_s,
-                                      heartbeat_timeout=heartbeat_timeout_s, now=clock())
         self._period = 1.0 / loop_rate_hz
+        self._supervisor = Supervisor(self.configs, link_timeout_s=link_timeout_s,
+                                      heartbeat_timeout_s=heartbeat_timeout_s, nominal_period_s=self._period,
+                                      now=clock())
         self._reply_timeout = reply_timeout_s
+        self._link_timeout = link_timeout_s
         self._handle_signals = handle_signals
         self._lock = threading.RLock()
         self._cycle_done = threading.Condition(self._lock)
@@ -181,24 +196,30 @@ class HvSupply:
     # --- lifecycle -----------------------------------------------------------------------------
     def open(self) -> "HvSupply":
         """Open the port, identify the supply, set and read back its limits, start the loop."""
-        self._port = serial.serial_for_url(self.port_name, baudrate=self.baudrate,
-                                           timeout=self._reply_timeout, write_timeout=self._reply_timeout)
-        self._link = Link(self._port, self.dialect, self._reply_timeout)
         try:
-            self.device_id = self._link.query("identify")
-            indices = [c.index for c in self.configs]
-            self._link.query("set_voltage", indices, 0.0)  # known state: 0 V, off
-            self._link.query("output_off", indices)
-            self._configure_device()
-            registers = zip(self._link.query("read_status", indices), self._link.query("read_event_status", indices))
-            for config, (status, events) in zip(self.configs, registers):
-                report = self.dialect.status_report(status, events)
-                if report.fault:  # a latched device fault survives reconnects until reset on purpose
-                    self._supervisor.channel(config.name).trip(Fault.DEVICE, report.fault)
-                    self._sent[config.name].emergency = True
+            self._port = serial.serial_for_url(self.port_name, baudrate=self.baudrate,
+                                               timeout=self._reply_timeout, write_timeout=self._reply_timeout)
+        except (serial.SerialException, OSError, ValueError) as error:
+            raise LinkError(f"cannot open {self.port_name!r}: {error}") from error
+        self._link = Link(self._port, self.dialect, self._reply_timeout)
+        failing_since = None
+        try:
+            while True:
+                try:
+                    self._start_session()
+                    break
+                except (LinkError, ProtocolError):
+                    # The link watchdog's rule: only answers failing for longer than link_timeout_s mean a dead
+                    # supply; one still starting up (a simulator on a loaded host) gets the same grace.
+                    failing_since = self._clock() if failing_since is None else failing_since
+                    if self._clock() - failing_since > self._link_timeout:
+                        raise
         except (LinkError, ProtocolError, ConfigurationError):
             self._port.close()
             raise
+        if self._supervisor.heartbeat_watchdog_off:
+            log.warning("heartbeat watchdog OFF (heartbeat_timeout_s=inf) on %s: energised outputs stay on "
+                        "when the controlling client dies", self.port_name)
         self._supervisor.link_ok(self._clock())
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name=f"hv-loop {self.port_name}", daemon=True)
@@ -206,12 +227,42 @@ class HvSupply:
         self._install_exit_guards()
         return self
 
+    def _start_session(self) -> None:
+        """Identify, check the channels, switch every output off, configure the device side and take in what
+        an earlier session left (outputs still up, latched device faults). Every step may be repeated."""
+        self.device_id = self._link.query("identify")
+        if self.expected_identity not in self.device_id:
+            raise ConfigurationError(f"device on {self.port_name} identifies as {self.device_id!r}, "
+                                     f"expected_identity={self.expected_identity!r} is not part of it")
+        self._check_channels(*self._link.query("read_channel_count"))
+        indices = [c.index for c in self.configs]
+        self._link.query("set_voltage", indices, 0.0)  # known state: 0 V, off (an output left on ramps down)
+        self._link.query("output_off", indices)
+        self._configure_device()
+        registers = zip(self._link.query("read_status", indices), self._link.query("read_event_status", indices))
+        voltages = self._link.query("measure_voltage", indices)
+        with self._lock:
+            for config, (status, events), voltage in zip(self.configs, registers, voltages):
+                channel = self._supervisor.channel(config.name)
+                channel.output_found(self._clock(), voltage)
+                report = self.dialect.status_report(status, events)
+                if report.fault:  # a latched device fault survives reconnects until reset on purpose
+                    channel.trip(Fault.DEVICE, report.fault)
+                    self._sent[config.name].emergency = True
+
+    def _check_channels(self, count: int) -> None:
+        """Refuse configured channel indices the supply does not have (it reports its channel count)."""
+        for config in self.configs:
+            if config.index >= count:
+                raise ConfigurationError(f"channel {config.name!r}: index {config.index} is not on this supply, "
+                                         f"which has {count} channel(s) (indices 0-{count - 1})")
+
     def _configure_device(self) -> None:
         """Device-side second line of defence: ramp speed, current limit and trip; read back."""
         for config in self.configs:
             ch = [config.index]
-            ramp = config.slew_rate * DEVICE_RAMP_MARGIN
-            current = config.current_trip * DEVICE_CURRENT_MARGIN
+            ramp = config.slew_rate_v_per_s * DEVICE_RAMP_MARGIN
+            current = config.current_trip_a * DEVICE_CURRENT_MARGIN
             trip_ms = DEVICE_TRIP_TIME_S * 1000.0
             for operation, value in (("set_ramp_up", ramp), ("set_ramp_down", ramp),
                                      ("set_current_limit", current), ("set_trip_time", trip_ms),
@@ -225,7 +276,9 @@ class HvSupply:
                                              f"configured {expected:g}")
             (limit,) = self._link.query("read_voltage_limit", ch)
             with self._lock:
-                self._supervisor.channel(config.name).set_device_limit(limit)
+                channel = self._supervisor.channel(config.name)
+                channel.set_device_limit(limit)
+                channel.set_device_ramp(ramp)  # read back above: outputs move, and ramp down when off, at it
 
     def close(self, ramp_down_timeout: float = 5.0) -> None:
         """Ramp every output to 0 V and switch it off, stop the loop, close the port."""
@@ -309,14 +362,26 @@ class HvSupply:
         """Ramp to 0 V at the slew limit, then switch the output off."""
         self._change(lambda now: self._supervisor.channel(channel).disable(now))
 
-    def ramp_to(self, channel: str, target_v: float, slew_rate: float | None = None) -> RampHandle:
-        """Start a smooth ramp; a target above the ceiling raises LimitError naming the limit."""
-        ramp_id = self._change(lambda now: self._supervisor.ramp_to(channel, now, target_v, slew_rate))
+    def ramp_to(self, channel: str, target_v: float, slew_rate_v_per_s: float | None = None, *,
+                token: str) -> RampHandle:
+        """Start a smooth ramp for the client holding control (``token`` from `claim_control`); a target above
+        the ceiling raises LimitError naming the limit, another client's token ControlError naming the owner."""
+        ramp_id = self._change(
+            lambda now: self._supervisor.ramp_to(channel, now, target_v, slew_rate_v_per_s, token=token))
         return RampHandle(self, channel, ramp_id, float(target_v))
 
-    def heartbeat(self) -> None:
-        """Sign of life from the controlling client."""
-        self._change(self._supervisor.heartbeat)
+    def claim_control(self, client: str) -> str:
+        """Take control as ``client`` (a name); returns the session token that ramps and heartbeats carry.
+        ControlError while another client holds control."""
+        return self._change(lambda now: self._supervisor.claim_control(client, now))
+
+    def release_control(self, token: str) -> str:
+        """End the control session of ``token``; outputs it left energised ramp to 0 V. Returns the client name."""
+        return self._change(lambda now: self._supervisor.release_control(token, now))
+
+    def heartbeat(self, token: str) -> None:
+        """Sign of life from the client holding control (ControlError for any other token)."""
+        self._change(lambda now: self._supervisor.heartbeat(now, token))
 
     def set_safe_voltage(self, voltage: float | None) -> None:
         """Assembly safe voltage [V] for every channel (None = unknown)."""
@@ -326,19 +391,22 @@ class HvSupply:
         """Latch ESTOP: every output to 0 V and off within one cycle."""
         self._change(lambda now: self._supervisor.estop())
 
-    def reset_faults(self) -> None:
-        """Clear latched faults (device emergency state too); outputs stay off until enabled."""
+    def reset_faults(self, all_channels: bool = False) -> list[str]:
+        """Clear the latched faults (device emergency state too) of the faulted channels, or of every channel
+        with ``all_channels`` (healthy outputs then ramp down at the device ramp); reset outputs stay off until
+        enabled. Returns the names of the channels reset."""
         def reset(now):
-            self._supervisor.reset(now)
-            self._reconfigure = True
-        self._change(reset)
+            names = self._supervisor.reset(now, all_channels)
+            self._reconfigure |= bool(names)
+            return names
+        return self._change(reset)
 
     def reset_device(self) -> None:
         """Send ``*RST`` (outputs off, Vset 0, device defaults), then set and read back the device limits
         again; only with every output off. Latched faults stay latched."""
         with self._lock:
             if any(c.output_enabled for c in self._supervisor.channels.values()):
-                raise RuntimeError("reset_device: switch every output off first (disable)")
+                raise StateError("reset_device: switch every output off first (disable)")
             self._device_reset = self._reconfigure = True
         self._wake.set()
 
@@ -350,8 +418,10 @@ class HvSupply:
                                 ceiling=c.ceiling, output_enabled=c.output_enabled, ramping=c.ramping,
                                 faults=c.faults, fault_text=c.fault_text)
                 for name, c in self._supervisor.channels.items())
+            control = self._supervisor.control
             return SupplySnapshot(self.device_id, self.port_name, self._supervisor.estop_latched,
-                                  self._link_error, self._stamp, channels)
+                                  self._link_error, self._stamp, channels, control.owner or "",
+                                  control.heartbeat_age(self._clock()), self._supervisor.heartbeat_timeout_s)
 
     def wait_outputs_off(self, timeout: float | None = None) -> bool:
         """Block until every output is off (e.g. after `disable`); False if ``timeout`` [s] passed first."""
@@ -443,7 +513,7 @@ class HvSupply:
                 self._measured[config.name] = (voltage, current)
                 ramp_id, ramping, setpoint = stepped[config.name]
                 self._applied[config.name] = _Applied(ramp_id, ramping,
-                                                      abs(voltage - setpoint) <= config.mismatch_tolerance)
+                                                      abs(voltage - setpoint) <= config.mismatch_tolerance_v)
             self._cycles += 1
             self._cycle_done.notify_all()
             return any(c.faults != faults_before[n] for n, c in self._supervisor.channels.items())

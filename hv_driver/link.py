@@ -5,12 +5,13 @@ import time
 import serial
 
 from .dialects import Dialect, ProtocolError
+from .errors import HvError
 
 # Longest line the driver accepts; anything longer is garbage.
 MAX_LINE = 256
 
 
-class LinkError(ConnectionError):
+class LinkError(HvError, ConnectionError):
     """No reply, a partial reply within the timeout, or the port failed."""
 
 
@@ -56,10 +57,13 @@ class Link:
         while (end := self._buffer.find(terminator)) < 0:
             if len(self._buffer) > MAX_LINE:
                 raise ProtocolError(f"reply to {line!r} longer than {MAX_LINE} bytes without terminator")
-            if time.monotonic() >= deadline:
+            waiting = self._call(lambda: self.port.in_waiting)
+            if time.monotonic() >= deadline and not waiting:
+                # Bytes that arrived while this host was descheduled past the deadline still count: only
+                # a device that has sent nothing more by the deadline is late.
                 what = f"partial reply {bytes(self._buffer)!r}" if self._buffer else "no reply"
                 raise LinkError(f"{what} to {line!r} within {self.reply_timeout:g} s")
-            self._buffer += self._call(self.port.read, max(1, self._call(lambda: self.port.in_waiting)))
+            self._buffer += self._call(self.port.read, max(1, waiting))
         raw = bytes(self._buffer[:end])
         del self._buffer[: end + len(terminator)]
         try:

@@ -2,8 +2,18 @@
 import math
 from dataclasses import dataclass
 
+from .errors import SettingError
+
 # Peak of d/ds (10 s^3 - 15 s^4 + 6 s^5) on [0, 1], reached at s = 1/2.
 MIN_JERK_PEAK_RATE = 1.875
+# Longest ramp accepted [s]: a slew rate that would take longer over a channel's range is refused, so an
+# absurd rate (1e-9 V/s: thousands of years) is named at once instead of holding the channel.
+MAX_RAMP_DURATION_S = 600.0
+
+
+def slowest_slew_rate(span: float) -> float:
+    """Lowest slew rate [V/s] that ramps ``span`` [V] within MAX_RAMP_DURATION_S."""
+    return MIN_JERK_PEAK_RATE * span / MAX_RAMP_DURATION_S
 
 
 @dataclass(frozen=True)
@@ -35,12 +45,16 @@ class MinimumJerkRamp:
         return t >= self.t0 + self.duration
 
 
-def check_slew_rate(slew_rate: float, maximum: float) -> float:
-    """Validated slew rate: ``maximum`` when None/0, else a finite positive value <= maximum."""
+def check_slew_rate(slew_rate: float, maximum: float, span: float) -> float:
+    """Validated slew rate: ``maximum`` when None/0, else a finite positive value <= maximum that ramps
+    ``span`` [V] (the channel's range) within MAX_RAMP_DURATION_S."""
     if slew_rate is None or slew_rate == 0:
         return maximum
     if not (isinstance(slew_rate, (int, float)) and math.isfinite(slew_rate) and slew_rate > 0):
-        raise ValueError(f"slew_rate={slew_rate!r}: finite number > 0 (or 0 for the configured rate)")
+        raise SettingError(f"slew_rate={slew_rate!r}: finite number > 0 (or 0 for the configured rate)")
     if slew_rate > maximum:
-        raise ValueError(f"slew_rate={slew_rate:g} V/s exceeds the configured slew limit {maximum:g} V/s")
+        raise SettingError(f"slew_rate={slew_rate:g} V/s exceeds the configured slew limit {maximum:g} V/s")
+    if slew_rate < (slowest := slowest_slew_rate(span)):
+        raise SettingError(f"slew_rate={slew_rate:g} V/s is below {slowest:g} V/s, the slowest that ramps the "
+                           f"channel's {span:g} V within the {MAX_RAMP_DURATION_S:g} s limit on a ramp's duration")
     return float(slew_rate)

@@ -1,14 +1,19 @@
 """Safety supervisor of the HV supply: pure logic, no I/O, time passed in by the caller.
 
 One `ChannelSupervisor` per output holds the commanded setpoint, the running ramp and the latched
-faults; `Supervisor` adds the supply-wide watchdogs (link, client heartbeat) and the e-stop.
-The driver calls `step(now)` once per control cycle and sends the returned commands.
+faults; `Supervisor` adds who may command (`ControlClaim`), the supply-wide watchdogs (link, the
+controlling client's heartbeat) and the e-stop. The driver calls `step(now)` once per control cycle and
+sends the returned commands.
 
 Rules enforced here:
 - ceiling = min(hard maximum, assembly safe voltage, supply limit); a request above it is refused
   with `LimitError` naming the limit, and the streamed setpoint is still clamped to it;
-- the setpoint rises and falls no faster than the channel's slew limit, except that it drops at
-  once when the ceiling drops below it or a fault latches;
+- the setpoint rises and falls no faster than the channel's slew limit (a stalled loop catches up by
+  at most one nominal period's worth per cycle), except that it drops at once when the ceiling drops
+  below it or a fault latches;
+- only the client holding control (its session token) may ramp or feed the heartbeat watchdog; the
+  watchdog is on unless switched off on purpose (heartbeat_timeout_s=math.inf);
+- the readback must follow the commands at the device's own ramp (`ReadbackCheck`);
 - faults latch until `reset`; every fault but HEARTBEAT puts the output to 0 V and off at once
   (emergency off), a lost heartbeat ramps to 0 V at the slew limit and then switches off;
 - after a reset the outputs stay off until enabled again (never resume by themselves).
@@ -17,23 +22,28 @@ import math
 from dataclasses import dataclass
 
 from .config import ChannelConfig
+from .control import ControlClaim
+from .errors import HvError, SettingError, StateError
 from .faults import Fault, fault_names
 from .ramp import MinimumJerkRamp, check_slew_rate
+from .readback import ReadbackCheck
 
 # A lost heartbeat ramps down smoothly; every other fault cuts the output at once.
 RAMP_DOWN_FAULTS = Fault.HEARTBEAT
 IMMEDIATE_FAULTS = Fault(sum(Fault)) & ~RAMP_DOWN_FAULTS
 
-# Largest time step credited to the slew allowance, so a stalled control loop resumes with a
-# slew-limited move instead of a jump.
-MAX_SLEW_STEP_S = 0.1
+# The control loop's nominal period [s] unless told otherwise: the largest time step credited to the slew
+# allowance (a stalled loop resumes with a slew-limited move instead of a jump) and to the readback check.
+DEFAULT_PERIOD_S = 0.01
+# The controlling client's heartbeat watchdog is on unless switched off on purpose with math.inf.
+DEFAULT_HEARTBEAT_TIMEOUT_S = 2.0
 
 
-class LimitError(ValueError):
+class LimitError(SettingError):
     """A request exceeds a safety limit; the message names the limit and its value."""
 
 
-class FaultLatchedError(RuntimeError):
+class FaultLatchedError(HvError, RuntimeError):
     """A request was refused because faults are latched (reset them first)."""
 
 
@@ -53,9 +63,10 @@ def _finite(value) -> bool:
 class ChannelSupervisor:
     """Limits, ramp and latched faults of one output channel."""
 
-    def __init__(self, config: ChannelConfig, now: float = 0.0):
+    def __init__(self, config: ChannelConfig, now: float = 0.0, max_step_s: float = DEFAULT_PERIOD_S):
         self.config = config
         self._clock = float(now) if _finite(now) else 0.0
+        self.max_step_s = max_step_s
         self.setpoint = 0.0
         self.target = 0.0
         self.output_enabled = False
@@ -65,14 +76,14 @@ class ChannelSupervisor:
         self.device_limit: float | None = None
         self._ramp: MinimumJerkRamp | None = None
         self._off_at_zero = False
-        self._mismatch_since: float | None = None
+        self._readback = ReadbackCheck(config.mismatch_tolerance_v, config.mismatch_time_s, max_step_s, self._clock)
         self._creep_since: float | None = None
         self.ramp_id = 0  # counts accepted ramp requests, so a waiting caller sees being superseded
 
     # --- state -------------------------------------------------------------------------------
     def limits(self) -> dict[str, float]:
         """Every voltage limit in force, by name."""
-        named = {"hard maximum": self.config.max_voltage, "assembly safe voltage": self.safe_voltage,
+        named = {"hard maximum": self.config.max_voltage_v, "assembly safe voltage": self.safe_voltage,
                  "supply limit": self.device_limit}
         return {name: value for name, value in named.items() if value is not None}
 
@@ -98,19 +109,33 @@ class ChannelSupervisor:
     def set_safe_voltage(self, voltage: float | None) -> None:
         """Set the assembly's safe voltage [V] (None = unknown, not a limit)."""
         if voltage is not None and not (_finite(voltage) and voltage >= 0):
-            raise ValueError(f"safe_voltage={voltage!r}: finite number >= 0 or None")
+            raise SettingError(f"safe_voltage={voltage!r}: finite number >= 0 or None")
         self.safe_voltage = None if voltage is None else float(voltage)
 
     def set_device_limit(self, voltage: float | None) -> None:
         """Set the supply's own voltage limit [V] as read from the device."""
         if voltage is not None and not (_finite(voltage) and voltage >= 0):
-            raise ValueError(f"device_limit={voltage!r}: finite number >= 0 or None")
+            raise SettingError(f"device_limit={voltage!r}: finite number >= 0 or None")
         self.device_limit = None if voltage is None else float(voltage)
+
+    def set_device_ramp(self, rate: float | None) -> None:
+        """The supply's own ramp speed [V/s] as read from the device (None: it has none and follows at once);
+        the readback check expects the output to move, and to ramp down when switched off, at this rate."""
+        if rate is not None and not (_finite(rate) and rate > 0):
+            raise SettingError(f"device_ramp={rate!r}: finite number > 0 or None")
+        self._readback.ramp_rate_v_per_s = None if rate is None else float(rate)
+
+    def output_found(self, now: float, voltage: float) -> None:
+        """The output was found at ``voltage`` [V] (left on by an earlier session): the readback check
+        expects it to ramp down from there."""
+        if not _finite(voltage):
+            raise SettingError(f"voltage={voltage!r}: finite number")
+        self._readback.found(self._now(now), float(voltage))
 
     def check_target(self, target: float) -> float:
         """Validated target [V]; raises ValueError / LimitError naming the violated limit."""
         if not _finite(target) or target < 0:
-            raise ValueError(f"target={target!r} V: finite number >= 0")
+            raise SettingError(f"target={target!r} V: finite number >= 0")
         for name, limit in self.limits().items():
             if target > limit:
                 raise LimitError(f"channel {self.config.name!r}: target {target:g} V exceeds the "
@@ -135,18 +160,18 @@ class ChannelSupervisor:
         """Ramp to 0 V at the slew limit, then switch the output off."""
         now = self._now(now)
         if self.output_enabled:
-            self._start_ramp(now, 0.0, self.config.slew_rate)
+            self._start_ramp(now, 0.0, self.config.slew_rate_v_per_s)
             self._off_at_zero = True
             self.ramp_id += 1
 
-    def ramp_to(self, now: float, target: float, slew_rate: float | None = None) -> int:
-        """Start a smooth ramp to ``target`` [V]; returns the ramp id. Refuses, never clips."""
+    def ramp_to(self, now: float, target_v: float, slew_rate_v_per_s: float | None = None) -> int:
+        """Start a smooth ramp to ``target_v``; returns the ramp id. Refuses, never clips."""
         now = self._now(now)
         self._refuse_if_faulted()
         if not self.output_enabled:
-            raise RuntimeError(f"channel {self.config.name!r}: output not enabled")
-        target = self.check_target(target)
-        slew = check_slew_rate(slew_rate, self.config.slew_rate)
+            raise StateError(f"channel {self.config.name!r}: output not enabled")
+        target = self.check_target(target_v)
+        slew = check_slew_rate(slew_rate_v_per_s, self.config.slew_rate_v_per_s, self.config.max_voltage_v)
         self._start_ramp(now, target, slew)
         self._off_at_zero = False
         self.ramp_id += 1
@@ -168,7 +193,7 @@ class ChannelSupervisor:
             self._ramp = None
             self._off_at_zero = False
         elif self.output_enabled and not self._off_at_zero:
-            self._start_ramp(self._clock, 0.0, self.config.slew_rate)
+            self._start_ramp(self._clock, 0.0, self.config.slew_rate_v_per_s)
             self._off_at_zero = True
 
     def observe(self, now: float, voltage: float, current: float, device_fault: str | None = None,
@@ -178,26 +203,21 @@ class ChannelSupervisor:
         if not (_finite(voltage) and _finite(current)):
             self.trip(Fault.LINK, f"readback not a finite number ({voltage!r} V, {current!r} A)")
             return
-        if current > self.config.current_trip:
+        if current > self.config.current_trip_a:
             self.trip(Fault.OVER_CURRENT, f"measured {current:.3g} A above the trip level "
-                                          f"{self.config.current_trip:.3g} A")
+                                          f"{self.config.current_trip_a:.3g} A")
         if device_over_current:
             self.trip(Fault.OVER_CURRENT, "the supply reported a current trip")
         if device_fault:
             self.trip(Fault.DEVICE, device_fault)
-        expected = self.setpoint if self.output_enabled else 0.0
-        if abs(voltage - expected) > self.config.mismatch_tolerance:
-            self._mismatch_since = now if self._mismatch_since is None else self._mismatch_since
-            if now - self._mismatch_since > self.config.mismatch_time:
-                self.trip(Fault.READBACK_MISMATCH, f"measured {voltage:.1f} V, commanded {expected:.1f} V "
-                                                   f"for more than {self.config.mismatch_time:g} s")
-        else:
-            self._mismatch_since = None
-        if self.config.creep_voltage is not None and voltage >= self.config.creep_voltage:
+        mismatch = self._readback.check(now, voltage)
+        if mismatch:
+            self.trip(Fault.READBACK_MISMATCH, mismatch)
+        if self.config.creep_voltage_v is not None and voltage >= self.config.creep_voltage_v:
             self._creep_since = now if self._creep_since is None else self._creep_since
-            if now - self._creep_since > self.config.max_time_at_voltage:
-                self.trip(Fault.TIME_AT_VOLTAGE, f"above {self.config.creep_voltage:g} V for more than "
-                                                 f"{self.config.max_time_at_voltage:g} s")
+            if now - self._creep_since > self.config.max_time_at_voltage_s:
+                self.trip(Fault.TIME_AT_VOLTAGE, f"above {self.config.creep_voltage_v:g} V for more than "
+                                                 f"{self.config.max_time_at_voltage_s:g} s")
         else:
             self._creep_since = None
 
@@ -209,13 +229,19 @@ class ChannelSupervisor:
         self.output_enabled = False
         self._ramp = None
         self._off_at_zero = False
-        self._mismatch_since = self._creep_since = None
+        self._readback.reset()
+        self._creep_since = None
 
     # --- control cycle -----------------------------------------------------------------------
     def step(self, now: float) -> ChannelCommand:
         """Advance to ``now`` and return the command for this cycle."""
+        command = self._command(now)
+        self._readback.command(self._clock, command.setpoint, ramped=not command.emergency_off)
+        return command
+
+    def _command(self, now: float) -> ChannelCommand:
         now = self._now(now)
-        dt = min(now - self._clock, MAX_SLEW_STEP_S)
+        dt = min(now - self._clock, self.max_step_s)
         self._clock = now
         if self.faults & IMMEDIATE_FAULTS:
             return ChannelCommand(0.0, False, True)
@@ -224,9 +250,9 @@ class ChannelSupervisor:
             return ChannelCommand(0.0, False, False)
         ceiling = self.ceiling
         if self.target > ceiling:  # the ceiling dropped under a running ramp: re-plan towards it
-            self._start_ramp(now, ceiling, self._ramp.slew_rate if self._ramp else self.config.slew_rate)
+            self._start_ramp(now, ceiling, self._ramp.slew_rate if self._ramp else self.config.slew_rate_v_per_s)
         desired = self._ramp.value(now) if self._ramp else self.target
-        allowance = self.config.slew_rate * dt
+        allowance = self.config.slew_rate_v_per_s * dt
         desired = min(max(desired, self.setpoint - allowance), self.setpoint + allowance)
         self.setpoint = max(0.0, min(desired, ceiling))
         if self._ramp is not None and self._ramp.finished(now) and self.setpoint == self._ramp.end:
@@ -237,30 +263,47 @@ class ChannelSupervisor:
 
 
 class Supervisor:
-    """All channels of one supply plus the supply-wide link and heartbeat watchdogs."""
+    """All channels of one supply, who may command them, the link and heartbeat watchdogs, the e-stop.
 
-    def __init__(self, configs: list[ChannelConfig], *, link_timeout: float,
-                 heartbeat_timeout: float | None = None, now: float = 0.0):
+    heartbeat_timeout_s: the controlling client must show a sign of life (a heartbeat or a ramp request
+        with its token) this often, or its control lapses and every output it energised ramps to 0 V
+        (HEARTBEAT). math.inf switches the watchdog off; that takes this deliberate value, None is refused.
+    nominal_period_s: the control loop's period (catch-up cap of the slew allowance, readback check).
+    """
+
+    def __init__(self, configs: list[ChannelConfig], *, link_timeout_s: float,
+                 heartbeat_timeout_s: float = DEFAULT_HEARTBEAT_TIMEOUT_S,
+                 nominal_period_s: float = DEFAULT_PERIOD_S, now: float = 0.0):
         if not configs:
-            raise ValueError("channels: at least one ChannelConfig")
+            raise SettingError("channels: at least one ChannelConfig")
         for parameter, values in (("channel names", [c.name for c in configs]),
                                   ("channel indices", [c.index for c in configs])):
             if len(set(values)) != len(values):
-                raise ValueError(f"{parameter} must be unique, got {values}")
-        if not (_finite(link_timeout) and link_timeout > 0):
-            raise ValueError(f"link_timeout={link_timeout!r}: finite number > 0")
-        if heartbeat_timeout is not None and not (_finite(heartbeat_timeout) and heartbeat_timeout > 0):
-            raise ValueError(f"heartbeat_timeout={heartbeat_timeout!r}: None or finite number > 0")
-        self.link_timeout = float(link_timeout)
-        self.heartbeat_timeout = heartbeat_timeout
+                raise SettingError(f"{parameter} must be unique, got {values}")
+        if not (_finite(link_timeout_s) and link_timeout_s > 0):
+            raise SettingError(f"link_timeout_s={link_timeout_s!r}: finite number > 0")
+        if not (isinstance(heartbeat_timeout_s, (int, float)) and heartbeat_timeout_s > 0):  # also refuses NaN
+            raise SettingError(f"heartbeat_timeout_s={heartbeat_timeout_s!r}: a number of seconds > 0, or math.inf "
+                               f"to switch the heartbeat watchdog off on purpose")
+        if not (_finite(nominal_period_s) and nominal_period_s > 0):
+            raise SettingError(f"nominal_period_s={nominal_period_s!r}: finite number > 0")
+        self.link_timeout_s = float(link_timeout_s)
+        self.heartbeat_timeout_s = float(heartbeat_timeout_s)
         self._clock = float(now) if _finite(now) else 0.0
-        self.channels = {c.name: ChannelSupervisor(c, self._clock) for c in configs}
-        self._last_heartbeat = self._clock
+        self.channels = {c.name: ChannelSupervisor(c, self._clock, nominal_period_s) for c in configs}
+        self.control = ControlClaim(self.heartbeat_timeout_s)
         # Start of the current run of failed exchanges (None while the link answers). Timing the
         # failures, not the gap since the last success, keeps a host that was merely descheduled (a
         # loaded machine) from tripping while a supply that stops answering still trips on time.
         self._link_failing_since: float | None = None
-        self.estop_latched = False
+
+    @property
+    def heartbeat_watchdog_off(self) -> bool:
+        return math.isinf(self.heartbeat_timeout_s)
+
+    @property
+    def estop_latched(self) -> bool:
+        return any(Fault.ESTOP in c.faults for c in self.channels.values())
 
     def _now(self, now: float) -> float:
         if _finite(now) and now > self._clock:
@@ -270,8 +313,8 @@ class Supervisor:
     def channel(self, name: str) -> ChannelSupervisor:
         try:
             return self.channels[name]
-        except KeyError:
-            raise ValueError(f"channel={name!r}: unknown, configured are {sorted(self.channels)}") from None
+        except (KeyError, TypeError):
+            raise SettingError(f"channel={name!r}: unknown, configured are {sorted(self.channels)}") from None
 
     def link_ok(self, now: float) -> None:
         """A complete, valid exchange with the supply finished at ``now``."""
@@ -284,27 +327,44 @@ class Supervisor:
         if self._link_failing_since is None:
             self._link_failing_since = now
 
-    def heartbeat(self, now: float) -> None:
-        self._last_heartbeat = self._now(now)
+    # --- who may command ---------------------------------------------------------------------
+    def claim_control(self, client: str, now: float) -> str:
+        """Take control as ``client``; returns the session token (ControlError while another holds it)."""
+        return self.control.claim(client, self._now(now))
 
+    def release_control(self, token: str, now: float) -> str:
+        """End the session of ``token``; every output it left energised ramps to 0 V (no client watches it)."""
+        now = self._now(now)
+        owner = self.control.release(token, now)
+        for channel in self.channels.values():
+            if channel.output_enabled and not channel.faults and channel.target > 0.0:
+                channel.ramp_to(now, 0.0)
+        return owner
+
+    def heartbeat(self, now: float, token: str) -> None:
+        """Sign of life of the controlling client (ControlError for any other token)."""
+        self.control.confirm(token, self._now(now))
+
+    # --- requests ----------------------------------------------------------------------------
     def enable(self, name: str, now: float) -> None:
-        channel = self.channel(name)
-        channel.enable()
-        # Enabling counts as a sign of life, so the heartbeat timeout runs from here.
-        self._last_heartbeat = self._now(now)
+        self._now(now)
+        self.channel(name).enable()
 
-    def ramp_to(self, name: str, now: float, target: float, slew_rate: float | None = None) -> int:
-        """Start a ramp on one channel; a request from the client counts as a sign of life."""
-        ramp_id = self.channel(name).ramp_to(now, target, slew_rate)
-        self._last_heartbeat = self._now(now)
-        return ramp_id
+    def ramp_to(self, name: str, now: float, target_v: float, slew_rate_v_per_s: float | None = None, *,
+                token: str) -> int:
+        """Start a ramp on one channel for the client holding control; the request counts as its sign of life."""
+        now = self._now(now)
+        channel = self.channel(name)
+        self.control.confirm(token, now)
+        return channel.ramp_to(now, target_v, slew_rate_v_per_s)
 
     def set_safe_voltage(self, voltage: float | None) -> None:
         for channel in self.channels.values():
             channel.set_safe_voltage(voltage)
 
     def estop(self) -> None:
-        self.estop_latched = True
+        """Every output off at once (ESTOP); open to everyone, and it ends the control session."""
+        self.control.end("control ended by an emergency stop")
         for channel in self.channels.values():
             channel.trip(Fault.ESTOP, "emergency stop")
 
@@ -312,21 +372,24 @@ class Supervisor:
         for channel in self.channels.values():
             channel.trip(fault, reason)
 
-    def reset(self, now: float) -> None:
-        """Clear every latched fault; a cause still present trips again at the next step."""
-        self.estop_latched = False
-        self._last_heartbeat = self._now(now)
-        for channel in self.channels.values():
-            channel.reset()
+    def reset(self, now: float, all_channels: bool = False) -> list[str]:
+        """Clear the latched faults of the faulted channels (of every channel with ``all_channels``, which also
+        switches healthy outputs off); returns the names reset. A cause still present trips again."""
+        self._now(now)
+        names = [name for name, channel in self.channels.items() if all_channels or channel.faults]
+        for name in names:
+            self.channels[name].reset()
+        return names
 
     def step(self, now: float) -> dict[str, ChannelCommand]:
         now = self._now(now)
-        if self._link_failing_since is not None and now - self._link_failing_since > self.link_timeout:
-            self.trip_all(Fault.LINK, f"no valid reply from the supply for more than {self.link_timeout:g} s")
-        if (self.heartbeat_timeout is not None and now - self._last_heartbeat > self.heartbeat_timeout):
-            # Only energised outputs need a live client: an output idling at 0 V holds no charge.
+        if self._link_failing_since is not None and now - self._link_failing_since > self.link_timeout_s:
+            self.trip_all(Fault.LINK, f"no valid reply from the supply for more than {self.link_timeout_s:g} s")
+        self.control.lapse_if_silent(now)
+        if not self.heartbeat_watchdog_off and self.control.owner is None:
+            # Only an output held or raised above 0 V needs a live client; one on its way to 0 V does not.
+            reason = self.control.ended or "no client holds control"
             for channel in self.channels.values():
-                if channel.output_enabled and (channel.setpoint > 0.0 or channel.target > 0.0):
-                    channel.trip(Fault.HEARTBEAT, f"no heartbeat from the controlling client for more "
-                                                  f"than {self.heartbeat_timeout:g} s")
+                if channel.output_enabled and channel.target > 0.0:
+                    channel.trip(Fault.HEARTBEAT, reason)
         return {name: channel.step(now) for name, channel in self.channels.items()}

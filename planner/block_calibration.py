@@ -14,10 +14,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import yaml
+from softblock_config import config_file
 
-from planner.table import REPO_ROOT, design_indices
+from planner.table import design_indices
 
-DEFAULT_CALIBRATION_PATH = REPO_ROOT / "config" / "block_calibration.yaml"
+DEFAULT_CALIBRATION_PATH = config_file("block_calibration.yaml")
 MAX_OFFSET = math.radians(10.0)  # larger than any plausible manufacturing error: a typo or degrees
 
 

@@ -39,14 +39,14 @@ from planner.ogden import biaxial_cauchy_stress, biaxial_cauchy_stress_slope
 
 @dataclass(frozen=True)
 class ModelConstants:
-    """Constants the paper does not give; fitted by planner.calibration to its published points."""
+    """Constants the paper does not give; fitted by planner.model_calibration to its published points."""
 
     film_thickness: float  # effective unstretched film thickness t0 [m]
     rod_modulus: float  # NiTi Young's modulus [Pa]
     membrane_half_angle: float  # active membrane covers |psi| <= this, psi from the cap top [rad]
 
 
-# Output of `python -m planner calibrate` (planner/calibration.py); a test re-runs the fit.
+# Output of `python -m planner calibrate` (planner/model_calibration.py); a test re-runs the fit.
 CALIBRATED_CONSTANTS = ModelConstants(
     film_thickness=8.9346e-05,
     rod_modulus=2.2630e10,
@@ -266,16 +266,6 @@ class BlockModel:
         stretch = np.maximum(d.prestretch_axial[index][..., None] * length / rod_length, 1e-3)
         stress, thickness = _strip_tension(stretch, cols, voltage[..., None], d.material)
         return stress, thickness, slope
-
-    def net_moment(self, theta, voltage) -> np.ndarray:
-        """Membrane moment minus rod moment [N m] of every design at angle theta [rad] and voltage.
-
-        Positive: the block wants to bend further. Zero at equilibrium.
-        """
-        n = self.designs.size
-        theta = np.broadcast_to(np.asarray(theta, dtype=float), (n,))
-        voltage = np.broadcast_to(_checked("voltage", voltage), (n,)).astype(float)
-        return self._residual(theta, voltage, np.arange(n))
 
     def _residual(self, theta, voltage, index):
         """Membrane moment minus rod moment [N m] for designs[index]."""

@@ -18,8 +18,9 @@ import numpy as np
 import yaml
 from PIL import Image
 from scipy import ndimage
+from softblock_config import config_file
 
-OBJECTS_CATALOG = Path(__file__).resolve().parent.parent / "config" / "objects" / "objects.yaml"
+OBJECTS_CATALOG = config_file("objects/objects.yaml")
 DEFAULT_SPECK_FRACTION = 0.01
 GREY_MODES = ("1", "L", "I", "I;16", "F")  # Pillow modes read as they are
 
@@ -101,21 +102,6 @@ class ObjectContours:
     def width(self) -> float:
         columns = np.flatnonzero(self.mask.any(axis=0))
         return float((columns[-1] + 1 - columns[0]) * self.pixel_size)
-
-    def inside_object(self, points) -> np.ndarray:
-        """Boolean array (...): which points (..., 2) = (x, z) [m] fall on an object pixel."""
-        points = np.asarray(points, dtype=float)
-        if points.shape[-1] != 2:
-            raise ValueError(f"points must have a last axis of 2 (x, z), got shape {points.shape}")
-        column0, row0 = self.origin_pixel
-        with np.errstate(invalid="ignore"):
-            column = np.floor(points[..., 0] / self.pixel_size + column0)
-            row = np.floor(row0 - points[..., 1] / self.pixel_size)
-        rows, columns = self.mask.shape
-        inside = (column >= 0) & (column < columns) & (row >= 0) & (row < rows)
-        result = np.zeros(points.shape[:-1], dtype=bool)
-        result[inside] = self.mask[row[inside].astype(int), column[inside].astype(int)]
-        return result
 
 
 def _extreme_index(outline: np.ndarray, top: bool) -> int:

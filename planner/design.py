@@ -4,7 +4,7 @@ Finger placement (the convention behind eq. 3): the object is grasped vertically
 straight down from the object's top edge (z = 0 of the ``planner.contours`` object frame) and bends toward
 the object. Its base centerline point sits one block radius outside the object's bounding box (x = -w/2 - r
 for the left finger, +w/2 + r for the right; a straight finger then just touches the widest point) plus an
-outward offset that the optimiser chooses from ``base_offsets`` (default 0-12 mm in 1 mm steps) together
+outward offset that the optimizer chooses from ``base_offsets`` (default 0-12 mm in 1 mm steps) together
 with the blocks: the blocks only curl toward the object, so an object that is widest low down needs the
 base farther out. The left finger is matched to the left contour, the right finger to the right
 one; contours are resampled every ``contour_spacing`` along their length so the cost does not depend on
@@ -34,7 +34,7 @@ METHODS = ("exact", "pso")
 
 @dataclass(frozen=True)
 class FingerDesign:
-    """One optimised finger; geometry in the object frame (x right, z up) [m]."""
+    """One optimized finger; geometry in the object frame (x right, z up) [m]."""
 
     side: str  # "left" or "right"
     design_ids: tuple[int, ...]  # base (top) first
@@ -79,7 +79,7 @@ def _check_common(num_blocks, method: str) -> None:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
 
 
-def _optimise(target: ShapeTarget, space: DesignSpace, method: str, *, seed, time_budget, callback, options):
+def _optimize(target: ShapeTarget, space: DesignSpace, method: str, *, seed, time_budget, callback, options):
     if method == "pso":
         return solve_pso(target, space, rng=np.random.default_rng(seed), options=options,
                          time_budget=time_budget, callback=callback)
@@ -134,7 +134,7 @@ def design_fingers(
     [m]. ``inventory`` (design ID -> blocks on the shelf) is shared by both fingers: when their separate
     optima do not fit together, the right finger is redesigned from what the left one leaves (the pair is
     then not certified). ``callback(progress)`` gets a ``planner.optimize.Progress`` and may raise
-    StopIteration to cancel. ``time_budget`` [s] covers both fingers. ``options`` go to the optimiser
+    StopIteration to cancel. ``time_budget`` [s] covers both fingers. ``options`` go to the optimizer
     (``planner.optimize.exact.DEFAULT_OPTIONS`` or ``planner.optimize.pso.DEFAULT_OPTIONS``; e.g.
     ``{"max_width": None}`` makes the exact method widen until it proves the optimum).
     """
@@ -170,9 +170,9 @@ def design_fingers(
     for index, side in enumerate(("left", "right")):
         budget = None if time_budget is None else max(time_budget - (time.perf_counter() - started), 1e-3) / (2 - index)
         progress = _scaled_callback(callback, 0.5 * index, 0.5)
-        if index and results["left"].status == Status.CANCELLED:
-            progress = _cancel  # a cancelled request stops both fingers, even if the callback raised only once
-        results[side] = _optimise(problems[side][0], space, method, seed=seed, time_budget=budget,
+        if index and results["left"].status == Status.CANCELED:
+            progress = _cancel  # a canceled request stops both fingers, even if the callback raised only once
+        results[side] = _optimize(problems[side][0], space, method, seed=seed, time_budget=budget,
                                   callback=progress, options=options)
     shared_stock_ok = True
     if inventory is not None:
@@ -186,7 +186,7 @@ def design_fingers(
             for design_id in results["left"].design_ids:
                 left_over[design_id] -= 1
             budget = None if time_budget is None else max(time_budget - (time.perf_counter() - started), 1e-3)
-            results["right"] = _optimise(problems["right"][0], space_for(left_over), method, seed=seed,
+            results["right"] = _optimize(problems["right"][0], space_for(left_over), method, seed=seed,
                                          time_budget=budget, callback=_scaled_callback(callback, 0.5, 0.5),
                                          options=options)
 
@@ -245,7 +245,7 @@ def design_path(
     target = path_target(path)
     if method == "exact":
         options = PATH_EXACT_OPTIONS | (options or {})
-    result = _optimise(target, space, method, seed=seed, time_budget=time_budget, callback=callback, options=options)
+    result = _optimize(target, space, method, seed=seed, time_budget=time_budget, callback=callback, options=options)
     theta, length, _ = design_parameters(table, np.array(result.design_ids))
     shape = chain_shape(theta, length, np.array(result.rotation_steps) * ROTATION_STEP)
     cost = evaluate(target, shape.points, shape.rotations[-1], shape.positions[-1])

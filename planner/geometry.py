@@ -1,7 +1,6 @@
 """Fixed block geometry and the paper's 84-design grid (section 2.2.1)."""
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 
@@ -27,11 +26,6 @@ class BlockGeometry:
     def rod_height(self) -> float:
         """Height of the rods' bending axis above the cap centre [m] (R - h)."""
         return self.radius - self.rod_depth
-
-    @property
-    def rod_half_angle(self) -> float:
-        """Angle from the circle top to where the rod line meets the circle [rad]."""
-        return math.acos(self.rod_height / self.radius)
 
 
 PAPER_GEOMETRY = BlockGeometry()

@@ -158,11 +158,6 @@ class PlanarShape:
         offset = radius * self.normals
         return self.points + offset, self.points - offset
 
-    def to_3d(self) -> np.ndarray:
-        """(..., P, 3) centerline with y = 0."""
-        x, z = self.points[..., 0], self.points[..., 1]
-        return np.stack([x, np.zeros_like(x), z], axis=-1)
-
 
 def planar_chain(
     theta,

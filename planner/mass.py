@@ -2,7 +2,7 @@
 
 The paper gives only 0.9-1.1 g for L = 10-15 mm. The rods and membrane are computed from their
 volumes; the printed caps with terminals (fixed) and the protective sheets plus electrodes (per
-unit free length) are two constants fitted to those two figures by planner.calibration.
+unit free length) are two constants fitted to those two figures by planner.model_calibration.
 """
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ class MassConstants:
     per_length: float  # protective sheets and electrodes per metre of free length [kg/m]
 
 
-# Output of `python -m planner calibrate` (planner/calibration.py).
+# Output of `python -m planner calibrate` (planner/model_calibration.py).
 CALIBRATED_MASS = MassConstants(fixed=4.8409e-04, per_length=3.5090e-02)
 
 

@@ -39,11 +39,6 @@ class OgdenMaterial:
                 raise ValueError(f"{self.name}: {label} must be positive, got {value!r}")
 
     @property
-    def shear_modulus(self) -> float:
-        """Small-strain shear modulus sum(mu_i) [Pa]."""
-        return float(sum(self.mu))
-
-    @property
     def permittivity(self) -> float:
         """Absolute permittivity eps0 * eps_r [F/m]."""
         return VACUUM_PERMITTIVITY * self.relative_permittivity

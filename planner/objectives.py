@@ -1,4 +1,4 @@
-"""Design objectives of the paper's shape optimisation (section 2.3, eqs. 1-3).
+"""Design objectives of the paper's shape optimization (section 2.3, eqs. 1-3).
 
 Both objectives compare a chain's centerline with target points, all in the chain's base frame [m]:
 

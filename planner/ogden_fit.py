@@ -3,7 +3,7 @@
 Two methods minimise the same objective, eq 8 summed over the test points, with each mode's
 residuals divided by that mode's largest measured stress so both tests weigh alike:
 
-* ``"pso"``: particle-swarm optimisation as in the paper (global-best swarm with Clerc's
+* ``"pso"``: particle-swarm optimization as in the paper (global-best swarm with Clerc's
   constriction coefficients; scipy has no PSO and the PSO packages on PyPI are unmaintained);
 * ``"least_squares"``: multi-start trust-region-reflective least squares (scipy), much faster.
 
@@ -23,7 +23,7 @@ from scipy.optimize import least_squares
 from planner.ogden import pure_shear_nominal_stress, uniaxial_nominal_stress
 
 MODES = {"uniaxial": uniaxial_nominal_stress, "pure_shear": pure_shear_nominal_stress}
-STRESS_SCALE = 1e6  # optimise mu in MPa
+STRESS_SCALE = 1e6  # optimize mu in MPa
 DEFAULT_BOUNDS = {"mu": (1e-4, 1.0), "alpha": (0.5, 8.0)}  # mu [MPa], alpha [-]
 
 

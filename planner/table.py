@@ -14,6 +14,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
+from softblock_config import config_file
 
 from planner.geometry import (
     AREAL_PRESTRETCH,
@@ -23,8 +24,7 @@ from planner.geometry import (
     ROD_LENGTH_VALUES,
 )
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
-DEFAULT_TABLE_PATH = REPO_ROOT / "config" / "block_table.csv"
+DEFAULT_TABLE_PATH = config_file("block_table.csv")
 
 SCALAR_COLUMNS = (
     ("id", "ids"),

@@ -54,16 +54,16 @@ class Pose:
 class ArmLimits:
     """Motion limits and the tolerance within which a target counts as reached."""
 
-    max_speed: float = 0.25               # [m/s]
-    max_acceleration: float = 0.5         # [m/s^2]
-    max_angular_speed: float = 1.0        # [rad/s]
-    max_angular_acceleration: float = 2.0  # [rad/s^2]
-    position_tolerance: float = 1e-3      # [m]
-    orientation_tolerance: float = 1e-2   # [rad]
+    max_speed_m_per_s: float = 0.25
+    max_acceleration_m_per_s2: float = 0.5
+    max_angular_speed_rad_per_s: float = 1.0
+    max_angular_acceleration_rad_per_s2: float = 2.0
+    position_tolerance_m: float = 1e-3
+    orientation_tolerance_rad: float = 1e-2
 
     def __post_init__(self):
-        for parameter in ("max_speed", "max_acceleration", "max_angular_speed", "max_angular_acceleration",
-                          "position_tolerance", "orientation_tolerance"):
+        for parameter in ("max_speed_m_per_s", "max_acceleration_m_per_s2", "max_angular_speed_rad_per_s",
+                          "max_angular_acceleration_rad_per_s2", "position_tolerance_m", "orientation_tolerance_rad"):
             value = getattr(self, parameter)
             _require(isinstance(value, (int, float)) and math.isfinite(value) and value > 0,
                      parameter, value, "finite number > 0")
@@ -145,16 +145,17 @@ class SimulatedArm:
             return 0.0
         return self._segment.rate * self._segment.start.distance_to(self._segment.end)
 
-    def move_to(self, target: Pose, max_speed: float = 0.0) -> None:
+    def move_to(self, target: Pose, max_speed_m_per_s: float = 0.0) -> None:
         """Start a straight move from the present pose to ``target``.
 
-        max_speed: linear speed limit of this move [m/s]; 0 = the arm's limit. Never above the limit.
+        max_speed_m_per_s: linear speed limit of this move [m/s]; 0 = the arm's limit. Never above the limit.
         A move started while another runs keeps the present linear speed (no velocity jump).
         """
         _require(isinstance(target, Pose), "target", target, "a Pose")
-        _require(isinstance(max_speed, (int, float)) and math.isfinite(max_speed) and max_speed >= 0,
-                 "max_speed", max_speed, "finite number >= 0 (0 = the arm's limit)")
-        speed = self.limits.max_speed if max_speed == 0 else min(max_speed, self.limits.max_speed)
+        limit = max_speed_m_per_s
+        _require(isinstance(limit, (int, float)) and math.isfinite(limit) and limit >= 0,
+                 "max_speed_m_per_s", limit, "finite number >= 0 (0 = the arm's limit)")
+        speed = self.limits.max_speed_m_per_s if limit == 0 else min(limit, self.limits.max_speed_m_per_s)
         distance, angle = self._pose.distance_to(target), self._pose.angle_to(target)
         if self.reached(target):
             self._pose, self._segment = target, None
@@ -163,10 +164,10 @@ class SimulatedArm:
         rate_limits, acceleration_limits = [], []
         if distance > 0:
             rate_limits.append(speed / distance)
-            acceleration_limits.append(self.limits.max_acceleration / distance)
+            acceleration_limits.append(self.limits.max_acceleration_m_per_s2 / distance)
         if angle > 0:
-            rate_limits.append(self.limits.max_angular_speed / angle)
-            acceleration_limits.append(self.limits.max_angular_acceleration / angle)
+            rate_limits.append(self.limits.max_angular_speed_rad_per_s / angle)
+            acceleration_limits.append(self.limits.max_angular_acceleration_rad_per_s2 / angle)
         initial_rate = self.speed() / distance if distance > 0 else 0.0
         self._segment = _Segment(self._pose, target, min(rate_limits), min(acceleration_limits), initial_rate)
 
@@ -187,8 +188,8 @@ class SimulatedArm:
 
     def reached(self, target: Pose) -> bool:
         """Whether the present pose is within the position and orientation tolerance of ``target``."""
-        return (self._pose.distance_to(target) <= self.limits.position_tolerance
-                and self._pose.angle_to(target) <= self.limits.orientation_tolerance)
+        return (self._pose.distance_to(target) <= self.limits.position_tolerance_m
+                and self._pose.angle_to(target) <= self.limits.orientation_tolerance_rad)
 
     def step(self, dt: float) -> Pose:
         """Advance the motion by ``dt`` seconds and return the new pose."""

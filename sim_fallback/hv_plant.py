@@ -1,9 +1,11 @@
 """Output dynamics of one simulated HV channel driving a DEA load (pure, time passed in).
 
 The supply moves its output towards the set voltage at its configured ramp speed; the DEA is a
-capacitor with a leakage resistance, so the supply current is C·dV/dt + V/R_leak. Switched off,
-the load discharges through the supply's discharge resistor. An arc (film breakdown) collapses
-the voltage and draws a large current until the output is switched off.
+capacitor with a leakage resistance, so the supply current is C·dV/dt + V/R_leak. Switched off
+(`:VOLT OFF`, a trip with action 1, `*RST`), the output ramps down at the configured ramp-down speed, as
+the iseg manual says; an emergency off (or a trip with action 2 or 3) cuts it without ramp and the load
+discharges through the supply's discharge resistor. An arc (film breakdown) collapses the voltage and
+draws a large current until the output is switched off.
 """
 import math
 from dataclasses import dataclass, field
@@ -43,6 +45,7 @@ class PlantChannel:
     drift: float = 0.0              # readback error [V] (readback_drift fault)
     drift_rate: float = 0.0         # [V/s]
     arcing: bool = False
+    ramping_down: bool = False      # switched off with ramp, still above 0 V
     off_at: float | None = None     # time the output last went from on to off
 
     def __post_init__(self):
@@ -63,12 +66,16 @@ class PlantChannel:
         self._over_limit_since: float | None = None
 
     # --- commands ----------------------------------------------------------------------------
-    def switch_off(self, now: float, emergency: bool) -> None:
+    def switch_off(self, now: float, emergency: bool, ramp: bool = True) -> None:
+        """Output off: ramped down at the ramp-down speed, or without ramp (``ramp`` False, or an emergency off)."""
         if self.output_on:
             self.off_at = now
             self.events |= ChannelEvent.EVENT_ON_TO_OFF
+            self.ramping_down = ramp
         self.output_on = False
         self.arcing = False
+        if emergency or not ramp:
+            self.ramping_down = False
         if emergency:
             self.emergency = True
             self.voltage_set = 0.0
@@ -92,6 +99,9 @@ class PlantChannel:
             delta = self.voltage_set - self.voltage
             limit = (self.ramp_up if delta > 0 else self.ramp_down) * dt
             self.voltage += max(-limit, min(limit, delta))
+        elif self.ramping_down:
+            self.voltage = max(0.0, self.voltage - self.ramp_down * dt)
+            self.ramping_down = self.voltage > 0.0
         else:
             self.voltage *= math.exp(-dt / (load.discharge_resistance * load.capacitance))
         self.current = load.capacitance * (self.voltage - before) / dt + self.voltage / load.leakage_resistance
@@ -110,7 +120,7 @@ class PlantChannel:
         if self.trip_action in (1, 2, 3) and now - self._over_limit_since >= self.trip_time_ms / 1000.0:
             self.current_trip = True
             self.events |= ChannelEvent.EVENT_CURRENT_TRIP
-            self.switch_off(now, emergency=False)
+            self.switch_off(now, emergency=False, ramp=self.trip_action == 1)  # 1 off with ramp, 2/3 without
 
     # --- readback ----------------------------------------------------------------------------
     @property
@@ -120,7 +130,7 @@ class PlantChannel:
     @property
     def status(self) -> ChannelStatus:
         status = ChannelStatus.IS_POSITIVE
-        ramping = self.output_on and abs(self.voltage_set - self.voltage) > 0.5
+        ramping = (self.output_on and abs(self.voltage_set - self.voltage) > 0.5) or self.ramping_down
         for flag, active in ((ChannelStatus.IS_ON, self.output_on),
                              (ChannelStatus.IS_VOLTAGE_RAMP, ramping),
                              (ChannelStatus.IS_CONSTANT_VOLTAGE, self.output_on and not ramping),

@@ -64,12 +64,13 @@ class SimulatedSupply:
     """A multi-channel EDCP supply with DEA loads on a pty, with fault injection.
 
     channels: number of outputs; defaults / load: per-channel power-up configuration and load;
-    watchdog_s: outputs go off (emergency) when no command arrives for this long (None = off);
+    watchdog_s: outputs go off (emergency) when no command arrives for this long; None (default) = off,
+        as on an iseg module, which has no host watchdog (a keep-alive supply is modelled by setting it);
     rng: seed or numpy Generator for garbled replies.
     """
 
     def __init__(self, channels: int = 2, defaults: ChannelDefaults = ChannelDefaults(),
-                 load: DeaLoad = DeaLoad(), watchdog_s: float | None = 1.0, rng=0, tick_s: float = 0.001):
+                 load: DeaLoad = DeaLoad(), watchdog_s: float | None = None, rng=0, tick_s: float = 0.001):
         if channels < 1:
             raise ValueError(f"channels={channels}: at least 1")
         self.plant = [PlantChannel(defaults, load) for _ in range(channels)]
@@ -249,6 +250,8 @@ class SimulatedSupply:
         now = time.monotonic()
         if header == "*IDN?":
             return IDENTITY
+        if header == ":READ:MOD:CHAN?":
+            return str(len(self.plant))
         if header == "*OPC?":
             return "1"
         if header == "*RST":
@@ -324,7 +327,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--channels", type=int, default=2)
     parser.add_argument("--voltage-limit", type=float, default=ChannelDefaults.voltage_limit, help="[V]")
-    parser.add_argument("--watchdog", type=float, default=1.0, help="[s]; 0 disables")
+    parser.add_argument("--watchdog", type=float, default=0.0, help="host keep-alive [s]; 0 (default) = none")
     args = parser.parse_args(argv)
     sim = SimulatedSupply(args.channels, ChannelDefaults(voltage_limit=args.voltage_limit),
                           watchdog_s=args.watchdog or None).start()

@@ -11,12 +11,14 @@ import subprocess
 import sys
 import threading
 
+from .hv_supply import FAULTS
+
 START_TIMEOUT = 30.0  # [s] for the child to print its pty path (interpreter start-up on a loaded machine)
 REPLY_TIMEOUT = 10.0  # [s] for the answer to one command
 
 
 class SimulatedSupplyProcess:
-    def __init__(self, channels: int = 2, watchdog_s: float | None = 1.0):
+    def __init__(self, channels: int = 2, watchdog_s: float | None = None):
         if channels < 1:
             raise ValueError(f"channels={channels}: at least 1")
         self.channels = channels
@@ -56,6 +58,10 @@ class SimulatedSupplyProcess:
 
     def inject(self, fault: str, channel: int | None = None) -> None:
         """Inject ``fault`` (see ``sim_fallback.hv_supply.FAULTS``); ValueError for an unknown one."""
+        if fault not in FAULTS:  # checked here too: the name goes into the child's command line
+            raise ValueError(f"fault={fault!r}: one of {', '.join(FAULTS)}")
+        if channel is not None and not (isinstance(channel, int) and 0 <= channel < self.channels):
+            raise ValueError(f"channel={channel!r}: between 0 and {self.channels - 1}")
         self._command(fault if channel is None else f"{fault} {channel}")
 
     def clear_faults(self) -> None:

@@ -8,16 +8,18 @@ from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
+from ..errors import HvError
+
 # Operations the driver uses; every dialect's table must define all of them.
 OPERATIONS = (
-    "identify", "reset", "set_voltage", "output_on", "output_off", "emergency_off",
+    "identify", "read_channel_count", "reset", "set_voltage", "output_on", "output_off", "emergency_off",
     "emergency_clear", "clear_events", "measure_voltage", "measure_current", "read_status",
     "read_event_status", "read_voltage_limit", "set_ramp_up", "set_ramp_down", "read_ramp",
     "set_current_limit", "read_current_limit", "set_trip_time", "read_trip_time", "set_trip_action",
 )
 
 
-class ProtocolError(ConnectionError):
+class ProtocolError(HvError, ConnectionError):
     """A reply that does not fit the dialect: garbage, wrong echo, wrong count or unit."""
 
 

@@ -78,6 +78,7 @@ class IsegEdcp(Dialect):
     default_baudrate = 9600
     commands = {
         "identify": Command("*IDN?", "text"),
+        "read_channel_count": Command(":READ:MOD:CHAN?", "integer"),
         "reset": Command("*RST", "ack"),
         "set_voltage": Command(":VOLT {value},{channels}", "ack"),
         "output_on": Command(":VOLT ON,{channels}", "ack"),

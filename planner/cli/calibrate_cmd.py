@@ -10,7 +10,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from planner.calibration import calibrate
+    from planner.model_calibration import calibrate
 
     result = calibrate()
     c, m, p = result.constants, result.mass, result.predictions

@@ -1,4 +1,4 @@
-"""`python -m planner design-finger` and `design-path`: run the design optimisers from the shell.
+"""`python -m planner design-finger` and `design-path`: run the design optimizers from the shell.
 
 Results go to stdout as a human summary (mm and degrees allowed) and, with --json, to a file in SI units.
 Progress is printed to stderr.

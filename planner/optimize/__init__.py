@@ -1,4 +1,4 @@
-"""Design optimisers: the paper's particle swarm and a prefix branch and bound (certified for fingers)."""
+"""Design optimizers: the paper's particle swarm and a prefix branch and bound (certified for fingers)."""
 from planner.optimize.exact import solve_exact
 from planner.optimize.pso import design_costs, solve_pso
 from planner.optimize.result import DesignOptimizeResult, Progress, Status

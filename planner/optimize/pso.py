@@ -1,4 +1,4 @@
-"""Particle swarm optimisation of a chain design, as in the paper (section 2.3, ref. 43).
+"""Particle swarm optimization of a chain design, as in the paper (section 2.3, ref. 43).
 
 Each particle holds one continuous coordinate per block in [0, number of allowed shapes), when rotations
 are allowed one per block in [0, 12), and one for the choice among the target's base positions; flooring

@@ -1,4 +1,4 @@
-"""Result, progress and run control shared by the design optimisers (scipy.optimize conventions)."""
+"""Result, progress and run control shared by the design optimizers (scipy.optimize conventions)."""
 from __future__ import annotations
 
 import time
@@ -14,7 +14,7 @@ class Status(IntEnum):
     CERTIFIED = 0  # the optimum is proven (exact search finished)
     FINISHED = 1  # the method ran to completion; optimality not certified
     TIME_BUDGET = 2
-    CANCELLED = 3
+    CANCELED = 3
     INFEASIBLE = 4  # every design examined collides with the object or exceeds the inventory
 
 
@@ -22,14 +22,14 @@ MESSAGES = {
     Status.CERTIFIED: "optimum certified",
     Status.FINISHED: "finished; optimality not certified",
     Status.TIME_BUDGET: "time budget exhausted; best design so far returned",
-    Status.CANCELLED: "cancelled: callback raised StopIteration",
+    Status.CANCELED: "canceled: callback raised StopIteration",
     Status.INFEASIBLE: "no collision-free design within the inventory found; the least bad one is returned",
 }
 
 
 @dataclass
 class DesignOptimizeResult:
-    """Outcome of a design optimisation, like scipy's OptimizeResult.
+    """Outcome of a design optimization, like scipy's OptimizeResult.
 
     ``x`` is (N, 2) integers: design ID and rotation step (k x 30 degrees) of each block, base first.
     ``fun`` is the objective [m] (plus 1e11 per collision); ``lower_bound`` a proven lower bound on the
@@ -69,7 +69,7 @@ class Progress:
 
 
 class Stop(Exception):
-    """Raised inside an optimiser to end the run early with ``status``."""
+    """Raised inside an optimizer to end the run early with ``status``."""
 
     def __init__(self, status: Status):
         super().__init__(status.name)
@@ -103,7 +103,7 @@ class RunControl:
             try:
                 self.callback(Progress(min(max(fraction, 0.0), 1.0), float(best_cost), nfev, self.elapsed))
             except StopIteration:
-                raise Stop(Status.CANCELLED) from None
+                raise Stop(Status.CANCELED) from None
 
 
 def make_result(space, shapes, rotations, cost, status: Status, *, base, nit, nfev, lower_bound,

@@ -1,7 +1,7 @@
 """The discrete design space of one chain: which look-up-table shapes (and rotations) each block may take.
 
 Designs with the same shape (rod length L and theta0 within ``shape_tolerance``) bend a chain identically,
-so the optimisers search over distinct shapes and the result is mapped back to design IDs afterwards. Ties
+so the optimizers search over distinct shapes and the result is mapped back to design IDs afterwards. Ties
 between the designs of one shape go to blocks in stock, then to the stiffest. Stiff positions only accept
 shapes that have a design with rod diameter >= ``min_stiff_rod_diameter``; an inventory limits how often a
 shape may be used (its designs' stock summed; stiff positions drawing on the stiff designs' stock).

@@ -11,8 +11,8 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
 from softblock_ros.client import wait_until
-from softblock_ros.recording.analysis import analyze
-from softblock_ros.recording.playback import PlaybackOptions
+from recording.analysis import analyze
+from recording.playback import PlaybackOptions
 from softblock_ros.recording.player_node import PlayerNode
 from softblock_ros.recording.recorder_node import RecorderNode
 
@@ -70,7 +70,7 @@ def test_demo_recording_replayed_and_recorded_again_gives_the_same_analysis(demo
     context = rclpy.Context()
     rclpy.init(context=context)
     player = PlayerNode(original, PlaybackOptions(rate=4.0), context=context)
-    recorder = RecorderNode(replayed, context=context, parameter_overrides=[Parameter("discovery_period", value=0.1)])
+    recorder = RecorderNode(replayed, context=context, parameter_overrides=[Parameter("discovery_period_s", value=0.1)])
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(player)
     executor.add_node(recorder)

@@ -58,23 +58,38 @@ def scripted_port():
 
 
 # Fast limits so ramps in tests take a fraction of a second.
-FAST = dict(max_voltage=3000.0, slew_rate=8000.0, mismatch_tolerance=150.0, mismatch_time=0.2)
+FAST = dict(max_voltage_v=3000.0, slew_rate_v_per_s=8000.0, mismatch_tolerance_v=150.0, mismatch_time_s=0.2)
 CHANNELS = [ChannelConfig("front", 0, **FAST), ChannelConfig("back", 1, **FAST)]
 
 
 @pytest.fixture
+def channels():
+    """The fast two-channel configuration (a fixture: test modules cannot import a conftest by name when
+    several test folders, each with its own conftest, run together)."""
+    return CHANNELS
+
+
+@pytest.fixture
 def sim():
-    supply = SimulatedSupply(channels=2, watchdog_s=0.5).start()
+    supply = SimulatedSupply(channels=2).start()
     yield supply
     supply.stop()
 
 
 @pytest.fixture
 def supply(sim):
-    # A generous link timeout: the suite runs on two loaded cores.
-    hv = HvSupply(sim.port, channels=CHANNELS, link_timeout_s=0.5, handle_signals=False).open()
+    # A generous link timeout: the suite runs on two loaded cores. The heartbeat watchdog stays on, with a
+    # timeout longer than any test holds an output without a request (its own tests set a short one).
+    hv = HvSupply(sim.port, channels=CHANNELS, link_timeout_s=0.5, heartbeat_timeout_s=30.0,
+                  handle_signals=False).open()
     yield hv
     hv.abort()
+
+
+@pytest.fixture
+def token(supply):
+    """The test's control session of ``supply``."""
+    return supply.claim_control("test")
 
 
 def _wait_until(predicate, deadline_s: float = 3.0, poll_s: float = 0.005):

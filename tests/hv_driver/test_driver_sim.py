@@ -1,5 +1,9 @@
-"""HvSupply against the simulated supply over a real pty: ramps, every injected fault, e-stop, exit paths."""
+"""HvSupply against the simulated supply over a real pty: ramps, every injected fault, e-stop, exit paths,
+the heartbeat watchdog and the control claim, resets and outputs that ramp down at the device ramp."""
+import logging
+import math
 import os
+import time
 import signal
 import subprocess
 import sys
@@ -7,7 +11,8 @@ import textwrap
 
 import pytest
 
-from hv_driver import ChannelConfig, ConfigurationError, Fault, FaultLatchedError, HvSupply, LimitError
+from hv_driver import (ChannelConfig, ConfigurationError, ControlError, Fault, FaultLatchedError, HvSupply, LimitError,
+                       LinkError)
 from hv_driver.dialects.iseg_edcp import ChannelEvent
 from sim_fallback.hv_plant import ChannelDefaults
 from sim_fallback.hv_supply import SimulatedSupply
@@ -19,10 +24,10 @@ def all_off(sim) -> bool:
     return not any(ch.output_on for ch in sim.plant)
 
 
-def ramp_both(supply, volts):
+def ramp_both(supply, token, volts):
     for name in ("front", "back"):
         supply.enable(name)
-    handles = [supply.ramp_to(name, volts) for name in ("front", "back")]
+    handles = [supply.ramp_to(name, volts, token=token) for name in ("front", "back")]
     assert all(h.wait(5.0) for h in handles)
     assert all(h.succeeded for h in handles), [h.message for h in handles]
 
@@ -42,35 +47,37 @@ def test_open_sends_the_documented_sequence(sim, supply):
                     f":CURR 7.500000E-05,(@{n});*OPC?", f":CONF:TRIP:TIME 1.000000E+02,(@{n});*OPC?",
                     f":CONF:TRIP:ACTION 2,(@{n});*OPC?", f":READ:RAMP:VOLT? (@{n})", f":READ:CURR? (@{n})",
                     f":CONF:TRIP:TIME? (@{n})", f":READ:VOLT:LIM? (@{n})"] for n in (0, 1)]
-    expected = (["*IDN?", ":VOLT 0.000000E+00,(@0,1);*OPC?", ":VOLT OFF,(@0,1);*OPC?"] + per_channel[0] + per_channel[1]
+    expected = (["*IDN?", ":READ:MOD:CHAN?", ":VOLT 0.000000E+00,(@0,1);*OPC?", ":VOLT OFF,(@0,1);*OPC?"]
+                + per_channel[0] + per_channel[1]
                 + [":READ:CHAN:STATUS? (@0,1)", ":READ:CHAN:EVENT:STATUS? (@0,1)", ":MEAS:VOLT? (@0,1)",
-                   ":MEAS:CURR? (@0,1)", ":READ:CHAN:STATUS? (@0,1)", ":READ:CHAN:EVENT:STATUS? (@0,1)"])
+                   ":MEAS:VOLT? (@0,1)", ":MEAS:CURR? (@0,1)", ":READ:CHAN:STATUS? (@0,1)",
+                   ":READ:CHAN:EVENT:STATUS? (@0,1)"])
     assert lines[:len(expected)] == expected
 
 
-def test_ramp_to_2400_and_back_follows_on_both_channels(sim, supply, wait_until):
-    ramp_both(supply, 2400.0)
+def test_ramp_to_2400_and_back_follows_on_both_channels(sim, supply, token, wait_until):
+    ramp_both(supply, token, 2400.0)
     assert all(ch.output_on and ch.voltage_set == 2400.0 for ch in sim.plant)  # sent before "done"
     supply.wait_cycles(2)  # the device ramp (1.2 x the slew limit) ends within a cycle
     for ch, snap in zip(sim.plant, supply.snapshot().channels):
         assert ch.voltage == pytest.approx(2400.0, abs=1.0)
         assert snap.measured_voltage == pytest.approx(2400.0, abs=1.0) and not snap.faults
-    handles = [supply.ramp_to(name, 0.0) for name in ("front", "back")]
+    handles = [supply.ramp_to(name, 0.0, token=token) for name in ("front", "back")]
     assert all(h.wait(5.0) and h.succeeded for h in handles)
     assert all(ch.voltage_set == 0.0 for ch in sim.plant)
 
 
-def test_request_above_the_ceiling_is_refused_naming_the_limit(supply):
+def test_request_above_the_ceiling_is_refused_naming_the_limit(supply, token):
     supply.enable("front")
     supply.set_safe_voltage(2000.0)
     with pytest.raises(LimitError, match="assembly safe voltage of 2000 V"):
-        supply.ramp_to("front", 2400.0)
+        supply.ramp_to("front", 2400.0, token=token)
     assert supply.snapshot().channel("front").target == 0.0
 
 
-def test_cancel_ramps_back_to_zero(sim, supply):
+def test_cancel_ramps_back_to_zero(sim, supply, token):
     supply.enable("front")
-    handle = supply.ramp_to("front", 2400.0, slew_rate=2000.0)
+    handle = supply.ramp_to("front", 2400.0, slew_rate_v_per_s=2000.0, token=token)
     supply.wait_cycles(20)
     down = handle.cancel()
     assert handle.wait(5.0) and handle.message == "superseded by a later request"
@@ -91,15 +98,19 @@ FAULT_CASES = {
 
 
 @pytest.mark.parametrize("fault", list(FAULT_CASES))
-def test_every_injected_fault_ends_with_outputs_off_and_the_named_fault(fault, sim, supply, wait_until):
+def test_every_injected_fault_ends_with_outputs_off_and_the_named_fault(fault, sim, supply, token, wait_until):
     channel, expected, tripped = FAULT_CASES[fault]
-    ramp_both(supply, 1500.0)
+    ramp_both(supply, token, 1500.0)
     sim.inject(fault, channel)
+
+    # A pulled cable leaves the device unreachable: like an iseg module (no host watchdog), the simulator
+    # then holds its output; the driver's side must still latch and zero everything.
+    device_reachable = fault != "disconnect"
 
     def tripped_and_off():
         snap = supply.snapshot()
         return all(expected in snap.channel(n).faults for n in tripped) and all(
-            not sim.plant[snap.channel(n).index].output_on for n in tripped)
+            not (device_reachable and sim.plant[snap.channel(n).index].output_on) for n in tripped)
     assert wait_until(tripped_and_off), supply.snapshot()
     snap = supply.snapshot()
     for name in tripped:
@@ -110,16 +121,16 @@ def test_every_injected_fault_ends_with_outputs_off_and_the_named_fault(fault, s
         supply.enable(tripped[0])
 
 
-def test_an_interlock_pulse_between_two_polls_is_caught_by_the_event_register(sim, supply, wait_until):
-    ramp_both(supply, 800.0)
+def test_an_interlock_pulse_between_two_polls_is_caught_by_the_event_register(sim, supply, token, wait_until):
+    ramp_both(supply, token, 800.0)
     sim.plant[1].events |= ChannelEvent.EVENT_EXTERNAL_INHIBIT  # the status bit came and went unseen
     assert wait_until(lambda: supply.snapshot().channel("back").faults == Fault.DEVICE)
     assert "event_external_inhibit" in supply.snapshot().channel("back").fault_text
     assert wait_until(lambda: not sim.plant[1].output_on) and sim.plant[0].output_on
 
 
-def test_faults_stay_latched_until_reset_then_outputs_stay_off_until_enabled(sim, supply, wait_until):
-    ramp_both(supply, 1000.0)
+def test_faults_stay_latched_until_reset_then_outputs_stay_off_until_enabled(sim, supply, token, wait_until):
+    ramp_both(supply, token, 1000.0)
     sim.inject("device_reset")
     assert wait_until(lambda: supply.snapshot().channel("front").faults == Fault.DEVICE)
     supply.wait_cycles(10)
@@ -129,7 +140,7 @@ def test_faults_stay_latched_until_reset_then_outputs_stay_off_until_enabled(sim
     assert not any(c.faults for c in supply.snapshot().channels) and all_off(sim)
     assert sim.plant[0].ramp_up == pytest.approx(8000.0 * 1.2)  # device limits restored after the reset
     supply.enable("front")
-    assert supply.ramp_to("front", 500.0).wait(5.0) and sim.plant[0].output_on
+    assert supply.ramp_to("front", 500.0, token=token).wait(5.0) and sim.plant[0].output_on
 
 
 def test_device_reset_only_with_outputs_off_and_limits_are_restored(sim, supply):
@@ -145,8 +156,8 @@ def test_device_reset_only_with_outputs_off_and_limits_are_restored(sim, supply)
     assert sim.plant[0].ramp_up == pytest.approx(8000.0 * 1.2) and not supply.snapshot().channel("front").faults
 
 
-def test_estop_while_another_thread_streams_ramps(sim, supply, background, wait_until):
-    ramp_both(supply, 800.0)
+def test_estop_while_another_thread_streams_ramps(sim, supply, token, background, wait_until):
+    ramp_both(supply, token, 800.0)
     refused = []
 
     def stream():  # keeps requesting new ramps until 20 requests after the e-stop were refused
@@ -154,9 +165,9 @@ def test_estop_while_another_thread_streams_ramps(sim, supply, background, wait_
         while len(refused) <= 20:
             k += 1
             try:
-                supply.heartbeat()
-                supply.ramp_to("front" if k % 2 else "back", 200.0 + (k * 37) % 1500)
-            except FaultLatchedError as error:
+                supply.heartbeat(token)
+                supply.ramp_to("front" if k % 2 else "back", 200.0 + (k * 37) % 1500, token=token)
+            except (FaultLatchedError, ControlError) as error:
                 refused.append(error)
             supply.wait_cycles(1, timeout=1.0)
     background(stream)
@@ -166,41 +177,41 @@ def test_estop_while_another_thread_streams_ramps(sim, supply, background, wait_
     snap = supply.snapshot()
     assert snap.estop and all(c.faults == Fault.ESTOP and not c.output_enabled for c in snap.channels)
     assert all(ch.emergency for ch in sim.plant)  # device-side emergency off, latched
-    assert "estop" in str(refused[-1])
+    assert "emergency stop" in str(refused[-1]) and snap.controller == ""  # the e-stop ended the session
 
 
 def test_lost_heartbeat_ramps_outputs_down(sim, wait_until):
-    configs = [ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=8000.0)]
+    configs = [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=8000.0)]
     with HvSupply(sim.port, channels=configs, heartbeat_timeout_s=0.3, handle_signals=False) as hv:
         hv.enable("front")
-        hv.ramp_to("front", 1000.0)
+        hv.ramp_to("front", 1000.0, token=hv.claim_control("test"))
         assert wait_until(lambda: Fault.HEARTBEAT in hv.snapshot().channel("front").faults)
         assert wait_until(lambda: not sim.plant[0].output_on)
         assert not sim.plant[0].emergency  # ramped down and switched off, not cut
 
 
 def test_close_ramps_down_and_switches_off(sim):
-    hv = HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=8000.0)],
+    hv = HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=8000.0)],
                   handle_signals=False).open()
     hv.enable("front")
-    assert hv.ramp_to("front", 1200.0).wait(5.0)
+    assert hv.ramp_to("front", 1200.0, token=hv.claim_control("test")).wait(5.0)
     hv.close()
     assert all_off(sim) and sim.plant[0].voltage_set == 0.0 and not sim.plant[0].emergency
 
 
 def test_exception_in_the_with_block_cuts_the_outputs(sim):
     with pytest.raises(RuntimeError, match="operator code failed"):
-        with HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage=3000.0)],
+        with HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage_v=3000.0)],
                       handle_signals=False) as hv:
             hv.enable("front")
-            hv.ramp_to("front", 300.0).wait(5.0)
+            hv.ramp_to("front", 300.0, token=hv.claim_control("test")).wait(5.0)
             raise RuntimeError("operator code failed")
     assert all_off(sim) and sim.plant[0].emergency
 
 
 def test_a_latched_device_emergency_survives_reconnect_until_reset(sim):
     sim.plant[0].emergency = True
-    with HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage=3000.0)], handle_signals=False) as hv:
+    with HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage_v=3000.0)], handle_signals=False) as hv:
         assert hv.snapshot().channel("front").faults == Fault.DEVICE
         with pytest.raises(FaultLatchedError, match="is_emergency_off"):
             hv.enable("front")
@@ -213,7 +224,7 @@ def test_a_latched_device_emergency_survives_reconnect_until_reset(sim):
 
 def test_device_that_cannot_take_the_ramp_speed_is_refused_at_open():
     with SimulatedSupply(channels=1, defaults=ChannelDefaults(max_ramp_speed=500.0)) as slow:
-        hv = HvSupply(slow.port, channels=[ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=1000.0)],
+        hv = HvSupply(slow.port, channels=[ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=1000.0)],
                       handle_signals=False)
         with pytest.raises(ConfigurationError, match="read_ramp reads 500, configured 1200"):
             hv.open()
@@ -223,9 +234,9 @@ def test_sigterm_switches_the_outputs_off(sim, wait_until):
     script = textwrap.dedent(f"""
         import sys, time
         from hv_driver import ChannelConfig, HvSupply
-        hv = HvSupply({sim.port!r}, channels=[ChannelConfig("front", 0, max_voltage=3000.0)]).open()
+        hv = HvSupply({sim.port!r}, channels=[ChannelConfig("front", 0, max_voltage_v=3000.0)]).open()
         hv.enable("front")
-        hv.ramp_to("front", 400.0).wait(5.0)
+        hv.ramp_to("front", 400.0, token=hv.claim_control("test")).wait(5.0)
         print("ramped", flush=True)
         time.sleep(30)
     """)
@@ -239,3 +250,133 @@ def test_sigterm_switches_the_outputs_off(sim, wait_until):
         child.kill()
         child.stdout.close()
     assert all_off(sim) and sim.plant[0].emergency
+
+
+def test_the_heartbeat_watchdog_is_on_by_default(sim, wait_until):
+    configs = [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=8000.0)]
+    with HvSupply(sim.port, channels=configs, handle_signals=False) as hv:
+        assert hv.snapshot().heartbeat_timeout_s == 2.0
+        token = hv.claim_control("client that dies")
+        hv.enable("front")
+        assert hv.ramp_to("front", 1000.0, token=token).wait(5.0)
+        started = time.monotonic()
+        assert wait_until(lambda: Fault.HEARTBEAT in hv.snapshot().channel("front").faults, 10.0)
+        assert time.monotonic() - started > 1.5  # the 2 s timeout ran from the ramp request
+        assert wait_until(lambda: not sim.plant[0].output_on and sim.plant[0].voltage < 1.0, 5.0)
+        assert hv.snapshot().controller == ""
+
+
+def test_switching_the_watchdog_off_takes_inf_and_warns_at_every_open(sim, caplog):
+    configs = [ChannelConfig("front", 0, max_voltage_v=3000.0)]
+    with pytest.raises(ValueError, match="math.inf to switch the heartbeat watchdog off on purpose"):
+        HvSupply(sim.port, channels=configs, heartbeat_timeout_s=None, handle_signals=False)
+    caplog.set_level(logging.WARNING, logger="hv_driver")
+    for _ in range(2):
+        with HvSupply(sim.port, channels=configs, heartbeat_timeout_s=math.inf, handle_signals=False) as hv:
+            assert hv.snapshot().heartbeat_timeout_s == math.inf
+    warnings = [r for r in caplog.records if "heartbeat watchdog OFF" in r.getMessage()]
+    assert len(warnings) == 2 and all(r.levelno == logging.WARNING for r in warnings)
+
+
+def test_only_the_client_holding_control_ramps(supply, token):
+    supply.enable("front")
+    other = "f" * 32
+    with pytest.raises(ControlError, match="control is held by 'test'"):
+        supply.ramp_to("front", 500.0, token=other)
+    with pytest.raises(ControlError, match="control is held by 'test'"):
+        supply.heartbeat(other)
+    with pytest.raises(ControlError, match="held by 'test'"):
+        supply.claim_control("intruder")
+    snap = supply.snapshot()
+    assert snap.channel("front").target == 0.0 and snap.controller == "test" and snap.heartbeat_age_s < 30.0
+    assert supply.release_control(token) == "test" and supply.snapshot().controller == ""
+
+
+def test_reset_faults_leaves_healthy_channels_alone(sim, supply, token, wait_until):
+    ramp_both(supply, token, 2400.0)
+    sim.inject("over_current", 1)
+    assert wait_until(lambda: Fault.OVER_CURRENT in supply.snapshot().channel("back").faults)
+    sim.clear_faults()
+    assert wait_until(lambda: abs(supply.snapshot().channel("back").measured_current) < 1e-6)
+    mark = len(sim.command_log)
+    assert supply.reset_faults() == ["back"]
+    supply.wait_cycles(5)
+    sent = [line for _, line in list(sim.command_log)[mark:]]
+    assert any("(@1)" in line for line in sent)  # the faulted channel's emergency off is cleared
+    assert not [line for line in sent if line.startswith((":VOLT OFF", ":VOLT 0")) and "(@0" in line], sent
+    front = supply.snapshot().channel("front")
+    assert front.output_enabled and front.setpoint == 2400.0 and not front.faults
+    assert sim.plant[0].output_on and sim.plant[0].voltage == pytest.approx(2400.0, abs=1.0)
+
+
+def test_resetting_every_channel_ramps_healthy_outputs_down_at_the_device_ramp(sim, wait_until):
+    configs = [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=2000.0)]  # device ramp 2400 V/s
+    with HvSupply(sim.port, channels=configs, heartbeat_timeout_s=30.0, handle_signals=False) as hv:
+        hv.enable("front")
+        assert hv.ramp_to("front", 2400.0, token=hv.claim_control("test")).wait(10.0)
+        hv.wait_cycles(3)
+        started = time.monotonic()
+        assert hv.reset_faults(all_channels=True) == ["front"]
+        assert wait_until(lambda: sim.plant[0].ramping_down, 2.0)
+        assert wait_until(lambda: sim.plant[0].voltage < 1.0, 5.0)
+        assert time.monotonic() - started > 0.8  # 2.4 kV at 2.4 kV/s, not cut
+        hv.wait_cycles(10)
+        front = hv.snapshot().channel("front")
+        assert not front.faults and not front.output_enabled, front.fault_text
+        assert not sim.plant[0].emergency
+
+
+def test_open_ramps_down_an_output_an_earlier_session_left_on(sim, wait_until):
+    with sim._lock:
+        left_on = sim.plant[0]
+        left_on.ramp_up = left_on.ramp_down = 2400.0
+        left_on.voltage_set = left_on.voltage = 2400.0
+        left_on.output_on = True
+    configs = [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=2000.0)]
+    with HvSupply(sim.port, channels=configs, heartbeat_timeout_s=30.0, handle_signals=False) as hv:
+        assert wait_until(lambda: left_on.voltage < 1.0, 5.0)
+        hv.wait_cycles(10)
+        assert not hv.snapshot().channel("front").faults, hv.snapshot().channel("front").fault_text
+        assert not left_on.emergency
+
+
+def test_a_channel_index_the_supply_does_not_have_is_refused_at_open(sim):
+    hv = HvSupply(sim.port, channels=[ChannelConfig("front", 999, max_voltage_v=3000.0)], handle_signals=False)
+    with pytest.raises(ConfigurationError, match=r"channel 'front': index 999 is not on this supply, which has 2 "
+                                                 r"channel\(s\) \(indices 0-1\)"):
+        hv.open()
+    assert not [line for _, line in sim.command_log if "999" in line]  # nothing sent to it
+
+
+def test_open_waits_up_to_the_link_timeout_for_a_supply_that_is_starting_up(sim, background):
+    """A supply that answers late at first (a simulator still starting on a loaded host) is identified."""
+    sim.inject("no_reply")
+    background(lambda: (time.sleep(0.2), sim.clear_faults()))
+    configs = [ChannelConfig("front", 0, max_voltage_v=3000.0)]
+    with HvSupply(sim.port, channels=configs, link_timeout_s=2.0, handle_signals=False) as hv:
+        assert hv.snapshot().device_id.startswith("iseg")
+
+
+def test_open_gives_up_on_a_silent_supply_after_the_link_timeout(sim):
+    sim.inject("no_reply")
+    started = time.monotonic()
+    with pytest.raises(LinkError, match=r"no reply to '\*IDN\?'"):
+        HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage_v=3000.0)], link_timeout_s=0.4,
+                 handle_signals=False).open()
+    assert time.monotonic() - started > 0.4
+
+
+def test_open_rides_out_answers_missing_in_the_middle_of_the_set_up(sim, background):
+    """The simulator starved for a moment after the identification: the set-up is repeated, not given up."""
+    def starve_after_identification():
+        while not any(line == "*IDN?" for _, line in list(sim.command_log)):
+            time.sleep(0.001)
+        sim.inject("no_reply")
+        time.sleep(0.3)
+        sim.clear_faults()
+    background(starve_after_identification)
+    configs = [ChannelConfig("front", 0, max_voltage_v=3000.0)]
+    with HvSupply(sim.port, channels=configs, link_timeout_s=2.0, handle_signals=False) as hv:
+        hv.wait_cycles(3)
+        assert not hv.snapshot().channel("front").faults
+    assert sum(line == "*IDN?" for _, line in sim.command_log) >= 2  # set up again from the start

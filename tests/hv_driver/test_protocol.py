@@ -102,6 +102,14 @@ def test_reply_split_over_reads_is_reassembled(scripted_port):
     assert Link(Trickle(port), EDCP, 0.5).query("identify") == "iseg,NHR,1,1.0"
 
 
+def test_a_reply_that_arrived_while_the_host_was_descheduled_past_the_deadline_is_read(scripted_port, monkeypatch):
+    port = scripted_port([(b"*IDN?\r\n", echoed("*IDN?", "iseg,NHR,1,1.0"))])
+    link = link_for(port, reply_timeout=0.02)
+    clock = iter([100.0] + [100.5] * 100)  # the deadline is set at 100.0; every later look is 0.5 s on
+    monkeypatch.setattr("hv_driver.link.time.monotonic", lambda: next(clock))
+    assert link.query("identify") == "iseg,NHR,1,1.0"
+
+
 def test_wrong_echo_is_a_protocol_error_and_the_stale_input_is_discarded(scripted_port):
     port = scripted_port([
         (b":MEAS:CURR? (@0)\r\n", echoed(":MEAS:VOLT? (@0)", "1.0E-6A") + b"late garbage\r\n"),

@@ -6,12 +6,12 @@ from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, precondition, rule
 
-from hv_driver import ChannelConfig, Fault, FaultLatchedError, LimitError, Supervisor
+from hv_driver import ChannelConfig, ControlError, Fault, FaultLatchedError, LimitError, Supervisor
 from hv_driver.ramp import MinimumJerkRamp
-from hv_driver.supervisor import IMMEDIATE_FAULTS, MAX_SLEW_STEP_S, ChannelCommand, ChannelSupervisor
+from hv_driver.supervisor import DEFAULT_PERIOD_S, IMMEDIATE_FAULTS, ChannelCommand, ChannelSupervisor
 
-CONFIG = ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=1000.0, current_trip=50e-6,
-                       mismatch_tolerance=100.0, mismatch_time=0.5, creep_voltage=2000.0, max_time_at_voltage=60.0)
+CONFIG = ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=1000.0, current_trip_a=50e-6,
+                       mismatch_tolerance_v=100.0, mismatch_time_s=0.5, creep_voltage_v=2000.0, max_time_at_voltage_s=60.0)
 
 
 def run(channel: ChannelSupervisor, t0: float, t1: float, dt: float = 0.01):
@@ -31,14 +31,14 @@ def enabled(config=CONFIG) -> ChannelSupervisor:
 
 
 def test_config_errors_name_the_parameter():
-    with pytest.raises(ValueError, match="max_voltage"):
-        ChannelConfig("front", 0, max_voltage=-1.0)
+    with pytest.raises(ValueError, match="max_voltage_v"):
+        ChannelConfig("front", 0, max_voltage_v=-1.0)
     with pytest.raises(ValueError, match="slew_rate"):
-        ChannelConfig("front", 0, max_voltage=1.0, slew_rate=math.nan)
-    with pytest.raises(ValueError, match="creep_voltage"):
-        ChannelConfig("front", 0, max_voltage=1.0, creep_voltage=100.0)
+        ChannelConfig("front", 0, max_voltage_v=1.0, slew_rate_v_per_s=math.nan)
+    with pytest.raises(ValueError, match="creep_voltage_v"):
+        ChannelConfig("front", 0, max_voltage_v=1.0, creep_voltage_v=100.0)
     with pytest.raises(ValueError, match="channel names must be unique"):
-        Supervisor([CONFIG, CONFIG], link_timeout=1.0)
+        Supervisor([CONFIG, CONFIG], link_timeout_s=1.0)
 
 
 def test_minimum_jerk_ramp_peaks_at_the_slew_rate_and_is_symmetric():
@@ -81,7 +81,15 @@ def test_absurd_targets_are_refused(target):
 
 def test_slew_rate_above_the_limit_is_refused():
     with pytest.raises(ValueError, match="exceeds the configured slew limit 1000"):
-        enabled().ramp_to(0.0, 100.0, slew_rate=5000.0)
+        enabled().ramp_to(0.0, 100.0, slew_rate_v_per_s=5000.0)
+
+
+def test_a_slew_rate_that_would_take_ages_is_refused_naming_the_bound():
+    with pytest.raises(ValueError, match=r"slew_rate=1e-09 V/s is below 9.375 V/s, the slowest that ramps the "
+                                         r"channel's 3000 V within the 600 s limit on a ramp's duration"):
+        enabled().ramp_to(0.0, 2400.0, slew_rate_v_per_s=1e-9)
+    with pytest.raises(ValueError, match="slew_rate_v_per_s=1e-09: >= 9.375 V/s, so a ramp over max_voltage_v=3000 V"):
+        ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=1e-9)
 
 
 def test_lowering_the_ceiling_mid_ramp_clamps_the_setpoint_at_once():
@@ -111,23 +119,26 @@ def test_over_current_cuts_the_output_at_once_and_latches_until_reset():
 
 def test_readback_mismatch_trips_only_after_the_tolerance_time():
     channel = enabled()
-    channel.observe(0.0, 500.0, 0.0)
-    channel.observe(0.4, 500.0, 0.0)
+    for k in range(41):  # a readback every control cycle, 0.40 s off the command
+        channel.observe(0.01 * k, 500.0, 0.0)
     assert not channel.faults
-    channel.observe(0.6, 500.0, 0.0)
+    for k in range(41, 52):
+        channel.observe(0.01 * k, 500.0, 0.0)
     assert channel.faults == Fault.READBACK_MISMATCH
+    assert "measured 500.0 V, commanded 0.0 V" in channel.fault_text
 
 
 def test_a_brief_mismatch_does_not_accumulate():
     channel = enabled()
     for t in (0.0, 0.3, 0.6, 0.9):
-        channel.observe(t, 500.0, 0.0)
-        channel.observe(t + 0.1, 0.0, 0.0)
+        for k in range(30):
+            channel.observe(t + 0.01 * k, 500.0 if k < 25 else 0.0, 0.0)
     assert not channel.faults
 
 
 def test_time_at_voltage_trips_after_the_creep_limit():
-    channel = enabled()
+    channel = ChannelSupervisor(CONFIG, max_step_s=0.1)  # a 10 Hz loop
+    channel.enable()
     channel.ramp_to(0.0, 2400.0)
     run(channel, 0.0, 60.0, dt=0.1)
     assert not channel.faults
@@ -136,8 +147,8 @@ def test_time_at_voltage_trips_after_the_creep_limit():
 
 
 def test_link_timeout_trips_every_channel():
-    back = ChannelConfig("back", 1, max_voltage=3000.0)
-    supervisor = Supervisor([CONFIG, back], link_timeout=0.2)
+    back = ChannelConfig("back", 1, max_voltage_v=3000.0)
+    supervisor = Supervisor([CONFIG, back], link_timeout_s=0.2)
     supervisor.link_ok(0.0)
     supervisor.link_failed(0.05)
     supervisor.link_failed(0.1)  # the run of failures started at 0.05
@@ -148,7 +159,7 @@ def test_link_timeout_trips_every_channel():
 
 
 def test_a_stalled_host_with_a_healthy_link_does_not_trip():
-    supervisor = Supervisor([CONFIG], link_timeout=0.2)
+    supervisor = Supervisor([CONFIG], link_timeout_s=0.2)
     supervisor.link_ok(0.0)
     supervisor.step(5.0)  # the loop thread was descheduled for 5 s; no exchange failed
     supervisor.link_ok(5.0)
@@ -159,17 +170,19 @@ def test_a_stalled_host_with_a_healthy_link_does_not_trip():
 
 
 def test_lost_heartbeat_ramps_down_then_switches_off():
-    supervisor = Supervisor([CONFIG], link_timeout=100.0, heartbeat_timeout=0.5)
+    supervisor = Supervisor([CONFIG], link_timeout_s=100.0, heartbeat_timeout_s=0.5, nominal_period_s=0.05)
     supervisor.enable("front", 0.0)
     front = supervisor.channel("front")
-    front.ramp_to(0.0, 1000.0)
+    token = supervisor.claim_control("operator", 0.0)
+    supervisor.ramp_to("front", 0.0, 1000.0, token=token)
     for t in [0.05 * k for k in range(1, 39)]:
-        supervisor.heartbeat(t)
+        supervisor.heartbeat(t, token)
         supervisor.step(t)
     assert front.setpoint == 1000.0
     previous = front.setpoint
     commands = [supervisor.step(1.9 + 0.01 * k)["front"] for k in range(1, 400)]
-    assert front.faults == Fault.HEARTBEAT
+    assert front.faults == Fault.HEARTBEAT and "'operator'" in front.fault_text
+    assert supervisor.control.owner is None  # control lapsed with the heartbeat
     setpoints = [c.setpoint for c in commands]
     assert all(b <= a for a, b in zip([previous] + setpoints, setpoints))  # only down
     assert any(c.output_on and 0 < c.setpoint < 1000.0 for c in commands)  # smoothly, not cut
@@ -177,22 +190,24 @@ def test_lost_heartbeat_ramps_down_then_switches_off():
 
 
 def test_heartbeat_is_needed_only_while_an_output_is_energised():
-    supervisor = Supervisor([CONFIG], link_timeout=100.0, heartbeat_timeout=0.5)
+    supervisor = Supervisor([CONFIG], link_timeout_s=100.0, heartbeat_timeout_s=0.5)
     supervisor.enable("front", 0.0)
     front = supervisor.channel("front")
     for t in (1.0, 5.0, 10.0):  # idle at 0 V with no client: nothing to protect
         supervisor.step(t)
     assert not front.faults and front.output_enabled
-    supervisor.ramp_to("front", 10.0, 500.0)  # the request itself is a sign of life
-    supervisor.step(10.4)
+    token = supervisor.claim_control("operator", 10.0)
+    supervisor.step(10.3)
+    supervisor.ramp_to("front", 10.3, 500.0, token=token)  # the request itself is a sign of life
+    supervisor.step(10.7)
     assert not front.faults and front.setpoint > 0.0
-    supervisor.step(10.6)  # energised and silent for more than 0.5 s
+    supervisor.step(10.81)  # energised and silent for more than 0.5 s
     assert front.faults == Fault.HEARTBEAT
 
 
 def test_unknown_channel_names_the_choices():
     with pytest.raises(ValueError, match=r"channel='left': unknown, configured are \['front'\]"):
-        Supervisor([CONFIG], link_timeout=1.0).channel("left")
+        Supervisor([CONFIG], link_timeout_s=1.0).channel("left")
 
 
 def test_time_running_backwards_moves_nothing():
@@ -214,27 +229,64 @@ NAMES = ["front", "back"]
 
 
 class SupervisorMachine(RuleBasedStateMachine):
-    """Invariants: 0 <= setpoint <= ceiling, rises (and ordinary falls) within the slew limit,
-    immediate faults hold 0 V / off, faults latch until reset, off stays off until enabled."""
+    """Invariants: 0 <= setpoint <= ceiling, rises (and ordinary falls) within the slew limit per nominal
+    period, immediate faults hold 0 V / off, faults latch until reset, off stays off until enabled, only the
+    live session's token ramps or feeds the watchdog (an ended session's never again), and with the watchdog
+    on no output stays energised without a client in control."""
 
-    @initialize(hb=st.one_of(st.none(), st.floats(min_value=0.05, max_value=2.0)))
+    @initialize(hb=st.one_of(st.just(math.inf), st.floats(min_value=0.05, max_value=2.0)))
     def setup(self, hb):
-        configs = [ChannelConfig("front", 0, max_voltage=3000.0, slew_rate=1000.0, mismatch_time=0.3),
-                   ChannelConfig("back", 1, max_voltage=2500.0, slew_rate=300.0,
-                                 creep_voltage=1000.0, max_time_at_voltage=2.0)]
-        self.sup = Supervisor(configs, link_timeout=0.5, heartbeat_timeout=hb, now=0.0)
+        configs = [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=1000.0, mismatch_time_s=0.3),
+                   ChannelConfig("back", 1, max_voltage_v=2500.0, slew_rate_v_per_s=300.0,
+                                 creep_voltage_v=1000.0, max_time_at_voltage_s=2.0)]
+        self.sup = Supervisor(configs, link_timeout_s=0.5, heartbeat_timeout_s=hb, now=0.0)
         self.now = 0.0
         self.clock = 0.0  # the supervisor's monotonic view of time
         self.last = {n: (0.0, False) for n in NAMES}
         self.faults_seen = {n: Fault(0) for n in NAMES}
         self.allowed_on = {n: False for n in NAMES}
         self.exempt_fall = {n: False for n in NAMES}
+        self.tokens: list[str] = []   # every token ever issued
+        self.ended: set[str] = set()  # tokens of sessions that ended (released, lapsed, e-stop)
 
     def _try(self, action):
         try:
+            return action()
+        except (ValueError, LimitError, FaultLatchedError, RuntimeError):
+            return None
+
+    def _token(self, which):
+        return self.tokens[which % len(self.tokens)] if self.tokens and which >= 0 else "not-a-token"
+
+    def _note_ended(self):
+        live = self.sup.control._token
+        self.ended.update(t for t in self.tokens if t != live)
+
+    def _obeyed(self, token, action):
+        """Run a token-carrying request; it may be obeyed only for the live session's token."""
+        live = self.sup.control.owner is not None and token == self.sup.control._token
+        try:
             action()
+        except ControlError:
+            assert not live or self.sup.control.owner is None
+            return
         except (ValueError, LimitError, FaultLatchedError, RuntimeError):
             pass
+        assert token not in self.ended, "a token of an ended session was obeyed"
+        assert token == self.sup.control._token
+
+    @rule(client=st.sampled_from(["sequencer", "demo", "", "x" * 65, "line\nbreak"]))
+    def claim(self, client):
+        token = self._try(lambda: self.sup.claim_control(client, self.now))
+        self._note_ended()
+        if token is not None:
+            assert token not in self.tokens  # fresh every time
+            self.tokens.append(token)
+
+    @rule(which=st.integers(min_value=-1, max_value=5))
+    def release(self, which):
+        self._try(lambda: self.sup.release_control(self._token(which), self.now))
+        self._note_ended()
 
     @rule(name=st.sampled_from(NAMES))
     def enable(self, name):
@@ -242,9 +294,12 @@ class SupervisorMachine(RuleBasedStateMachine):
         if self.sup.channel(name).output_enabled:
             self.allowed_on[name] = True
 
-    @rule(name=st.sampled_from(NAMES), volts=absurd_floats, slew=st.one_of(st.none(), absurd_floats))
-    def ramp(self, name, volts, slew):
-        self._try(lambda: self.sup.ramp_to(name, self.now, volts, slew))
+    @rule(name=st.sampled_from(NAMES), volts=absurd_floats, slew=st.one_of(st.none(), absurd_floats),
+          which=st.integers(min_value=-1, max_value=5))
+    def ramp(self, name, volts, slew, which):
+        token = self._token(which)
+        self._note_ended()
+        self._obeyed(token, lambda: self.sup.ramp_to(name, self.now, volts, slew, token=token))
 
     @rule(name=st.sampled_from(NAMES))
     def disable(self, name):
@@ -261,14 +316,20 @@ class SupervisorMachine(RuleBasedStateMachine):
         self._try(lambda: self.sup.channel(name).set_device_limit(voltage))
         self.exempt_fall[name] = True
 
+    @rule(name=st.sampled_from(NAMES), rate=st.one_of(st.none(), absurd_floats))
+    def device_ramp(self, name, rate):
+        self._try(lambda: self.sup.channel(name).set_device_ramp(rate))
+
     @rule(name=st.sampled_from(NAMES), voltage=absurd_floats, current=absurd_floats,
           device=st.sampled_from([None, "", "supply reports is_external_inhibit"]), oc=st.booleans())
     def observe(self, name, voltage, current, device, oc):
         self.sup.channel(name).observe(self.now, voltage, current, device, oc)
 
-    @rule()
-    def heartbeat(self):
-        self.sup.heartbeat(self.now)
+    @rule(which=st.integers(min_value=-1, max_value=5))
+    def heartbeat(self, which):
+        token = self._token(which)
+        self._note_ended()
+        self._obeyed(token, lambda: self.sup.heartbeat(self.now, token))
 
     @rule()
     def link_ok(self):
@@ -285,11 +346,15 @@ class SupervisorMachine(RuleBasedStateMachine):
     @rule()
     def estop(self):
         self.sup.estop()
+        self._note_ended()
+        assert self.sup.control.owner is None
 
-    @rule()
-    def reset(self):
-        self.sup.reset(self.now)
-        for n in NAMES:
+    @rule(all_channels=st.booleans())
+    def reset(self, all_channels):
+        faulted = {n for n in NAMES if self.sup.channel(n).faults}
+        names = self.sup.reset(self.now, all_channels)
+        assert set(names) == (set(NAMES) if all_channels else faulted)  # healthy channels left alone
+        for n in names:
             self.faults_seen[n] = Fault(0)
             self.allowed_on[n] = False
             self.exempt_fall[n] = True
@@ -304,12 +369,13 @@ class SupervisorMachine(RuleBasedStateMachine):
         previous_clock = self.clock
         if self.now > self.clock:
             self.clock = self.now
-        allowance_dt = min(self.clock - previous_clock, MAX_SLEW_STEP_S)
+        allowance_dt = min(self.clock - previous_clock, DEFAULT_PERIOD_S)
         commands = self.sup.step(self.now)
+        self._note_ended()
         for name, command in commands.items():
             channel = self.sup.channel(name)
             last_setpoint, _ = self.last[name]
-            slew = channel.config.slew_rate
+            slew = channel.config.slew_rate_v_per_s
             assert 0.0 <= command.setpoint <= channel.ceiling
             assert command.setpoint - last_setpoint <= slew * allowance_dt + 1e-9
             fault_free = not channel.faults and not self.exempt_fall[name]
@@ -324,6 +390,8 @@ class SupervisorMachine(RuleBasedStateMachine):
                 assert self.allowed_on[name]
             else:
                 self.allowed_on[name] = False
+            if not self.sup.heartbeat_watchdog_off and self.sup.control.owner is None:
+                assert not (channel.output_enabled and channel.target > 0.0), "energised without a client"
             self.exempt_fall[name] = False
             self.last[name] = (command.setpoint, command.output_on)
 
@@ -331,8 +399,9 @@ class SupervisorMachine(RuleBasedStateMachine):
     @invariant()
     def snapshot_is_consistent(self):
         for channel in self.sup.channels.values():
-            assert channel.ceiling <= channel.config.max_voltage
+            assert channel.ceiling <= channel.config.max_voltage_v
             assert bool(channel.fault_text) == bool(channel.faults)
+        assert self.sup.estop_latched == any(Fault.ESTOP in c.faults for c in self.sup.channels.values())
 
 
 TestSupervisorMachine = SupervisorMachine.TestCase

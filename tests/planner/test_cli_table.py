@@ -2,7 +2,8 @@
 import numpy as np
 
 from planner.cli import build_parser, main
-from planner.table import REPO_ROOT, load_table
+from planner.table import load_table
+from softblock_config import config_file
 
 
 def test_registry_collects_command_modules():
@@ -20,7 +21,7 @@ def test_table_command_regenerates_the_shipped_table(tmp_path, capsys):
 
 
 def test_ogden_fit_command(capsys):
-    assert main(["ogden-fit", str(REPO_ROOT / "config" / "ogden_test_data_example.csv")]) == 0
+    assert main(["ogden-fit", str(config_file("ogden_test_data_example.csv"))]) == 0
     assert '"mu_Pa"' in capsys.readouterr().out
 
 

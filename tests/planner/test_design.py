@@ -101,9 +101,9 @@ def test_cancel_and_time_budget_give_unsuccessful_results(table):
         if len(calls) == 1:
             raise StopIteration
 
-    cancelled = design.design_fingers(mask, pixel, 4, table=table, callback=cancel_once)
-    assert not cancelled.success and len(calls) == 1
-    assert "left: cancelled" in cancelled.message and "right: cancelled" in cancelled.message
+    canceled = design.design_fingers(mask, pixel, 4, table=table, callback=cancel_once)
+    assert not canceled.success and len(calls) == 1
+    assert "left: canceled" in canceled.message and "right: canceled" in canceled.message
     late = design.design_path(np.array([[0, 0, 0], [0, 0, 0.05]]), 3, table=table, time_budget=1e-9)
     assert not late.success and "time budget" in late.message
 

@@ -5,7 +5,7 @@ import pytest
 from planner.materials import ELASTOSIL_2030 as PAPER
 from planner.ogden import biaxial_cauchy_stress, pure_shear_nominal_stress, uniaxial_nominal_stress
 from planner.ogden_fit import OgdenTestData, fit_ogden, load_test_data, synthesize_test_data, write_test_data
-from planner.table import REPO_ROOT
+from softblock_config import config_file
 
 
 @pytest.fixture(scope="module")
@@ -48,7 +48,7 @@ def test_least_squares_needs_far_fewer_evaluations(noisy_csv):
 
 
 def test_shipped_example_csv_fits():
-    data = load_test_data(REPO_ROOT / "config" / "ogden_test_data_example.csv")
+    data = load_test_data(config_file("ogden_test_data_example.csv"))
     assert len(data.uniaxial_stretch) == len(data.shear_stretch) == 25
     assert fit_ogden(data, 3).cost < 0.01
 

@@ -1,4 +1,4 @@
-"""Design optimisers on small synthetic problems: brute force, certificates, PSO, budgets, inventory."""
+"""Design optimizers on small synthetic problems: brute force, certificates, PSO, budgets, inventory."""
 import itertools
 from types import SimpleNamespace
 
@@ -118,7 +118,7 @@ def test_time_budget_and_cancel_end_the_run_without_raising():
         raise StopIteration
 
     for result in (solve_exact(target, space, callback=cancel), solve_pso(target, space, rng=0, callback=cancel)):
-        assert not result.success and result.status == Status.CANCELLED and "cancelled" in result.message
+        assert not result.success and result.status == Status.CANCELED and "canceled" in result.message
 
 
 @pytest.mark.parametrize(

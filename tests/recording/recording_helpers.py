@@ -11,7 +11,7 @@ from softblock_interfaces.msg import (Assembly, AssemblyState, Chain, ChainState
                                       HvState, SequenceEvent)
 
 from softblock_ros.client import wait_until
-from softblock_ros.recording.mcap_file import RecordingWriter
+from recording.mcap_file import RecordingWriter
 from softblock_ros.recording.qos_metadata import offered_qos_yaml
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)

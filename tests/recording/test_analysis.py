@@ -1,6 +1,7 @@
 """Analysis of a synthetic grasp recording, without ROS: peaks, step durations, faults, angles;
 and the same summary after a replay is recorded again."""
 import json
+import os
 import subprocess
 import sys
 
@@ -11,8 +12,8 @@ from recording_helpers import (Spinner, assembly_state, hv_state, sequence_event
                                write_recording)
 from softblock_interfaces.msg import HvChannelState
 
-from softblock_ros.recording.analysis import analyze, fault_names
-from softblock_ros.recording.playback import PlaybackOptions
+from recording.analysis import analyze, fault_names
+from recording.playback import PlaybackOptions
 from softblock_ros.recording.player_node import PlayerNode
 from softblock_ros.recording.recorder_node import RecorderNode
 
@@ -80,12 +81,17 @@ def test_fault_names_follow_the_bit_table():
     assert fault_names(OVER_CURRENT | LINK | 128, names) == ["over_current", "link", "bit7"]
 
 
-def test_cli_writes_png_and_json_without_importing_rclpy(grasp, tmp_path):
-    script = ("import sys; from softblock_ros.recording.cli import main; "
-              f"code = main(['analyze', {grasp!r}, '--out-dir', {str(tmp_path)!r}]); "
+def test_cli_writes_png_and_json_without_the_ros_workspace_or_rclpy(grasp, tmp_path):
+    """`python -m recording analyze` with the colcon workspace off the path: the core alone."""
+    script = ("import importlib.util, runpy, sys; "
+              "assert importlib.util.find_spec('softblock_ros') is None, 'the ROS workspace is on the path'; "
+              f"sys.argv = ['recording', 'analyze', {grasp!r}, '--out-dir', {str(tmp_path)!r}]; "
+              "import recording.cli; code = recording.cli.main(sys.argv[1:]); "
               "assert 'rclpy' not in sys.modules, 'analysis imported rclpy'; sys.exit(code)")
-    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                            timeout=120)
+    env = {key: value for key, value in os.environ.items()
+           if key not in ("PYTHONPATH", "AMENT_PREFIX_PATH", "COLCON_PREFIX_PATH")}
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, env=env,
+                            cwd=tmp_path)
     assert result.returncode == 0, result.stderr
     assert "channel front: peak 3.000 kV" in result.stdout
     assert (tmp_path / "grasp.png").read_bytes().startswith(b"\x89PNG")
@@ -104,7 +110,7 @@ def test_replay_recorded_again_gives_the_same_summary(grasp, ros_context, tmp_pa
     """The check a replay into a fresh stack will use: analyze(original) == analyze(replay)."""
     player = PlayerNode(grasp, PlaybackOptions(rate=5.0), context=ros_context)
     recorder = RecorderNode(str(tmp_path / "replayed.mcap"), context=ros_context,
-                            parameter_overrides=[Parameter("discovery_period", value=0.1)])
+                            parameter_overrides=[Parameter("discovery_period_s", value=0.1)])
     spinner = Spinner(ros_context, player, recorder)
     try:
         wait_for(lambda: set(recorder.recorded_topics) >= {

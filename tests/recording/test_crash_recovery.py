@@ -17,7 +17,7 @@ from rosbags.highlevel import AnyReader
 from softblock_interfaces.msg import HvState
 
 from softblock_ros.recording.cli import main
-from softblock_ros.recording.mcap_file import describe, recover
+from recording.mcap_file import describe, recover
 
 
 def start_recorder(path: Path) -> subprocess.Popen:

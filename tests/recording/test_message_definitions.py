@@ -5,7 +5,7 @@ import re
 import pytest
 from ament_index_python.packages import get_package_share_directory
 
-from softblock_ros.recording.message_definitions import (DELIMITER, DefinitionNotFoundError,
+from recording.message_definitions import (DELIMITER, DefinitionNotFoundError,
                                                          field_dependencies, full_definition)
 
 

@@ -13,8 +13,8 @@ from rosgraph_msgs.msg import Clock
 from softblock_interfaces.msg import Assembly, HvState
 
 from softblock_ros.recording.message_types import UnknownMessageTypeError
-from softblock_ros.recording.mcap_file import RecordingWriter
-from softblock_ros.recording.playback import PlaybackOptions
+from recording.mcap_file import RecordingWriter
+from recording.playback import PlaybackOptions
 from softblock_ros.recording.player_node import PlayerNode
 from softblock_ros.recording.qos_metadata import (offered_qos_yaml, parse_offered_qos,
                                                   playback_qos)
@@ -67,7 +67,7 @@ def test_replay_in_order_and_latched_topic_reaches_a_late_subscriber(ros_context
 
 def test_topic_filters_and_start_offset_select_what_is_played(ros_context, grasp_recording):
     options = PlaybackOptions(rate=20.0, include="^/(hv|sequencer)/", exclude="events$",
-                              start_offset=10 * STEP / 1e9)
+                              start_offset_s=10 * STEP / 1e9)
     player = PlayerNode(grasp_recording, options, context=ros_context)
     try:
         assert [p.topic_name for p in player.publishers_by_channel.values()] == ["/hv/state"]
@@ -80,7 +80,7 @@ def test_topic_filters_and_start_offset_select_what_is_played(ros_context, grasp
 
 def test_loop_replays_until_stopped_and_clock_follows_recorded_time(ros_context,
                                                                     grasp_recording):
-    options = PlaybackOptions(rate=20.0, loop=True, include="hv", clock_frequency=50.0)
+    options = PlaybackOptions(rate=20.0, loop=True, include="hv", clock_frequency_hz=50.0)
     player = PlayerNode(grasp_recording, options, context=ros_context)
     listener = rclpy.create_node("listener", context=ros_context)
     hv = collect(listener, HvState, "/hv/state", QoSProfile(depth=100))
@@ -150,8 +150,8 @@ def test_recorded_qos_round_trips_to_playback_qos():
         parse_offered_qos("history: keep_last")
 
 
-@pytest.mark.parametrize("field, value", [("rate", 0.0), ("start_offset", -1.0),
-                                          ("clock_frequency", -5.0), ("delay", -1.0),
+@pytest.mark.parametrize("field, value", [("rate", 0.0), ("start_offset_s", -1.0),
+                                          ("clock_frequency_hz", -5.0), ("delay_s", -1.0),
                                           ("include", "(")])
 def test_bad_playback_options_name_the_parameter(field, value):
     with pytest.raises(ValueError, match=field):

@@ -42,7 +42,7 @@ def recording(tmp_path_factory):
     publishers = {topic: publisher_node.create_publisher(msg_type, topic, 100)
                   for topic, msg_type in STREAMED.items()}
     recorder = RecorderNode(path, context=context, parameter_overrides=[
-        Parameter("discovery_period", value=0.2), Parameter("flush_period", value=0.2)])
+        Parameter("discovery_period_s", value=0.2), Parameter("flush_period_s", value=0.2)])
     spinner = Spinner(context, publisher_node, recorder)
     try:
         expected_topics = sorted([*STREAMED, *LATCHED_TOPICS])
@@ -129,7 +129,7 @@ def test_topic_list_records_only_the_listed_topics(ros_context, tmp_path):
     node.create_publisher(Float64, "assembly/safe_voltage", LATCHED).publish(Float64(data=1.0))
     node.create_publisher(String, "notes", LATCHED).publish(String(data="not recorded"))
     recorder = RecorderNode(path, ["assembly/safe_voltage"], context=ros_context,
-                            parameter_overrides=[Parameter("discovery_period", value=0.2)])
+                            parameter_overrides=[Parameter("discovery_period_s", value=0.2)])
     spinner = Spinner(ros_context, node, recorder)
     try:
         wait_for(lambda: recorder.writer.message_counts.get("/assembly/safe_voltage"),

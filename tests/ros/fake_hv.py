@@ -1,4 +1,5 @@
-"""A small stand-in for the HV driver node: `hv/ramp`, `hv/state` (50 Hz), `hv/estop`, `hv/heartbeat`.
+"""A small stand-in for the HV driver node: `hv/ramp`, `hv/state` (50 Hz), `hv/estop`, `hv/heartbeat`,
+`hv/claim_control` / `hv/release_control` (one session at a time; ramps need its token).
 
 Ramps move the measured voltage linearly over the minimum-jerk duration (1.875 |dV| / slew_rate).
 Faults are injected deterministically: ``fault_during_ramp = (ramp_channel, target, fault_channel)``
@@ -12,8 +13,8 @@ from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from softblock_interfaces.action import RampChannel
-from softblock_interfaces.msg import HvChannelState, HvState
-from std_msgs.msg import Empty
+from softblock_interfaces.msg import HvChannelState, HvHeartbeat, HvState
+from softblock_interfaces.srv import ClaimControl, ReleaseControl
 from std_srvs.srv import Trigger
 
 DEFAULT_SLEW_RATE = 100_000.0  # [V/s]
@@ -27,26 +28,48 @@ class FakeHv(Node):
         self.lock = threading.Lock()
         self.estop = False
         self.heartbeats = 0
+        self.token = ""  # the live control session's token
+        self.sessions = 0
         self.ramps: list[tuple[str, float]] = []
         self.fault_during_ramp: tuple[str, float, str] | None = None
         group = ReentrantCallbackGroup()
         self.state_pub = self.create_publisher(HvState, "hv/state", 10)
         self.create_timer(0.02, self.publish_state, callback_group=group)
-        self.create_subscription(Empty, "hv/heartbeat", self.on_heartbeat, 10, callback_group=group)
+        self.create_subscription(HvHeartbeat, "hv/heartbeat", self.on_heartbeat, 10, callback_group=group)
         self.create_service(Trigger, "hv/estop", self.on_estop, callback_group=group)
+        self.create_service(ClaimControl, "hv/claim_control", self.on_claim, callback_group=group)
+        self.create_service(ReleaseControl, "hv/release_control", self.on_release, callback_group=group)
         self.server = ActionServer(self, RampChannel, "hv/ramp", execute_callback=self.execute,
                                    cancel_callback=lambda _: CancelResponse.ACCEPT, callback_group=group)
 
     def reset(self) -> None:
         with self.lock:
-            self.estop, self.ramps, self.fault_during_ramp = False, [], None
+            self.estop, self.ramps, self.fault_during_ramp, self.token = False, [], None, ""
             for channel in self.channels.values():
                 channel.faults, channel.fault_text, channel.measured_voltage = 0, "", 0.0
                 channel.setpoint = channel.target = 0.0
                 channel.output_enabled = channel.ramping = False
 
-    def on_heartbeat(self, _msg) -> None:
-        self.heartbeats += 1
+    def on_heartbeat(self, msg: HvHeartbeat) -> None:
+        if msg.token and msg.token == self.token:
+            self.heartbeats += 1
+
+    def on_claim(self, request, response):
+        with self.lock:
+            if self.token:
+                response.success, response.message = False, "control is held by another client"
+                return response
+            self.sessions += 1
+            self.token = response.token = f"session-{self.sessions}"
+        response.success, response.heartbeat_timeout = True, 2.0
+        return response
+
+    def on_release(self, request, response):
+        with self.lock:
+            response.success = bool(self.token) and request.token == self.token
+            if response.success:
+                self.token = ""
+        return response
 
     def publish_state(self) -> None:
         with self.lock:
@@ -65,7 +88,7 @@ class FakeHv(Node):
     def on_estop(self, _request, response):
         for name in self.channels:
             self.latch(name, HvChannelState.FAULT_ESTOP, "ESTOP")
-        self.estop = True
+        self.estop, self.token = True, ""  # as the driver: the e-stop ends the control session
         response.success, response.message = True, "e-stop latched"
         return response
 
@@ -77,9 +100,10 @@ class FakeHv(Node):
     def execute(self, goal_handle):
         goal = goal_handle.request
         channel = self.channels.get(goal.channel)
-        if channel is None or channel.faults:
+        if channel is None or channel.faults or goal.token != self.token:
             goal_handle.abort()
-            reason = "unknown channel" if channel is None else "faults latched"
+            reason = ("unknown channel" if channel is None else "faults latched" if channel.faults
+                      else "not the client holding control")
             return RampChannel.Result(success=False, message=f"{goal.channel}: {reason}")
         self.ramps.append((goal.channel, goal.target))
         start, slew = channel.measured_voltage, goal.slew_rate or DEFAULT_SLEW_RATE

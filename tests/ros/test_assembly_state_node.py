@@ -33,7 +33,7 @@ def table():
 
 @pytest.fixture(scope="module")
 def client(ros_context, spin):
-    node = AssemblyStateNode(context=ros_context, parameter_overrides=[Parameter("rate", value=50.0)])
+    node = AssemblyStateNode(context=ros_context, parameter_overrides=[Parameter("publish_rate_hz", value=50.0)])
     client = rclpy.create_node("assembly_state_test_client", context=ros_context)
     spin(node, client)
     return client

@@ -1,6 +1,8 @@
 """HV driver node through real rclpy clients: lifecycle services, the ramp action to 2.4 kV and back,
-injected faults in hv/state and /diagnostics, the assembly's safe voltage, e-stop during streamed ramps."""
+injected faults in hv/state and /diagnostics, the assembly's safe voltage, e-stop during streamed ramps,
+configured channels the supply does not have, hv/state in order."""
 import threading
+import time
 
 import pytest
 import rclpy
@@ -8,6 +10,7 @@ from action_msgs.msg import GoalStatus
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from lifecycle_msgs.msg import State, Transition
 from lifecycle_msgs.srv import ChangeState, GetState
+from rclpy.lifecycle import TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile
 from ros_testing import Inbox, call, wait_for
@@ -18,6 +21,7 @@ from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
 from softblock_ros.client import ActionClient
+from softblock_ros.hv_control import HvControl
 from softblock_ros.hv_driver_node import HvDriverNode
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -28,8 +32,8 @@ class Client:
 
     def __init__(self, ros_context, spin):
         self.driver = HvDriverNode(context=ros_context, parameter_overrides=[
-            Parameter("autostart", value=False), Parameter("slew_rate", value=8000.0),
-            Parameter("link_timeout", value=1.0)])  # generous: the suite runs on two loaded cores
+            Parameter("autostart", value=False), Parameter("slew_rate_v_per_s", value=8000.0),
+            Parameter("link_timeout_s", value=1.0)])  # generous: the suite runs on two loaded cores
         self.node = rclpy.create_node("hv_driver_test_client", context=ros_context)
         n = self.node
         self.change_state = n.create_client(ChangeState, "hv_driver/change_state")
@@ -38,6 +42,7 @@ class Client:
         self.reset = n.create_client(Trigger, "hv/reset_faults")
         self.inject = n.create_client(InjectFault, "hv/inject_fault")
         self.ramp = ActionClient(n, RampChannel, "hv/ramp")
+        self.control = HvControl(n, "hv_driver_test_client", heartbeat_rate_hz=20.0)
         self.safe_voltage = n.create_publisher(Float64, "assembly/safe_voltage", LATCHED)
         self.state = Inbox(n, HvState, "hv/state")
         self.diagnostics = Inbox(n, DiagnosticArray, "/diagnostics")
@@ -54,9 +59,15 @@ class Client:
         self.state.messages.clear()
         return self.state.wait(predicate)
 
+    def take_control(self) -> None:
+        """A fresh control session (an e-stop or a lapse may have ended the last one)."""
+        self.control.release()
+        self.control.claim()
+
     def send_ramp(self, channel, target, feedback=None):
         assert self.ramp.wait_for_server(timeout_sec=10.0)
-        future = self.ramp.send_goal_async(RampChannel.Goal(channel=channel, target=target), feedback_callback=feedback)
+        goal = RampChannel.Goal(channel=channel, target=target, token=self.control.token)
+        future = self.ramp.send_goal_async(goal, feedback_callback=feedback)
         goal = wait_for(future.done) and future.result()
         assert goal.accepted
         return goal
@@ -85,6 +96,7 @@ def active(client):
     client.latest_state(lambda s: all(abs(c.measured_current) < 1e-6 for c in s.channels))
     assert call(client.reset, Trigger.Request()).success
     client.latest_state(lambda s: all(c.output_enabled and not c.faults and c.ceiling == 3000.0 for c in s.channels))
+    client.take_control()
     return client
 
 
@@ -105,6 +117,7 @@ def test_lifecycle_transitions_through_the_lifecycle_services(client):
     assert client.transition(Transition.TRANSITION_ACTIVATE)
     assert client.lifecycle_state() == State.PRIMARY_STATE_ACTIVE
     client.latest_state(lambda s: all(c.output_enabled and c.setpoint == 0.0 for c in s.channels))
+    client.take_control()  # the node was reconfigured: a new supply, no session
     assert client.ramp_result("back", 1200.0).success
     assert client.transition(Transition.TRANSITION_DEACTIVATE)  # ramps down, then returns
     assert client.lifecycle_state() == State.PRIMARY_STATE_INACTIVE
@@ -174,7 +187,7 @@ def test_estop_while_another_client_streams_ramps(active):
     wait_for(lambda: len(results) >= count + 2, what="ramps refused after the e-stop")
     stop.set()
     streamer.join(timeout=20.0)
-    assert "latched faults" in results[-1].message and "estop" in results[-1].message
+    assert "control ended by an emergency stop" in results[-1].message
     assert outputs_off(active.latest_state())
 
 
@@ -185,7 +198,42 @@ def test_cancel_ramps_the_channel_back_to_zero(active):
     cancel = goal.cancel_goal_async()
     wait_for(cancel.done, what="the cancel reply")
     future = goal.get_result_async()
-    wait_for(future.done, what="the cancelled result")
+    wait_for(future.done, what="the canceled result")
     assert future.result().status == GoalStatus.STATUS_CANCELED
-    assert future.result().result.message == "cancelled: reached 0 V"
+    assert future.result().result.message == "canceled: reached 0 V"
     assert active.latest_state().channels[0].setpoint == 0.0
+
+
+def test_a_channel_index_the_simulated_supply_does_not_have_is_refused_at_configure(ros_context):
+    node = HvDriverNode(context=ros_context, parameter_overrides=[
+        Parameter("autostart", value=False), Parameter("channel_indices", value=[0, 5])])
+    try:
+        assert node.trigger_configure() == TransitionCallbackReturn.FAILURE
+        assert node._sim is None and node._supply is None  # the simulated supply process was stopped
+    finally:
+        node.destroy_node()
+
+
+class SlowPublisher:
+    """Fault injection: every third hv/state publish is held up for three publishing periods."""
+
+    def __init__(self, publisher):
+        self.publisher, self.calls = publisher, 0
+
+    def publish(self, msg) -> None:
+        self.calls += 1
+        if self.calls % 3 == 1:
+            time.sleep(0.06)
+        self.publisher.publish(msg)
+
+
+def test_hv_state_stays_in_order_when_a_publish_is_slow(active):
+    publisher = active.driver._state_pub
+    active.driver._state_pub = SlowPublisher(publisher)
+    try:
+        active.state.messages.clear()
+        wait_for(lambda: len(active.state.messages) >= 40, what="40 hv/state messages")
+    finally:
+        active.driver._state_pub = publisher
+    stamps = [m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for m in list(active.state.messages)]
+    assert all(b > a for a, b in zip(stamps, stamps[1:])), "hv/state arrived out of order"

@@ -1,6 +1,6 @@
 """Planner node through real rclpy clients: finger design from a file and from an image message, bad
 requests refused with a clear message (the node carries on), a DesignPath round trip, and other requests
-answered while a long optimisation runs."""
+answered while a long optimization runs."""
 import io
 import math
 import threading
@@ -42,7 +42,7 @@ def object_mask(height=120, width=80) -> np.ndarray:
 
 
 def fingers_request(**fields) -> DesignFingers.Request:
-    request = DesignFingers.Request(pixel_size=0.0005, num_blocks=2, optimizer="exact", time_budget=60.0)
+    request = DesignFingers.Request(pixel_size=0.0005, num_blocks=2, method="exact", time_budget=60.0)
     request.image = image_msg(object_mask())
     for name, value in fields.items():
         setattr(request, name, value)
@@ -121,7 +121,7 @@ def two_objects():
     (dict(pixel_size=0.0), "pixel_size must be a positive number"),
     (dict(num_blocks=0), f"num_blocks must be 1..{MAX_BLOCKS}, got 0"),
     (dict(num_blocks=MAX_BLOCKS + 1), f"num_blocks must be 1..{MAX_BLOCKS}, got {MAX_BLOCKS + 1}"),
-    (dict(optimizer="simplex"), "optimizer must be one of exact, pso, got 'simplex'"),
+    (dict(method="simplex"), "method must be one of exact, pso, got 'simplex'"),
     (dict(time_budget=-1.0), "time_budget must be >= 0 s, got -1.0"),
     (dict(image=image_msg(np.zeros((0, 0), dtype=np.uint8))), "give an image or an image_path"),
     (dict(image=image_msg(np.zeros((0, 0), dtype=np.uint8)), image_path="/nonexistent/object.png"),
@@ -152,7 +152,7 @@ def chain_path(design_ids, rotation_steps):
 
 def test_design_path_round_trip_recovers_a_chain_along_its_own_centerline(client):
     request = DesignPath.Request(path=chain_path([15, 57, 15], [0, 3, 0]), num_blocks=3, allow_rotation=True,
-                                 optimizer="exact", time_budget=60.0)
+                                 method="exact", time_budget=60.0)
     reply = design_path(client, request)
     assert reply.success, reply.message
     assert_blocks_from_table(reply.chain, 3)
@@ -163,12 +163,12 @@ def test_design_path_round_trip_recovers_a_chain_along_its_own_centerline(client
 def test_path_with_nan_is_refused(client):
     path = chain_path([15, 15], [0, 0])
     path[3].y = math.nan
-    reply = design_path(client, DesignPath.Request(path=path, num_blocks=2, optimizer="exact"))
+    reply = design_path(client, DesignPath.Request(path=path, num_blocks=2, method="exact"))
     assert not reply.success
     assert "path point 3 is not finite" in reply.message
 
 
-def test_other_requests_are_answered_while_an_optimisation_runs(client, monkeypatch):
+def test_other_requests_are_answered_while_an_optimization_runs(client, monkeypatch):
     started, release = threading.Event(), threading.Event()
     real_design_fingers = planner.design.design_fingers
 
@@ -182,12 +182,12 @@ def test_other_requests_are_answered_while_an_optimisation_runs(client, monkeypa
     assert fingers_client.wait_for_service(timeout_sec=10.0)
     long_request = fingers_client.call_async(fingers_request(num_blocks=1))
     try:
-        wait_for(started.is_set, what="the optimisation to start")
+        wait_for(started.is_set, what="the optimization to start")
         parameters = call(client.create_client(GetParameters, "planner/get_parameters"),
                           GetParameters.Request(names=["max_blocks"]))
         assert parameters.values[0].integer_value == MAX_BLOCKS
         path_reply = design_path(client, DesignPath.Request(path=chain_path([15], [0]), num_blocks=1,
-                                                            optimizer="exact"))
+                                                            method="exact"))
         assert path_reply.success, path_reply.message
         assert not long_request.done()
     finally:
@@ -197,9 +197,9 @@ def test_other_requests_are_answered_while_an_optimisation_runs(client, monkeypa
     assert reply.success, reply.message
 
 
-def test_stopping_the_node_cancels_a_running_optimisation(ros_context, spin, tmp_path):
+def test_stopping_the_node_cancels_a_running_optimization(ros_context, spin, tmp_path):
     params = tmp_path / "params.yaml"
-    params.write_text("/**/planner:\n  ros__parameters:\n    default_time_budget: 0.0\n")  # no limit
+    params.write_text("/**/planner:\n  ros__parameters:\n    default_time_budget_s: 0.0\n")  # no limit
     output = io.StringIO()
     client = rclpy.create_node("planner_stop_client", context=ros_context)
     spin(client)
@@ -213,6 +213,6 @@ def test_stopping_the_node_cancels_a_running_optimisation(ros_context, spin, tmp
         fingers_client.call_async(request)
         # Liveness bounds only: the planner runs niced, so a loaded machine slows it down a lot.
         wait_for(lambda: "design_fingers: 5 blocks per finger" in output.getvalue(), timeout=90.0,
-                 what="the optimisation to start")
+                 what="the optimization to start")
         codes = stack.stop()
     assert codes == {"planner": 0}, output.getvalue()

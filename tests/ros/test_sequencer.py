@@ -28,11 +28,11 @@ RUN_TIMEOUT = 40.0
 def stack(ros_context, spin, tmp_path_factory):
     directory = tmp_path_factory.mktemp("sequences")
     sequencer = SequencerNode(context=ros_context, parameter_overrides=[
-        Parameter("sequences_dir", value=str(SEQUENCES)), Parameter("settle_time", value=2.0),
-        Parameter("safe_stop_timeout", value=5.0)])
+        Parameter("sequences_dir", value=str(SEQUENCES)), Parameter("settle_time_s", value=2.0),
+        Parameter("safe_stop_timeout_s", value=5.0)])
     arm = SimArmNode(context=ros_context, parameter_overrides=[
-        Parameter("max_speed", value=2.0), Parameter("max_acceleration", value=20.0),
-        Parameter("publish_rate", value=100.0)])
+        Parameter("max_speed_m_per_s", value=2.0), Parameter("max_acceleration_m_per_s2", value=20.0),
+        Parameter("publish_rate_hz", value=100.0)])
     hv = FakeHv(CHANNELS, context=ros_context)
     client = rclpy.create_node("sequencer_test_client", context=ros_context)
     events = Inbox(client, SequenceEvent, "sequencer/events", 100)
@@ -78,7 +78,8 @@ def test_finger_grasp_runs_to_success(stack, hv):
     assert len(result.step_names) == len(result.step_durations) == 12
     assert [ramp for ramp in hv.ramps] == [("back", 2400.0), ("back", 0.0), ("front", 2400.0), ("front", 0.0),
                                            ("back", 2400.0), ("back", 0.0)]
-    assert channels_off(hv) and hv.heartbeats > 0
+    assert channels_off(hv) and hv.heartbeats > 0  # heartbeats with the session's token
+    assert hv.token == ""  # control released at the end
     assert [(f.step_index, f.phase) for f in run.feedback if f.phase == "succeeded"] == [(i, "succeeded")
                                                                                        for i in range(12)]
     assert all(f.step_count == 12 for f in run.feedback)
@@ -136,6 +137,14 @@ def test_bad_sequences_are_refused_with_a_clear_message(stack, hv, sequence, mes
     assert status == GoalStatus.STATUS_ABORTED and not result.success
     assert message in result.message
     assert hv.ramps == []
+
+
+def test_a_sequence_is_refused_while_another_client_holds_hv_control(stack, hv):
+    hv.token = "session-of-another-client"
+    status, result = Run(stack["action"], scaled("finger_grasp", stack["dir"], speed=2.0)).result()
+    assert status == GoalStatus.STATUS_ABORTED and not result.success
+    assert result.message == "hv/claim_control refused: control is held by another client"
+    assert hv.ramps == [] and hv.token == "session-of-another-client"
 
 
 def test_second_goal_is_rejected_while_one_runs(stack, hv):

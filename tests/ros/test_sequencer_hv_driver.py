@@ -1,6 +1,6 @@
 """Sequencer against the real HV driver node (simulated supply on a pty) and the simulated arm:
-the scaled finger grasp succeeds while the sequencer's heartbeat keeps the driver's watchdog quiet,
-and an over-current injected through `hv/inject_fault` mid-sequence ends in the safe state."""
+the scaled finger grasp succeeds while the sequencer holds control and its heartbeat keeps the driver's
+watchdog quiet, and an over-current injected through `hv/inject_fault` mid-sequence ends in the safe state."""
 import pytest
 import rclpy
 from action_msgs.msg import GoalStatus
@@ -24,11 +24,11 @@ RUN_TIMEOUT = 40.0
 @pytest.fixture(scope="module")
 def stack(ros_context, spin, tmp_path_factory):
     driver = HvDriverNode(context=ros_context, parameter_overrides=[
-        Parameter("autostart", value=False), Parameter("slew_rate", value=15_000.0),
-        Parameter("heartbeat_timeout", value=0.5)])
-    sequencer = SequencerNode(context=ros_context, parameter_overrides=[Parameter("settle_time", value=2.0)])
+        Parameter("autostart", value=False), Parameter("slew_rate_v_per_s", value=15_000.0),
+        Parameter("heartbeat_timeout_s", value=0.5)])
+    sequencer = SequencerNode(context=ros_context, parameter_overrides=[Parameter("settle_time_s", value=2.0)])
     arm = SimArmNode(context=ros_context, parameter_overrides=[
-        Parameter("max_speed", value=2.0), Parameter("max_acceleration", value=20.0)])
+        Parameter("max_speed_m_per_s", value=2.0), Parameter("max_acceleration_m_per_s2", value=20.0)])
     client = rclpy.create_node("sequencer_hv_test_client", context=ros_context)
     spin(driver, sequencer, arm, client)
     assert driver.trigger_configure() == TransitionCallbackReturn.SUCCESS
@@ -46,7 +46,7 @@ def stack(ros_context, spin, tmp_path_factory):
 
 
 def start(stack, sequence):
-    """Clear faults (the driver's heartbeat watchdog restarts then) and send the goal at once."""
+    """Clear faults and send the goal at once (the sequencer claims control of the driver for it)."""
     call(stack["inject"], InjectFault.Request(fault="clear"))
     assert call(stack["reset"], Trigger.Request()).success
     stack["events"].messages.clear()

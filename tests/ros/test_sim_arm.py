@@ -20,7 +20,7 @@ DOWN = (1.0, 0.0, 0.0, 0.0)
 @pytest.fixture(scope="module")
 def arm(ros_context, spin):
     node = SimArmNode(context=ros_context, parameter_overrides=[
-        Parameter("max_speed", value=0.5), Parameter("max_acceleration", value=2.0)])
+        Parameter("max_speed_m_per_s", value=0.5), Parameter("max_acceleration_m_per_s2", value=2.0)])
     client = rclpy.create_node("sim_arm_test_client", context=ros_context)
     poses = Inbox(client, PoseStamped, "arm/pose", 100)
     action = ActionClient(client, MoveArm, "arm/move")
@@ -81,7 +81,7 @@ def test_newer_goal_preempts(arm):
 @pytest.mark.parametrize("kwargs, message", [
     ({"frame_id": "world"}, "target frame 'world' is not the arm frame 'base_link' (no TF here)"),
     ({"orientation": (0.0, 0.0, 0.0, 2.0)}, "orientation=(0.0, 0.0, 0.0, 2.0): a unit quaternion"),
-    ({"max_speed": -1.0}, "max_speed=-1.0: finite number >= 0"),
+    ({"max_speed": -1.0}, "max_speed_m_per_s=-1.0: finite number >= 0"),
 ])
 def test_bad_targets_are_aborted_with_the_reason(arm, kwargs, message):
     action, _ = arm

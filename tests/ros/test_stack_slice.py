@@ -17,6 +17,7 @@ from std_msgs.msg import Float64
 from planner.assembly import Assembly, Chain, PlacedBlock, load_assembly
 from planner.table import load_table
 from softblock_ros.client import ActionClient
+from softblock_ros.hv_control import HvControl
 from softblock_ros.conversions import assembly_msg, safe_voltage
 from softblock_ros.launcher import Stack
 from softblock_ros.paths import resolve_path
@@ -30,7 +31,7 @@ TARGET = 1000.0  # [V]
 @pytest.fixture(scope="module")
 def stack(tmp_path_factory):
     params = tmp_path_factory.mktemp("slice") / "params.yaml"
-    params.write_text("/**/hv_driver:\n  ros__parameters:\n    backend: sim\n    slew_rate: 5000.0\n    link_timeout: 2.0\n")
+    params.write_text("/**/hv_driver:\n  ros__parameters:\n    backend: sim\n    slew_rate_v_per_s: 5000.0\n    link_timeout_s: 2.0\n")
     output = io.StringIO()
     with Stack(nodes=["hv_driver", "assembly_state"], params=params, namespace=NAMESPACE, output=output) as stack:
         yield stack
@@ -44,7 +45,9 @@ def client(ros_context, spin, stack):
     node.assembly_states = Inbox(node, AssemblyState, "assembly/state")
     node.safe_voltages = Inbox(node, Float64, "assembly/safe_voltage",
                                QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    node.control = HvControl(node, "slice_client", timeout_s=15.0)
     spin(node)
+    node.control.claim()
     return node
 
 
@@ -57,7 +60,7 @@ def latest(inbox, predicate):
 def ramp(client, channel, target):
     action = ActionClient(client, RampChannel, "hv/ramp")
     assert action.wait_for_server(timeout_sec=15.0)
-    sent = action.send_goal_async(RampChannel.Goal(channel=channel, target=target))
+    sent = action.send_goal_async(RampChannel.Goal(channel=channel, target=target, token=client.control.token))
     goal = wait_for(sent.done) and sent.result()
     assert goal.accepted
     done = goal.get_result_async()

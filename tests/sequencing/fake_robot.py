@@ -4,7 +4,7 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable
 
-from softblock_ros.sequencing.engine import ChannelReading, Outcome, RobotError
+from sequencing.ports import ChannelReading, Outcome, RobotError
 
 OVER_CURRENT = 1
 

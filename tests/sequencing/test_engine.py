@@ -7,11 +7,12 @@ from fake_robot import FakeMotion, FakeRobot
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from softblock_ros.sequencing.engine import ChannelReading, Outcome, RobotError, RunOptions, SequenceEngine
-from softblock_ros.sequencing.schema import load_sequence, parse_sequence
+from sequencing.engine import SequenceEngine
+from sequencing.ports import ChannelReading, Outcome, RobotError, RunOptions
+from sequencing.schema import load_sequence, parse_sequence
 
 SEQUENCES = Path(__file__).resolve().parents[2] / "config" / "sequences"
-FAST = RunOptions(poll_period=0.002, settle_time=0.02, safe_stop_timeout=0.5)
+FAST = RunOptions(poll_period_s=0.002, settle_time_s=0.02, safe_stop_timeout_s=0.5)
 FINGER_GRASP = load_sequence("finger_grasp", SEQUENCES)
 
 
@@ -225,7 +226,7 @@ def test_ramp_waits_for_the_measured_voltage_to_settle():
 
     sequence = parse_sequence({"name": "t", "channels": ["front"], "steps": [
         {"name": "up", "ramp": {"channel": "front", "target": 2000.0}}]})
-    result, _ = run(sequence, FakeRobot(["front"], lagging), options=RunOptions(poll_period=0.002, settle_time=5.0))
+    result, _ = run(sequence, FakeRobot(["front"], lagging), options=RunOptions(poll_period_s=0.002, settle_time_s=5.0))
     assert result.success, result.message
 
 
@@ -249,7 +250,7 @@ def test_a_late_edge_waits_for_the_running_ramp_instead_of_superseding_it():
         results.append(motion)
         return motion
 
-    result, events = run(one_train(), FakeRobot(["front"], late), options=RunOptions(poll_period=0.002))
+    result, events = run(one_train(), FakeRobot(["front"], late), options=RunOptions(poll_period_s=0.002))
     assert result.success, result.message
     assert pending_at_call == [[], [False]]
     assert "behind schedule" in events[-1].message

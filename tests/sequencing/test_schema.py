@@ -4,7 +4,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from softblock_ros.sequencing.schema import (
+from sequencing.schema import (
     Limits, MoveArmStep, ParallelStep, PulseTrainStep, RampStep, SequenceError, WaitStep, load_sequence,
     parse_sequence)
 
@@ -110,10 +110,10 @@ def test_pulse_trains_must_fit_the_frequency_and_slew_limit(fields, message):
 
 
 def test_limits_are_options():
-    relaxed = Limits(voltage_ceiling=5000.0, max_pulse_frequency=10.0)
+    relaxed = Limits(voltage_ceiling_v=5000.0, max_pulse_frequency_hz=10.0)
     parse_sequence(sequence_with(ramp(target=3000.0)), relaxed)
     with pytest.raises(SequenceError, match=r"ramp.slew_rate=2000.0: above the HV driver's slew limit 1000"):
-        parse_sequence(sequence_with(ramp(slew_rate=2000.0)), Limits(max_slew_rate=1000.0))
+        parse_sequence(sequence_with(ramp(slew_rate=2000.0)), Limits(max_slew_rate_v_per_s=1000.0))
 
 
 def test_unknown_name_lists_the_known_sequences(tmp_path):

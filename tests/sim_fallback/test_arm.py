@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 from sim_fallback.arm import ArmLimits, Pose, SimulatedArm
 
 DT = 0.01
-LIMITS = ArmLimits(max_speed=0.2, max_acceleration=0.5, max_angular_speed=1.0, max_angular_acceleration=2.0)
+LIMITS = ArmLimits(max_speed_m_per_s=0.2, max_acceleration_m_per_s2=0.5, max_angular_speed_rad_per_s=1.0, max_angular_acceleration_rad_per_s2=2.0)
 
 
 def run(arm: SimulatedArm, max_steps: int = 10_000) -> list[Pose]:
@@ -40,18 +40,18 @@ def test_speed_and_acceleration_stay_within_limits():
     arm = SimulatedArm(Pose(), LIMITS)
     arm.move_to(Pose((0.5, 0.0, 0.0)))
     velocity = speeds(run(arm))
-    assert velocity.max() <= LIMITS.max_speed * 1.001
-    assert velocity.max() >= LIMITS.max_speed * 0.99  # long move: it does cruise at the limit
-    assert np.abs(np.diff(velocity)).max() / DT <= LIMITS.max_acceleration * 1.01
+    assert velocity.max() <= LIMITS.max_speed_m_per_s * 1.001
+    assert velocity.max() >= LIMITS.max_speed_m_per_s * 0.99  # long move: it does cruise at the limit
+    assert np.abs(np.diff(velocity)).max() / DT <= LIMITS.max_acceleration_m_per_s2 * 1.01
 
 
 def test_move_speed_below_limit_is_honoured_and_above_limit_clamped():
     slow = SimulatedArm(Pose(), LIMITS)
-    slow.move_to(Pose((0.5, 0.0, 0.0)), max_speed=0.05)
+    slow.move_to(Pose((0.5, 0.0, 0.0)), max_speed_m_per_s=0.05)
     assert speeds(run(slow)).max() <= 0.05 * 1.001
     fast = SimulatedArm(Pose(), LIMITS)
-    fast.move_to(Pose((0.5, 0.0, 0.0)), max_speed=5.0)
-    assert speeds(run(fast)).max() <= LIMITS.max_speed * 1.001
+    fast.move_to(Pose((0.5, 0.0, 0.0)), max_speed_m_per_s=5.0)
+    assert speeds(run(fast)).max() <= LIMITS.max_speed_m_per_s * 1.001
 
 
 def test_orientation_is_slerped_along_the_path():
@@ -70,7 +70,7 @@ def test_pure_rotation_respects_the_angular_speed_limit():
     arm.move_to(target)
     poses = run(arm)
     angles = [Pose().angle_to(pose) for pose in poses]
-    assert np.diff(angles).max() / DT <= LIMITS.max_angular_speed * 1.001
+    assert np.diff(angles).max() / DT <= LIMITS.max_angular_speed_rad_per_s * 1.001
     assert arm.reached(target)
 
 
@@ -84,9 +84,9 @@ def test_stop_brakes_smoothly_on_the_path_and_holds():
     x_at_stop = arm.pose.position[0]
     arm.stop()
     poses = run(arm)
-    expected_braking = speed ** 2 / (2 * LIMITS.max_acceleration)
+    expected_braking = speed ** 2 / (2 * LIMITS.max_acceleration_m_per_s2)
     assert arm.pose.position[0] - x_at_stop == pytest.approx(expected_braking, rel=0.05)
-    assert np.abs(np.diff(speeds(poses))).max() / DT <= LIMITS.max_acceleration * 1.01
+    assert np.abs(np.diff(speeds(poses))).max() / DT <= LIMITS.max_acceleration_m_per_s2 * 1.01
     assert arm.pose.position[1:] == (0.0, 0.0)
     assert arm.step(1.0) == arm.pose  # holds
 
@@ -105,7 +105,7 @@ def test_new_target_while_moving_keeps_the_present_speed():
 
 def test_target_within_tolerance_counts_as_reached_at_once():
     arm = SimulatedArm(Pose(), LIMITS)
-    arm.move_to(Pose((LIMITS.position_tolerance / 2, 0.0, 0.0)))
+    arm.move_to(Pose((LIMITS.position_tolerance_m / 2, 0.0, 0.0)))
     assert not arm.moving
 
 
@@ -120,11 +120,11 @@ def test_invalid_pose_names_the_field(kwargs, parameter):
 
 
 def test_invalid_limits_and_arguments_name_the_parameter():
-    with pytest.raises(ValueError, match="max_speed"):
-        ArmLimits(max_speed=0.0)
+    with pytest.raises(ValueError, match="max_speed_m_per_s"):
+        ArmLimits(max_speed_m_per_s=0.0)
     arm = SimulatedArm()
-    with pytest.raises(ValueError, match="max_speed"):
-        arm.move_to(Pose((0.1, 0.0, 0.0)), max_speed=-1.0)
+    with pytest.raises(ValueError, match="max_speed_m_per_s"):
+        arm.move_to(Pose((0.1, 0.0, 0.0)), max_speed_m_per_s=-1.0)
     with pytest.raises(ValueError, match="dt"):
         arm.step(-0.1)
 
@@ -133,14 +133,14 @@ def test_invalid_limits_and_arguments_name_the_parameter():
 @given(
     target=st.tuples(*[st.floats(-0.5, 0.5)] * 3),
     euler=st.tuples(*[st.floats(-180, 180)] * 3),
-    max_speed=st.one_of(st.just(0.0), st.floats(0.02, 0.5)),
+    max_speed_m_per_s=st.one_of(st.just(0.0), st.floats(0.02, 0.5)),
 )
-def test_property_every_move_settles_on_target_within_limits(target, euler, max_speed):
+def test_property_every_move_settles_on_target_within_limits(target, euler, max_speed_m_per_s):
     goal = Pose(target, tuple(Rotation.from_euler("xyz", euler, degrees=True).as_quat()))
     arm = SimulatedArm(Pose((0.1, 0.1, 0.1)), LIMITS)
-    arm.move_to(goal, max_speed=max_speed)
+    arm.move_to(goal, max_speed_m_per_s=max_speed_m_per_s)
     poses = run(arm)
     assert arm.reached(goal)
-    limit = LIMITS.max_speed if max_speed == 0 else min(max_speed, LIMITS.max_speed)
+    limit = LIMITS.max_speed_m_per_s if max_speed_m_per_s == 0 else min(max_speed_m_per_s, LIMITS.max_speed_m_per_s)
     if len(poses) > 1:
         assert speeds(poses).max() <= limit * 1.001

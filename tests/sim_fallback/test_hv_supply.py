@@ -66,6 +66,45 @@ def test_switched_off_the_load_discharges_through_the_bleeder():
     assert ch.voltage == pytest.approx(2000.0 * math.exp(-1.0))
 
 
+def switched_on_at(voltage: float, ramp: float) -> PlantChannel:
+    ch = PlantChannel(ChannelDefaults(ramp_speed=ramp))
+    ch.voltage_set = ch.voltage = voltage
+    assert ch.switch_on()
+    return ch
+
+
+def test_volt_off_ramps_the_output_down_at_the_device_ramp():
+    """As the iseg manual says: `:VOLT OFF` switches off with the configured ramp-down speed."""
+    ch = switched_on_at(2400.0, ramp=1200.0)
+    ch.switch_off(0.0, emergency=False)
+    ch.step(0.5, 0.5)
+    assert ch.voltage == pytest.approx(1800.0)
+    assert ChannelStatus.IS_VOLTAGE_RAMP in ch.status and ChannelStatus.IS_ON not in ch.status
+    ch.step(2.5, 2.0)
+    assert ch.voltage == 0.0 and ChannelStatus.IS_VOLTAGE_RAMP not in ch.status
+    ch.step(3.0, 0.5)
+    assert ch.voltage == 0.0
+
+
+def test_emergency_off_cuts_the_output_without_ramp():
+    ch = switched_on_at(2400.0, ramp=1200.0)
+    ch.switch_off(0.0, emergency=True)
+    ch.step(0.1, 0.1)  # discharged through the bleeder, tau = 20 ms
+    assert ch.voltage == pytest.approx(2400.0 * math.exp(-5.0))
+
+
+def test_volt_off_on_the_wire_ramps_and_the_channel_count_is_reported(port):
+    sim, link = port
+    for line in (":CONF:RAMP:VOLT:DOWN 1.000000E+02,(@0);*OPC?", ":VOLT 2.400000E+03,(@0);*OPC?",
+                 ":VOLT ON,(@0);*OPC?"):
+        assert exchange(link, line)[1] == "1"
+    with sim._lock:
+        sim.plant[0].voltage = 2400.0
+    assert exchange(link, ":VOLT OFF,(@0);*OPC?")[1] == "1"
+    assert sim.plant[0].ramping_down and not sim.plant[0].output_on and sim.plant[0].voltage > 2000.0
+    assert exchange(link, ":READ:MOD:CHAN?") == (":READ:MOD:CHAN?", "2")
+
+
 def test_device_current_trip_switches_off_after_the_trip_time():
     ch = PlantChannel(ChannelDefaults(ramp_speed=1e6))
     ch.current_limit, ch.trip_time_ms, ch.trip_action = 1e-4, 50.0, 2

@@ -1,6 +1,11 @@
+from glob import glob
+
 from setuptools import find_packages, setup
 
 package_name = "softblock_ros"
+# The stack's parameter files and description live in the repository's config/ (also the core's package data);
+# installed into share/ too, where the launch file finds them through the ament index.
+CONFIG_FILES = sorted(glob("../../../config/*.yaml"))
 
 setup(
     name=package_name,
@@ -9,6 +14,8 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
+        ("share/" + package_name + "/launch", ["launch/softblock.launch.py"]),
+        ("share/" + package_name + "/config", CONFIG_FILES),
     ],
     install_requires=["setuptools"],
     zip_safe=True,
@@ -24,7 +31,7 @@ setup(
             "launcher = softblock_ros.launcher:main",
             "recorder = softblock_ros.recording.cli:record_main",
             "player = softblock_ros.recording.cli:play_main",
-            "analyze_recording = softblock_ros.recording.cli:analyze_main",
+            "analyze_recording = recording.cli:analyze_main",
             "sequencer = softblock_ros.sequencer_node:main",
             "sim_arm = softblock_ros.sim_arm_node:main",
         ],

@@ -1,7 +1,7 @@
 """Assembly-state node: holds the current assembly and publishes its predicted shape at the measured HV.
 
 Latched (transient_local): the assembly on ``assembly/current`` and the lowest safe voltage over its
-blocks on ``assembly/safe_voltage`` (the HV driver's ceiling). At ``rate``: the predicted per-block angles
+blocks on ``assembly/safe_voltage`` (the HV driver's ceiling). At ``publish_rate_hz``: the predicted per-block angles
 and centerlines at the channel voltages measured on ``hv/state`` (``assembly/state``) and RViz markers
 (``assembly/markers``). ``assembly/set`` replaces the assembly; an invalid one is refused, the old kept.
 """
@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import sys
 
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
 from softblock_interfaces.msg import Assembly, AssemblyState, HvState
@@ -24,21 +23,26 @@ from planner.table import load_table
 from .conversions import (assembly_from_msg, assembly_msg, chain_state_msg, channel_voltages, check_assembly,
                           safe_voltage)
 from .markers import assembly_markers
+from .parameters import Param, declare
 from .paths import resolve_path
 from .runner import run_node
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+PARAMETERS = (
+    Param("assembly_file", "assemblies/gripper.yaml", "assembly YAML loaded at start (relative and not found from "
+          "the working directory: a shipped file of config/)", kind=str),
+    Param("table_path", "", "look-up table file; empty = the planner's default table", kind=str),
+    Param("publish_rate_hz", 10.0, "publishing rate of assembly/state and assembly/markers", "Hz", 0.1, 100.0),
+    Param("frame_id", "gripper_base", "frame of the assembly, centerlines and markers", kind=str),
+)
 
 
 class AssemblyStateNode(Node):
     def __init__(self, **kwargs):
         super().__init__("assembly_state", **kwargs)
-        assembly_file = self._declare("assembly_file", "config/assemblies/gripper.yaml",
-                                      "assembly YAML loaded at start (relative: to the project root)")
-        table_path = self._declare("table_path", "", "look-up table file; empty = the planner's default table")
-        rate = self._declare("rate", 10.0, "publishing rate of assembly/state and assembly/markers [Hz]",
-                             FloatingPointRange(from_value=0.1, to_value=100.0))
-        self._frame_id = self._declare("frame_id", "gripper_base", "frame of the assembly, centerlines and markers")
+        value = declare(self, PARAMETERS)
+        assembly_file, table_path, rate = value["assembly_file"], value["table_path"], value["publish_rate_hz"]
+        self._frame_id = value["frame_id"]
         self._table = load_table(resolve_path(table_path)) if table_path else load_table()
 
         self._current_pub = self.create_publisher(Assembly, "assembly/current", LATCHED)
@@ -56,11 +60,6 @@ class AssemblyStateNode(Node):
         self.create_service(SetAssembly, "assembly/set", self._on_set)
         self.create_timer(1.0 / rate, self._publish_state)
         self.get_logger().info(f"assembly {assembly.name!r} from {assembly_file}, publishing at {rate} Hz")
-
-    def _declare(self, name, default, description, float_range=None):
-        descriptor = ParameterDescriptor(description=description, read_only=True,
-                                         floating_point_range=[float_range] if float_range else [])
-        return self.declare_parameter(name, default, descriptor).value
 
     def _header(self) -> Header:
         return Header(stamp=self.get_clock().now().to_msg(), frame_id=self._frame_id)

@@ -57,7 +57,7 @@ def chain_msg(chain: Chain, table, calibration: dict[str, float] | None = None) 
 
 def designed_chain_msg(name: str, design_ids, table, rotation_steps=None, base_position=(0.0, 0.0, 0.0),
                        base_orientation=(0.0, 0.0, 0.0, 1.0)) -> msg.Chain:
-    """A chain message for an optimiser result: blocks by design ID, the given base pose, no HV channel."""
+    """A chain message for an optimizer result: blocks by design ID, the given base pose, no HV channel."""
     steps = rotation_steps if rotation_steps is not None else [0] * len(design_ids)
     blocks = tuple(PlacedBlock(int(i), int(k)) for i, k in zip(design_ids, steps, strict=True))
     chain = Chain(name=name, hv_channel="", blocks=blocks, base_position=tuple(base_position),
@@ -84,18 +84,21 @@ def check_assembly(assembly: Assembly, table) -> None:
                 )
 
 
+def chain_from_msg(chain: msg.Chain) -> Chain:
+    """The planner's chain of a message (design IDs, rotations, serials, base pose); ValueError if malformed."""
+    blocks = tuple(PlacedBlock(int(block.design.id), PlacedBlock.steps_from_rotation(block.rotation), block.serial)
+                   for block in chain.blocks)
+    p, q = chain.base_pose.position, chain.base_pose.orientation
+    return Chain(chain.name, chain.hv_channel, blocks, (p.x, p.y, p.z), (q.x, q.y, q.z, q.w))
+
+
 def assembly_from_msg(message: msg.Assembly, table) -> tuple[Assembly, dict[str, float]]:
     """(assembly, calibration serial -> offset [rad]) from a message; ValueError names the bad chain/block."""
     chains, calibration = [], {}
     for c, chain in enumerate(message.chains):
         where = f"chain {chain.name or c!r}"
         try:
-            blocks = tuple(
-                PlacedBlock(int(block.design.id), PlacedBlock.steps_from_rotation(block.rotation), block.serial)
-                for block in chain.blocks
-            )
-            p, q = chain.base_pose.position, chain.base_pose.orientation
-            chains.append(Chain(chain.name, chain.hv_channel, blocks, (p.x, p.y, p.z), (q.x, q.y, q.z, q.w)))
+            chains.append(chain_from_msg(chain))
         except ValueError as error:
             raise ValueError(f"{where}: {error}") from None
         calibration.update(

@@ -19,6 +19,7 @@ import json
 import sys
 import threading
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import rclpy
@@ -29,21 +30,23 @@ from rclpy.qos import qos_profile_sensor_data
 from softblock_interfaces.action import RampChannel, RunSequence
 from softblock_interfaces.msg import HvState
 from softblock_interfaces.srv import DesignFingers, InjectFault, SetAssembly
-from std_msgs.msg import Empty
 from std_srvs.srv import Trigger
 
 from planner.assembly import load_assembly
 from planner.contours import OBJECTS_CATALOG
-from planner.table import REPO_ROOT, load_table
+from planner.design import DEFAULT_MIN_STIFF_ROD_DIAMETER
+from planner.finger_plot import plot_fingers
+from planner.table import load_table
+from recording.analysis import load, summarize
+from recording.analysis_plot import plot as plot_recording
+from softblock_config import config_file
 
 from .client import ActionClient, ClientError, call_service, run_action, status_name, wait_until
-from .conversions import assembly_msg
-from .demo_plots import plot_fingers
+from .conversions import assembly_msg, chain_from_msg
+from .hv_control import HvControl
 from .launcher import Stack
-from .recording.analysis import load, summarize
-from .recording.analysis_plot import plot as plot_recording
 
-NODE_PARAMETER_FILES = ("config/hv_driver.yaml", "config/sequencer.yaml")
+DEMO_ASSEMBLY = "assemblies/gripper.yaml"
 FINGER_SETS = {  # paper Figure 5: blocks per finger, top blocks forced stiff
     "front": {"num_blocks": 4, "num_stiff_top": 2},
     "back": {"num_blocks": 5, "num_stiff_top": 3},
@@ -58,12 +61,10 @@ def say(text: str) -> None:
 
 
 def write_parameters(out: Path, recording: Path) -> Path:
-    """One parameter file for the whole stack: the nodes' own files plus the demo's recorder output."""
-    parameters = {}
-    for name in NODE_PARAMETER_FILES:
-        parameters.update(yaml.safe_load((REPO_ROOT / name).read_text()))
-    parameters["recorder"] = {"ros__parameters": {"output": str(recording)}}
-    parameters["assembly_state"] = {"ros__parameters": {"assembly_file": "config/assemblies/gripper.yaml"}}
+    """The demo's additions to the stack's own parameter files (config/stack.yaml): the recorder's output
+    and the assembly the fingers are designed for."""
+    parameters = {"recorder": {"ros__parameters": {"output": str(recording)}},
+                  "assembly_state": {"ros__parameters": {"assembly_file": DEMO_ASSEMBLY}}}
     path = out / "params.yaml"
     path.write_text(yaml.safe_dump(parameters, sort_keys=False))
     return path
@@ -82,10 +83,9 @@ class DemoClient:
         self.reset_faults = self.node.create_client(Trigger, "hv/reset_faults")
         self.run_sequence = ActionClient(self.node, RunSequence, "sequencer/run")
         self.ramp = ActionClient(self.node, RampChannel, "hv/ramp")
-        # The demo is the controlling client of the HV driver: without this sign of life an energised
-        # output ramps down (heartbeat_timeout in config/hv_driver.yaml).
-        heartbeat = self.node.create_publisher(Empty, "hv/heartbeat", 10)
-        self.node.create_timer(0.1, lambda: heartbeat.publish(Empty()))
+        # The sequencer holds control of the HV driver during the grasp; the demo claims it for its own
+        # fault drill (heartbeats while it holds it).
+        self.control = HvControl(self.node, "demo", heartbeat_rate_hz=10.0, timeout_s=SERVICE_TIMEOUT)
         self.executor = MultiThreadedExecutor(num_threads=4)
         self.executor.add_node(self.node)
         self._spinner = threading.Thread(target=self.executor.spin, daemon=True)
@@ -105,17 +105,19 @@ class DemoClient:
 
 
 def design_gripper(client: DemoClient, object_name: str) -> tuple[dict, dict]:
-    """Front and back finger designs from the planner node; returns (responses, summary)."""
+    """Front and back finger designs from the planner node; returns (finger set -> side -> (chain, objective),
+    summary)."""
     catalog = yaml.safe_load(OBJECTS_CATALOG.read_text())[object_name]
-    responses, summary = {}, {}
+    fingers, summary = {}, {}
     for finger_set, constraints in FINGER_SETS.items():
         request = DesignFingers.Request(
             image_path=str(OBJECTS_CATALOG.parent / catalog["file"]), pixel_size=float(catalog["pixel_size_m"]),
-            min_stiff_rod_diameter=0.62e-3, optimizer="exact", time_budget=60.0, **constraints)
+            min_stiff_rod_diameter=DEFAULT_MIN_STIFF_ROD_DIAMETER, method="exact", time_budget=60.0, **constraints)
         response = call_service(client.design_fingers, request, timeout=SERVICE_TIMEOUT + 60.0)
         if not response.success:
             raise ClientError(f"planner could not design the {finger_set} fingers: {response.message}")
-        responses[finger_set] = response
+        fingers[finger_set] = {side: (chain_from_msg(getattr(response, side)), getattr(response, f"{side}_cost"))
+                               for side in ("left", "right")}
         summary[finger_set] = {
             side: {"design_ids": [b.design.id for b in getattr(response, side).blocks],
                    "cost_m": getattr(response, f"{side}_cost"), "collision": getattr(response, f"{side}_collision")}
@@ -124,18 +126,16 @@ def design_gripper(client: DemoClient, object_name: str) -> tuple[dict, dict]:
             f"left {summary[finger_set]['left']['design_ids']}, right {summary[finger_set]['right']['design_ids']}, "
             f"objective {response.left_cost:.3f} / {response.right_cost:.3f} m, "
             f"{'certified optimal' if response.optimal else 'not certified'}, {response.solve_time:.2f} s")
-    return responses, summary
+    return fingers, summary
 
 
-def load_designs_into_gripper(client: DemoClient, responses: dict) -> None:
+def load_designs_into_gripper(client: DemoClient, fingers: dict) -> None:
     """Replace the gripper's finger blocks with the designs; the chains keep their gripper base poses."""
-    table = load_table()
-    gripper = load_assembly(REPO_ROOT / "config/assemblies/gripper.yaml")
-    designed = assembly_msg(gripper, table)
-    for chain in designed.chains:
-        finger_set, side = chain.name.split("_")
-        chain.blocks = getattr(responses[finger_set], side).blocks
-    response = call_service(client.set_assembly, SetAssembly.Request(assembly=designed), timeout=SERVICE_TIMEOUT)
+    gripper = load_assembly(config_file(DEMO_ASSEMBLY))
+    designed = gripper.with_chains(*(replace(chain, blocks=fingers[finger_set][side][0].blocks)
+                                     for chain in gripper.chains for finger_set, side in [chain.name.split("_")]))
+    request = SetAssembly.Request(assembly=assembly_msg(designed, load_table()))
+    response = call_service(client.set_assembly, request, timeout=SERVICE_TIMEOUT)
     if not response.success:
         raise ClientError(f"assembly/set refused the designed gripper: {response.message}")
     say("designed fingers loaded into the gripper assembly")
@@ -157,12 +157,21 @@ def run_grasp(client: DemoClient) -> dict:
 
 
 def fault_drill(client: DemoClient) -> dict:
+    """The fault drill with the demo holding control of the HV driver (claimed, then released)."""
+    token = client.control.claim()
+    try:
+        return inject_fault_mid_ramp(client, token)
+    finally:
+        say(f"  HV control: {client.control.release()}")
+
+
+def inject_fault_mid_ramp(client: DemoClient, token: str) -> dict:
     """Ramp a channel, inject an over-current (film breakdown) into the simulated supply mid-ramp,
     and time how long the driver takes to switch the output off with a named fault."""
     say(f"fault drill: ramping {FAULT_CHANNEL} toward 1.2 kV, then injecting {FAULT}")
     outcome = {}
     ramp = threading.Thread(target=lambda: outcome.setdefault("ramp", run_action(
-        client.ramp, RampChannel.Goal(channel=FAULT_CHANNEL, target=1200.0), timeout=60.0,
+        client.ramp, RampChannel.Goal(channel=FAULT_CHANNEL, target=1200.0, token=token), timeout=60.0,
         server_timeout=SERVICE_TIMEOUT)), daemon=True)
     ramp.start()
     wait_until(lambda: (c := client.channel(FAULT_CHANNEL)) and c.measured_voltage > 600.0, 30.0,
@@ -218,10 +227,10 @@ def run(out: Path, object_name: str) -> int:
         client = DemoClient()
         try:
             wait_until(lambda: (s := client.hv_state) and len(s.channels) == 2, SERVICE_TIMEOUT, "hv/state")
-            responses, report["designs"] = design_gripper(client, object_name)
-            plot_fingers(responses, object_name, out / "fingers.png")
+            fingers, report["designs"] = design_gripper(client, object_name)
+            plot_fingers(fingers, object_name, out / "fingers.png")
             say(f"finger designs drawn over the object: {out / 'fingers.png'}")
-            load_designs_into_gripper(client, responses)
+            load_designs_into_gripper(client, fingers)
             report["grasp"] = run_grasp(client)
             report["fault_drill"] = fault_drill(client)
         except ClientError as error:

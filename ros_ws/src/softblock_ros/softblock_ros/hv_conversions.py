@@ -1,6 +1,8 @@
 """HV driver snapshots to ROS messages: softblock_interfaces/HvState and diagnostic_msgs/DiagnosticArray."""
 from __future__ import annotations
 
+import math
+
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from softblock_interfaces.msg import HvChannelState, HvState
@@ -22,9 +24,28 @@ def hv_state_msg(snapshot: SupplySnapshot, backend: str, stamp: Time) -> HvState
                   for c in snapshot.channels])
 
 
+def control_status(snapshot: SupplySnapshot, node_name: str) -> DiagnosticStatus:
+    """Who holds control and how fresh its heartbeat is; WARN when the heartbeat watchdog is off."""
+    timeout = snapshot.heartbeat_timeout_s
+    if snapshot.controller:
+        message = f"held by {snapshot.controller!r}, last heartbeat {snapshot.heartbeat_age_s:.2f} s ago"
+    else:
+        message = "no client holds control"
+    level = DiagnosticStatus.OK
+    if math.isinf(timeout):
+        level, message = DiagnosticStatus.WARN, message + "; heartbeat watchdog OFF"
+    values = {"controller": snapshot.controller,
+              "heartbeat_age_s": "" if snapshot.heartbeat_age_s is None else f"{snapshot.heartbeat_age_s:.3f}",
+              "heartbeat_timeout_s": timeout}
+    return DiagnosticStatus(level=level, name=f"{node_name}: control", message=message,
+                            hardware_id=snapshot.device_id,
+                            values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+
+
 def diagnostics_msg(snapshot: SupplySnapshot, node_name: str, backend: str, stamp: Time) -> DiagnosticArray:
-    """One status per channel: ERROR with latched faults, WARN while the link has errors, else OK."""
-    statuses = []
+    """The control status, then one status per channel: ERROR with latched faults, WARN while the link has
+    errors, else OK."""
+    statuses = [control_status(snapshot, node_name)]
     for c in snapshot.channels:
         if c.faults:
             level, message = DiagnosticStatus.ERROR, f"faults latched: {c.fault_text}"
@@ -35,7 +56,8 @@ def diagnostics_msg(snapshot: SupplySnapshot, node_name: str, backend: str, stam
         values = {"port": snapshot.port, "backend": backend, "channel_index": c.index,
                   "setpoint_v": c.setpoint, "measured_voltage_v": c.measured_voltage,
                   "measured_current_a": c.measured_current, "ceiling_v": c.ceiling,
-                  "output_enabled": c.output_enabled, "faults": int(c.faults), "estop": snapshot.estop}
+                  "output_enabled": c.output_enabled, "faults": int(c.faults), "estop": snapshot.estop,
+                  "link_error": snapshot.link_error}  # "" once the supply answers: a latched LINK may be reset
         statuses.append(DiagnosticStatus(level=level, name=f"{node_name}: channel {c.name}", message=message,
                                          hardware_id=snapshot.device_id,
                                          values=[KeyValue(key=k, value=str(v)) for k, v in values.items()]))

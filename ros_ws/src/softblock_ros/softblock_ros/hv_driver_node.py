@@ -1,77 +1,91 @@
 """HV driver node (lifecycle): the safety-supervised HV supply behind ROS topics, services and an action.
 
-configure = open the supply (backend ``sim``: an in-process simulated supply on a pty; ``serial``: the
-``port`` parameter) and identify it; activate = outputs on at 0 V; deactivate = ramp to 0 V and off;
-cleanup / shutdown = close (outputs off); error = outputs off at once.
+configure = open the supply (backend ``sim``: a simulated 4-channel supply in a process of its own;
+``serial``: the ``port`` parameter) and identify it; activate = outputs on at 0 V; deactivate = ramp to 0 V
+and off; cleanup / shutdown = close (outputs off); error = outputs off at once. Only the client holding
+control (hv/claim_control) may ramp and feed the heartbeat watchdog; hv/estop is open to everyone.
 """
 from __future__ import annotations
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.action import ActionServer, CancelResponse
-from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from rclpy.qos import DurabilityPolicy, QoSProfile
 from softblock_interfaces.action import RampChannel
-from softblock_interfaces.msg import HvState
-from softblock_interfaces.srv import InjectFault
-from std_msgs.msg import Empty, Float64
+from softblock_interfaces.msg import HvHeartbeat, HvState
+from softblock_interfaces.srv import ClaimControl, InjectFault, ReleaseControl
+from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
-from hv_driver import HvSupply
+from hv_driver import HvError, HvSupply
 from sim_fallback.hv_supply_process import SimulatedSupplyProcess
 
 from .hv_conversions import diagnostics_msg, hv_state_msg
-from .hv_parameters import channel_configs, declare_parameters
+from .hv_parameters import PARAMETERS, channel_configs
 from .hv_ramp_goal import execute_ramp_goal
+from .log_forwarding import forward_logging, stop_forwarding
+from .parameters import ParameterError, declare
 from .runner import run_node
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
-DRIVER_ERRORS = (ValueError, RuntimeError, ConnectionError, OSError)  # incl. LimitError, FaultLatchedError, LinkError
+SIM_ERRORS = (RuntimeError, ValueError, OSError)  # the simulated supply's process: not started, unknown fault
+SIM_CHANNELS = 4  # the simulated supply models a 4-channel module; configured indices must exist on it
+REFUSAL_LOG_PERIOD = 5.0  # [s] at most one log line per kind of ignored heartbeat
 
 
 class HvDriverNode(LifecycleNode):
     def __init__(self, **kwargs):
         super().__init__("hv_driver", **kwargs)
-        declare_parameters(self)
+        self._settings = declare(self, PARAMETERS)
+        self._channels = channel_configs(self._settings)
+        if self._settings["backend"] == "serial" and not self._settings["port"]:
+            raise ParameterError("parameter port='' refused: backend 'serial' needs a port, e.g. /dev/ttyUSB0")
         self._supply = self._sim = None
         self._entities = []
         self._active = False
         self._group = ReentrantCallbackGroup()
+        self._log_handler = forward_logging("hv_driver", self.get_logger())  # e.g. "heartbeat watchdog OFF"
 
     def _param(self, name):
-        return self.get_parameter(name).value
+        return self._settings[name]
 
     # --- lifecycle -------------------------------------------------------------------------------
     def on_configure(self, state) -> TransitionCallbackReturn:
-        backend, port = self._param("backend"), self._param("port")
+        backend, port, channels = self._param("backend"), self._param("port"), self._channels
+        if not self._param("expected_identity"):
+            self.get_logger().warning("expected_identity is empty: the supply's identity is not checked")
         try:
-            channels = channel_configs(self)
             if backend == "sim":
-                self._sim = SimulatedSupplyProcess(channels=max(c.index for c in channels) + 1).start()
+                self._sim = SimulatedSupplyProcess(channels=SIM_CHANNELS).start()
                 port = self._sim.port
-            elif backend != "serial" or not port:
-                raise ValueError(f"backend={backend!r}, port={port!r}: use 'sim', or 'serial' with a port")
-            self._supply = HvSupply(port, self._param("baudrate"), channels, link_timeout_s=self._param("link_timeout"),
-                                    heartbeat_timeout_s=self._param("heartbeat_timeout") or None,
-                                    handle_signals=False).open()
-        except DRIVER_ERRORS as error:
+            # A heartbeat_timeout_s of .inf (watchdog off) is warned by the driver itself at open.
+            self._supply = HvSupply(port, self._param("baudrate"), channels, loop_rate_hz=self._param("loop_rate_hz"),
+                                    link_timeout_s=self._param("link_timeout_s"),
+                                    heartbeat_timeout_s=self._param("heartbeat_timeout_s"),
+                                    expected_identity=self._param("expected_identity"), handle_signals=False).open()
+        except (HvError, *SIM_ERRORS) as error:
             self.get_logger().fatal(f"configure failed: {error}")
             self._stop()
             return FAILURE
         self._index = {c.name: c.index for c in channels}
-        self._fault_bits, self._diag_time = None, 0
+        self._published, self._diag_time = None, 0
         self._state_pub = self.create_publisher(HvState, "hv/state", 10)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         g = self._group
         self._entities = [
             self._state_pub, self._diag_pub,
-            self.create_timer(1.0 / self._param("state_rate"), self._publish, callback_group=g),
+            # Its own exclusive group: a late callback never overlaps the next, so hv/state stays in order.
+            self.create_timer(1.0 / self._param("publish_rate_hz"), self._publish,
+                              callback_group=MutuallyExclusiveCallbackGroup()),
             self.create_service(Trigger, "hv/estop", self._on_estop, callback_group=g),
             self.create_service(Trigger, "hv/reset_faults", self._on_reset, callback_group=g),
             self.create_service(InjectFault, "hv/inject_fault", self._on_inject, callback_group=g),
-            self.create_subscription(Empty, "hv/heartbeat", lambda _: self._supply.heartbeat(), 10, callback_group=g),
+            self.create_service(ClaimControl, "hv/claim_control", self._on_claim, callback_group=g),
+            self.create_service(ReleaseControl, "hv/release_control", self._on_release, callback_group=g),
+            self.create_subscription(HvHeartbeat, "hv/heartbeat", self._on_heartbeat, 10, callback_group=g),
             self.create_subscription(Float64, "assembly/safe_voltage", self._on_safe_voltage, LATCHED, callback_group=g),
             ActionServer(self, RampChannel, "hv/ramp", self._execute_ramp, callback_group=g,
                          cancel_callback=lambda _: CancelResponse.ACCEPT)]
@@ -82,7 +96,7 @@ class HvDriverNode(LifecycleNode):
         try:
             for name in self._index:
                 self._supply.enable(name)
-        except DRIVER_ERRORS as error:
+        except HvError as error:
             self.get_logger().error(f"activate refused: {error}")
             return FAILURE
         self._active = True
@@ -128,16 +142,17 @@ class HvDriverNode(LifecycleNode):
 
     def destroy_node(self):
         self._stop()
+        stop_forwarding("hv_driver", self._log_handler)
         return super().destroy_node()
 
     # --- topics, services, action ----------------------------------------------------------------
     def _publish(self) -> None:
         snapshot, stamp = self._supply.snapshot(), self.get_clock().now().to_msg()
         self._state_pub.publish(hv_state_msg(snapshot, self._param("backend"), stamp))
-        bits = tuple(int(c.faults) for c in snapshot.channels)
+        shown = (snapshot.controller, tuple(int(c.faults) for c in snapshot.channels))
         now = self.get_clock().now().nanoseconds
-        if bits != self._fault_bits or now - self._diag_time >= 1e9:  # 1 Hz, and at once on a fault change
-            self._fault_bits, self._diag_time = bits, now
+        if shown != self._published or now - self._diag_time >= 1e9:  # 1 Hz, and at once on a fault or owner change
+            self._published, self._diag_time = shown, now
             self._diag_pub.publish(diagnostics_msg(snapshot, self.get_name(), self._param("backend"), stamp))
 
     def _on_estop(self, request, response):
@@ -146,16 +161,43 @@ class HvDriverNode(LifecycleNode):
         return response
 
     def _on_reset(self, request, response):
-        self._supply.reset_faults()
-        response.success, response.message = True, "faults cleared; outputs off"
+        names = self._supply.reset_faults()  # only the faulted channels: healthy outputs keep their voltage
+        response.success, response.message = True, f"faults cleared on {names}; those outputs off"
         if self._active:
             try:
-                for name in self._index:
+                for name in names:
                     self._supply.enable(name)
-                response.message = "faults cleared; outputs on at 0 V (active)"
-            except DRIVER_ERRORS as error:
-                response.success, response.message = False, f"faults cleared, enabling refused: {error}"
+                response.message = f"faults cleared on {names}; those outputs on at 0 V (active)"
+            except HvError as error:
+                response.success, response.message = False, f"faults cleared on {names}, enabling refused: {error}"
         return response
+
+    def _on_claim(self, request, response):
+        try:
+            response.token = self._supply.claim_control(request.client)
+        except HvError as error:  # another client holds control, or a name that cannot be shown
+            response.success, response.message = False, str(error)
+            return response
+        response.heartbeat_timeout = self._supply.snapshot().heartbeat_timeout_s
+        response.success, response.message = True, f"control held by {request.client!r}"
+        self.get_logger().info(response.message)
+        return response
+
+    def _on_release(self, request, response):
+        try:
+            client = self._supply.release_control(request.token)
+        except HvError as error:  # not the live session's token
+            response.success, response.message = False, str(error)
+            return response
+        response.success, response.message = True, f"control released by {client!r}; its energised outputs ramp to 0 V"
+        self.get_logger().info(response.message)
+        return response
+
+    def _on_heartbeat(self, msg: HvHeartbeat) -> None:
+        try:
+            self._supply.heartbeat(msg.token)
+        except HvError as error:  # another client, an ended session, a replayed recording
+            self.get_logger().warning(f"hv/heartbeat ignored: {error}", throttle_duration_sec=REFUSAL_LOG_PERIOD)
 
     def _on_inject(self, request, response):
         try:
@@ -169,14 +211,14 @@ class HvDriverNode(LifecycleNode):
                     raise ValueError(f"channel={request.channel!r}: unknown, configured are {sorted(self._index)}")
                 self._sim.inject(request.fault, channel)
             response.success, response.message = True, f"injected {request.fault} on {request.channel or 'the device'}"
-        except DRIVER_ERRORS as error:
+        except SIM_ERRORS as error:
             response.success, response.message = False, str(error)
         return response
 
     def _on_safe_voltage(self, msg: Float64) -> None:
         try:
             self._supply.set_safe_voltage(msg.data)
-        except ValueError as error:  # an unusable ceiling blocks all voltage rather than none
+        except HvError as error:  # an unusable ceiling blocks all voltage rather than none
             self.get_logger().error(f"assembly/safe_voltage: {error}; ceiling set to 0 V")
             self._supply.set_safe_voltage(0.0)
 

@@ -1,42 +1,52 @@
-"""Parameters of the hv_driver node: declaration with descriptors and ranges, and the channel limits they give."""
+"""Parameters of the hv_driver node (defaults from hv_driver's ChannelConfig and HvSupply) and what they give."""
 from __future__ import annotations
 
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-from rclpy.node import Node
+import math
 
-from hv_driver import ChannelConfig
+from hv_driver import ChannelConfig, HvSupply, IsegEdcp
 
-PARAMETERS = {  # name: (default, description, range)
-    "backend": ("sim", "'sim' (simulated supply on a pty) or 'serial' (the port parameter); never swapped", None),
-    "port": ("", "serial device or pyserial URL of the supply (backend 'serial')", None),
-    "baudrate": (9600, "serial baud rate", IntegerRange(from_value=1200, to_value=921600)),
-    "channel_names": (["front", "back"], "channel names", None),
-    "channel_indices": ([0, 1], "channel numbers on the supply, one per name", None),
-    "max_voltage": (3000.0, "hard maximum of every channel [V]", FloatingPointRange(from_value=1.0, to_value=10000.0)),
-    "slew_rate": (1000.0, "maximum slew rate [V/s]", FloatingPointRange(from_value=1.0, to_value=100000.0)),
-    "current_trip": (50e-6, "over-current trip level [A]", FloatingPointRange(from_value=1e-9, to_value=0.1)),
-    "link_timeout": (0.5, "no valid reply for this long trips LINK [s]", FloatingPointRange(from_value=0.1, to_value=10.0)),
-    "heartbeat_timeout": (0.0, "no hv/heartbeat for this long ramps outputs to 0 V [s]; 0 = off",
-                          FloatingPointRange(from_value=0.0, to_value=60.0)),
-    "state_rate": (50.0, "hv/state rate [Hz]", FloatingPointRange(from_value=20.0, to_value=200.0)),
-    "autostart": (True, "configure and activate at start (console script / python -m)", None),
-}
+from .parameters import Param, ParameterError
+
+PARAMETERS = (
+    Param("backend", "sim", "'sim' (simulated supply on a pty) or 'serial' (the port parameter); never swapped",
+          kind=str, choices=("sim", "serial")),
+    Param("port", "", "serial device or pyserial URL of the supply (backend 'serial')", kind=str),
+    Param("baudrate", IsegEdcp.default_baudrate, "serial baud rate", low=1200, high=921600, kind=int),
+    Param.of(HvSupply, "expected_identity", "text the supply's *IDN? answer must contain, checked at configure; "
+             "empty = not checked (logged)"),
+    Param("channel_names", ["front", "back"], "channel names", kind=str, size=(1, 16)),
+    Param("channel_indices", [0, 1], "channel numbers on the supply, one per name", low=0, high=63, kind=int,
+          size=(1, 16)),
+    Param.of(ChannelConfig, "max_voltage_v", "hard maximum of every channel", "V", 1.0, 10000.0),
+    Param.of(ChannelConfig, "slew_rate_v_per_s", "maximum slew rate", "V/s", 1.0, 100000.0),
+    Param.of(ChannelConfig, "current_trip_a", "over-current trip level", "A", 1e-9, 0.1),
+    Param.of(ChannelConfig, "mismatch_tolerance_v", "readback further than this from the command, allowing for "
+             "the device's own ramp ...", "V", 1.0, 1000.0),
+    Param.of(ChannelConfig, "mismatch_time_s", "... for longer than this trips READBACK_MISMATCH", "s", 0.01, 10.0),
+    Param.of(ChannelConfig, "creep_voltage_v", "creep guard: continuous time at or above this voltage ...; "
+             "0 = no creep guard", "V", 0.0, 10000.0, none_as=0.0),
+    Param.of(ChannelConfig, "max_time_at_voltage_s", "... longer than this trips TIME_AT_VOLTAGE; 0 = no creep guard",
+             "s", 0.0, 1e6, none_as=0.0),
+    Param.of(HvSupply, "loop_rate_hz", "control loop rate (lower it for a 9600-baud link)", "Hz", 1.0, 1000.0),
+    Param.of(HvSupply, "link_timeout_s", "no valid reply for this long trips LINK", "s", 0.1, 10.0),
+    Param.of(HvSupply, "heartbeat_timeout_s", "the client holding control (hv/claim_control) must send hv/heartbeat "
+             "this often or its control lapses and its energised outputs ramp to 0 V; .inf = off (logged)", "s",
+             0.05, math.inf),
+    Param("publish_rate_hz", 50.0, "hv/state rate", "Hz", 20.0, 200.0),
+    Param("autostart", True, "configure and activate at start (console script / python -m)", kind=bool),
+)
 
 
-def declare_parameters(node: Node) -> None:
-    for name, (default, description, value_range) in PARAMETERS.items():
-        descriptor = ParameterDescriptor(description=description, read_only=True)
-        if isinstance(value_range, FloatingPointRange):
-            descriptor.floating_point_range = [value_range]
-        elif isinstance(value_range, IntegerRange):
-            descriptor.integer_range = [value_range]
-        node.declare_parameter(name, default, descriptor)
-
-
-def channel_configs(node: Node) -> list[ChannelConfig]:
-    """One ChannelConfig per configured channel; ValueError naming the parameter when they do not fit."""
-    names, indices = node.get_parameter("channel_names").value, node.get_parameter("channel_indices").value
-    if len(names) != len(indices):
-        raise ValueError(f"channel_names {names} and channel_indices {indices} differ in length")
-    limits = [node.get_parameter(p).value for p in ("max_voltage", "slew_rate", "current_trip")]
-    return [ChannelConfig(name, int(index), *limits) for name, index in zip(names, indices)]
+def channel_configs(values: dict) -> list[ChannelConfig]:
+    """One ChannelConfig per configured channel; ParameterError naming the parameters when they do not fit."""
+    names, indices = values["channel_names"], values["channel_indices"]
+    if len(names) != len(indices) or len(set(names)) != len(names) or len(set(indices)) != len(indices):
+        raise ParameterError(f"parameters channel_names={names} and channel_indices={indices} refused: "
+                             "give as many distinct indices as distinct names")
+    if (values["creep_voltage_v"] == 0.0) != (values["max_time_at_voltage_s"] == 0.0):
+        raise ParameterError(f"parameters creep_voltage_v={values['creep_voltage_v']} and max_time_at_voltage_s="
+                             f"{values['max_time_at_voltage_s']} refused: set both (creep guard) or neither")
+    limits = {name: values[name] for name in ("max_voltage_v", "slew_rate_v_per_s", "current_trip_a",
+                                              "mismatch_tolerance_v", "mismatch_time_s")}
+    limits.update({name: values[name] or None for name in ("creep_voltage_v", "max_time_at_voltage_s")})  # 0 = off
+    return [ChannelConfig(name, index, **limits) for name, index in zip(names, indices)]

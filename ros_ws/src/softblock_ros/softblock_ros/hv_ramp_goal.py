@@ -3,24 +3,25 @@ from __future__ import annotations
 
 from softblock_interfaces.action import RampChannel
 
-from hv_driver import HvSupply
+from hv_driver import HvError, HvSupply
 
 FEEDBACK_PERIOD = 0.05  # [s]
 
 
 def execute_ramp_goal(supply: HvSupply, goal_handle) -> RampChannel.Result:
-    """Run the goal to its end; a refused request (limit, fault, unknown channel) aborts with the reason."""
+    """Run the goal to its end; a refused request (limit, fault, unknown channel, not the client holding
+    control) aborts with the reason."""
     goal, result = goal_handle.request, RampChannel.Result()
     try:
-        handle = supply.ramp_to(goal.channel, goal.target, goal.slew_rate or None)
-    except (ValueError, RuntimeError) as error:  # LimitError, FaultLatchedError, output not enabled
+        handle = supply.ramp_to(goal.channel, goal.target, goal.slew_rate or None, token=goal.token)
+    except HvError as error:  # a limit, a latched fault, the output off, an unknown channel, not in control
         result.message = str(error)
         goal_handle.abort()
         return result
-    start, cancelled = supply.snapshot().channel(goal.channel).setpoint, False
+    start, canceled = supply.snapshot().channel(goal.channel).setpoint, False
     while not handle.wait(FEEDBACK_PERIOD):
-        if goal_handle.is_cancel_requested and not cancelled:  # ramp back to 0 V, then report
-            handle, cancelled = handle.cancel() or handle, True
+        if goal_handle.is_cancel_requested and not canceled:  # ramp back to 0 V, then report
+            handle, canceled = handle.cancel() or handle, True
         channel = supply.snapshot().channel(goal.channel)
         span = goal.target - start
         goal_handle.publish_feedback(RampChannel.Feedback(
@@ -28,8 +29,8 @@ def execute_ramp_goal(supply: HvSupply, goal_handle) -> RampChannel.Result:
             progress=1.0 if span == 0 else min(1.0, max(0.0, (channel.setpoint - start) / span))))
     result.final_voltage = supply.snapshot().channel(goal.channel).measured_voltage
     result.success, result.message = handle.succeeded, handle.message
-    if cancelled:
-        result.success, result.message = False, f"cancelled: {handle.message}"
+    if canceled:
+        result.success, result.message = False, f"canceled: {handle.message}"
         goal_handle.canceled()
     elif result.success:
         goal_handle.succeed()

@@ -2,8 +2,9 @@
 
     python -m softblock_ros.launcher --nodes assembly_state,planner --params my_params.yaml
 
-Each node runs as ``python -m <module> --ros-args --params-file <params> [-r __ns:=<namespace>]`` in its
-own process group, so a terminal's Ctrl-C reaches only the launcher, which then stops the nodes in reverse
+The nodes, their parameter files, niceness and namespace come from the stack description
+(config/stack.yaml, softblock_ros.stack). Each node runs as ``python -m <module> --ros-args --params-file
+<its files> [--params-file <params>] [-r __ns:=<namespace>]`` in its own process group, so a terminal's Ctrl-C reaches only the launcher, which then stops the nodes in reverse
 start order: SIGINT, then SIGKILL after ``stop_timeout``. The launcher exits non-zero when a node dies on its own.
 As a library: ``with Stack(nodes=["planner"]) as stack: ...``.
 """
@@ -19,19 +20,10 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import TextIO
 
-# Node name -> what follows ``python -m`` (module and its own arguments), in default start order.
-NODE_COMMANDS = {
-    "hv_driver": ("softblock_ros.hv_driver_node",),
-    "assembly_state": ("softblock_ros.assembly_state_node",),
-    "planner": ("softblock_ros.planner_node",),
-    "sim_arm": ("softblock_ros.sim_arm_node",),
-    "sequencer": ("softblock_ros.sequencer_node",),
-    "recorder": ("softblock_ros.recording", "record"),
-}
+from .stack import StackDescription, load_stack
+
 DEFAULT_STOP_TIMEOUT = 10.0  # [s] per node, before SIGKILL
 PUMP_DRAIN_TIMEOUT = 10.0  # [s] to copy a stopped node's last output (bounded: a grandchild may hold the pipe)
-# Batch work yields the CPU so the HV driver's control loop keeps its deadlines on a loaded machine.
-NODE_NICENESS = {"planner": 10}
 
 
 class NodeDied(RuntimeError):
@@ -41,17 +33,20 @@ class NodeDied(RuntimeError):
 class Stack:
     """The node processes of one stack; a context manager that stops them in reverse order on exit."""
 
-    def __init__(self, nodes: Iterable[str] = tuple(NODE_COMMANDS), params: str | Path | None = None,
+    def __init__(self, nodes: Iterable[str] | None = None, params: str | Path | None = None,
                  env: Mapping[str, str] | None = None, output: TextIO | None = None,
-                 stop_timeout: float = DEFAULT_STOP_TIMEOUT, namespace: str = ""):
-        self.nodes = list(nodes)
-        unknown = [name for name in self.nodes if name not in NODE_COMMANDS]
+                 stop_timeout: float = DEFAULT_STOP_TIMEOUT, namespace: str | None = None,
+                 description: StackDescription | None = None):
+        self.description = description or load_stack()
+        self.nodes = list(self.description.names if nodes is None else nodes)
+        unknown = [name for name in self.nodes if name not in self.description.names]
         if unknown:
-            raise ValueError(f"unknown nodes {unknown}; known: {', '.join(NODE_COMMANDS)}")
+            raise ValueError(f"unknown nodes {unknown}; known: {', '.join(self.description.names)}")
         if params is not None and not Path(params).is_file():
             raise ValueError(f"params file {params} does not exist")
         self.params = params
-        self.namespace = namespace  # e.g. "/robot1": every node's relative names move under it
+        # e.g. "/robot1": every node's relative names move under it
+        self.namespace = self.description.namespace if namespace is None else namespace
         self.env = {**os.environ, **(env or {}), "PYTHONUNBUFFERED": "1"}
         self.output = output or sys.stdout
         self.stop_timeout = stop_timeout
@@ -61,18 +56,20 @@ class Stack:
         self._pumps: list[threading.Thread] = []
 
     def command(self, name: str) -> list[str]:
-        ros_args = ["--params-file", str(self.params)] if self.params else []
+        spec = self.description.node(name)
+        ros_args = [arg for path in (*spec.parameters, *([self.params] if self.params else []))
+                    for arg in ("--params-file", str(path))]
         if self.namespace:
             ros_args += ["-r", f"__ns:={self.namespace}"]
-        return [sys.executable, "-m", *NODE_COMMANDS[name], *(["--ros-args", *ros_args] if ros_args else [])]
+        return [sys.executable, "-m", spec.module, *spec.arguments, *(["--ros-args", *ros_args] if ros_args else [])]
 
     def start(self) -> Stack:
         for name in self.nodes:
             process = subprocess.Popen(self.command(name), env=self.env, stdin=subprocess.DEVNULL,
                                        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                                        process_group=0)
-            if name in NODE_NICENESS:
-                niceness = min(os.getpriority(os.PRIO_PROCESS, 0) + NODE_NICENESS[name], 19)
+            if self.description.node(name).niceness:
+                niceness = min(os.getpriority(os.PRIO_PROCESS, 0) + self.description.node(name).niceness, 19)
                 os.setpriority(os.PRIO_PROCESS, process.pid, niceness)
             self.processes[name] = process
             pump = threading.Thread(target=self._pump, args=(name, process), daemon=True)
@@ -132,10 +129,10 @@ class Stack:
 
 def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="python -m softblock_ros.launcher", description=__doc__.split("\n")[0])
-    parser.add_argument("--nodes", default=",".join(NODE_COMMANDS),
-                        help=f"comma-separated nodes to start, in order (default: all: {','.join(NODE_COMMANDS)})")
-    parser.add_argument("--params", help="ROS parameter YAML passed to every node (--params-file)")
-    parser.add_argument("--namespace", default="", help="namespace of every node, e.g. /robot1")
+    parser.add_argument("--nodes", help="comma-separated nodes to start, in order (default: every node of the stack)")
+    parser.add_argument("--params", help="ROS parameter YAML passed to every node after its own files (--params-file)")
+    parser.add_argument("--namespace", help="namespace of every node, e.g. /robot1 (default: the stack's)")
+    parser.add_argument("--stack", type=Path, help="stack description (default: config/stack.yaml)")
     parser.add_argument("--stop-timeout", type=float, default=DEFAULT_STOP_TIMEOUT,
                         help="seconds each node gets to stop after SIGINT before SIGKILL")
     return parser.parse_args(argv)
@@ -144,9 +141,11 @@ def parse_args(argv=None) -> argparse.Namespace:
 def main(argv=None) -> int:
     args = parse_args(argv)
     try:
-        stack = Stack([n for n in args.nodes.split(",") if n], args.params, stop_timeout=args.stop_timeout,
-                      namespace=args.namespace)
-    except ValueError as error:
+        nodes = None if args.nodes is None else [n for n in args.nodes.split(",") if n]
+        description = load_stack(args.stack) if args.stack else None
+        stack = Stack(nodes, args.params, stop_timeout=args.stop_timeout, namespace=args.namespace,
+                      description=description)
+    except (ValueError, OSError) as error:
         print(f"launcher: {error}", file=sys.stderr)
         return 2
     for signum in (signal.SIGINT, signal.SIGTERM):

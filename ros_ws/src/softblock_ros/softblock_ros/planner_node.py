@@ -1,8 +1,8 @@
 """Planner node: designs fingers for an object image and chains along 3D paths (planner.design).
 
-Optimisations run in the service callbacks on a reentrant group of a MultiThreadedExecutor, so other
+Optimizations run in the service callbacks on a reentrant group of a MultiThreadedExecutor, so other
 requests, parameter services and shutdown are served meanwhile. A bad request gets success=false and the
-core's message; the node carries on. Shutting down cancels running optimisations.
+core's message; the node carries on. Shutting down cancels running optimizations.
 """
 from __future__ import annotations
 
@@ -10,7 +10,6 @@ import sys
 import threading
 from functools import partial
 
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
@@ -21,26 +20,27 @@ from planner.contours import load_mask
 from planner.table import load_table
 
 from .conversions import designed_chain_msg, inventory_from_lists, mask_from_image, path_from_points
+from .parameters import Param, declare
 from .paths import resolve_path
 from .runner import run_node
 
-DEFAULT_OPTIMIZER = "exact"
+DEFAULT_METHOD = "exact"
 # Finger base frames in the object frame (x right, z up): the finger grows downward (+z -> -z) and
 # bends toward the object (+x -> +x for the left finger, -x for the right one).
 FINGER_BASE_ORIENTATION = {"left": (1.0, 0.0, 0.0, 0.0), "right": (0.0, 1.0, 0.0, 0.0)}
+PARAMETERS = (
+    Param("default_time_budget_s", 30.0, "time budget of a request that gives 0; 0 = no limit", "s", 0.0, 3600.0),
+    Param("max_blocks", 8, "largest number of blocks per finger or chain a request may ask for", low=1,
+          high=design.MAX_BLOCKS, kind=int),
+    Param("table_path", "", "look-up table file; empty = the planner's default table", kind=str),
+)
 
 
 class PlannerNode(Node):
     def __init__(self, **kwargs):
         super().__init__("planner", **kwargs)
-        self.declare_parameter("default_time_budget", 30.0, ParameterDescriptor(
-            description="time budget of a request that gives 0 [s]; 0 = no limit",
-            floating_point_range=[FloatingPointRange(from_value=0.0, to_value=3600.0)]))
-        self.declare_parameter("max_blocks", 8, ParameterDescriptor(
-            description="largest number of blocks per finger or chain a request may ask for",
-            integer_range=[IntegerRange(from_value=1, to_value=design.MAX_BLOCKS)]))
-        table_path = self.declare_parameter("table_path", "", ParameterDescriptor(
-            description="look-up table file; empty = the planner's default table", read_only=True)).value
+        self._settings = declare(self, PARAMETERS)
+        table_path = self._settings["table_path"]
         self._table = load_table(resolve_path(table_path)) if table_path else load_table()
         self._stopping = threading.Event()
         group = ReentrantCallbackGroup()
@@ -64,16 +64,16 @@ class PlannerNode(Node):
         return response
 
     def _options(self, request) -> dict:
-        max_blocks = self.get_parameter("max_blocks").value
+        max_blocks = self._settings["max_blocks"]
         if not 1 <= request.num_blocks <= max_blocks:
             raise ValueError(f"num_blocks must be 1..{max_blocks}, got {request.num_blocks}")
-        budget = request.time_budget or self.get_parameter("default_time_budget").value
+        budget = request.time_budget or self._settings["default_time_budget_s"]
         if not budget >= 0.0:
             raise ValueError(f"time_budget must be >= 0 s, got {request.time_budget}")
-        optimizer = request.optimizer or DEFAULT_OPTIMIZER
-        if optimizer not in design.METHODS:
-            raise ValueError(f"optimizer must be one of {', '.join(design.METHODS)}, got {optimizer!r}")
-        return dict(method=optimizer, time_budget=budget or None,
+        method = request.method or DEFAULT_METHOD
+        if method not in design.METHODS:
+            raise ValueError(f"method must be one of {', '.join(design.METHODS)}, got {method!r}")
+        return dict(method=method, time_budget=budget or None,
                     seed=request.seed, table=self._table, callback=self._cancel_on_shutdown)
 
     def _cancel_on_shutdown(self, *_):

@@ -1,4 +1,5 @@
-"""The sequencing engine's `Robot` on ROS: `arm/move` and `hv/ramp` action clients, `hv/state`, `hv/estop`.
+"""The sequencing engine's `Robot` on ROS: `arm/move` and `hv/ramp` action clients, `hv/state`, `hv/estop`,
+and control of the HV driver (`HvControl`: claimed for a sequence, heartbeats while held).
 
 Nothing here blocks on the executor: goals are sent with futures whose callbacks set a
 threading.Event, so the engine can wait in an action-execute thread of a MultiThreadedExecutor.
@@ -10,14 +11,16 @@ import time
 
 from action_msgs.msg import GoalStatus
 from geometry_msgs.msg import PoseStamped
-from .client import ActionClient
 from rclpy.node import Node
 from softblock_interfaces.action import MoveArm, RampChannel
 from softblock_interfaces.msg import HvChannelState, HvState
 from std_srvs.srv import Trigger
 
+from sequencing.ports import ChannelReading, Outcome, RobotError
+
+from .client import ActionClient, ClientError
 from .conversions import pose_msg
-from .sequencing.engine import ChannelReading, Outcome, RobotError
+from .hv_control import HvControl
 
 
 class ActionMotion:
@@ -74,8 +77,10 @@ def _move_outcome(status: int, result: MoveArm.Result) -> Outcome:
 class RosRobot:
     """Adapts ROS clients of the arm and the HV driver to the engine's `Robot` interface."""
 
-    def __init__(self, node: Node, callback_group, server_timeout: float, state_timeout: float):
+    def __init__(self, node: Node, callback_group, server_timeout: float, state_timeout: float,
+                 heartbeat_rate_hz: float = 10.0):
         self._server_timeout, self._state_timeout = server_timeout, state_timeout
+        self._control = HvControl(node, node.get_name(), heartbeat_rate_hz, callback_group, server_timeout)
         self._ramp = ActionClient(node, RampChannel, "hv/ramp", callback_group=callback_group)
         self._move = ActionClient(node, MoveArm, "arm/move", callback_group=callback_group)
         self._estop = node.create_client(Trigger, "hv/estop", callback_group=callback_group)
@@ -88,6 +93,20 @@ class RosRobot:
     def _on_state(self, msg: HvState) -> None:
         with self._lock:
             self._state, self._state_time = msg, time.monotonic()
+
+    def take_control(self) -> None:
+        """Claim control of the HV driver (heartbeats while held); RobotError naming the holder if refused."""
+        try:
+            self._control.claim()
+        except ClientError as error:
+            raise RobotError(str(error)) from None
+
+    def give_up_control(self) -> str:
+        """Release control of the HV driver; returns the driver's answer (or why it did not answer)."""
+        try:
+            return self._control.release()
+        except ClientError as error:
+            return str(error)
 
     def _ready(self, client: ActionClient, name: str) -> None:
         if not client.wait_for_server(timeout_sec=self._server_timeout):
@@ -103,7 +122,8 @@ class RosRobot:
 
     def ramp(self, channel: str, target: float, slew_rate: float) -> ActionMotion:
         self._ready(self._ramp, "hv/ramp")
-        goal = RampChannel.Goal(channel=channel, target=float(target), slew_rate=float(slew_rate))
+        goal = RampChannel.Goal(channel=channel, target=float(target), slew_rate=float(slew_rate),
+                                token=self._control.token)
         return ActionMotion(self._ramp, goal, _ramp_outcome)
 
     def channel_states(self) -> dict[str, ChannelReading]:

@@ -1,75 +1,74 @@
 """Sequencer node: action `sequencer/run` executes a YAML manipulation sequence step by step.
 
-Loads config/sequences/<name>.yaml (or a path), runs it with the sequencing engine against the arm
+Loads <sequences_dir>/<name>.yaml (or a path), runs it with the sequencing engine against the arm
 (`arm/move`) and the HV driver (`hv/ramp`, `hv/state`, `hv/estop`), publishes feedback and a
-`sequencer/events` message per step transition, and `hv/heartbeat` at `heartbeat_rate` while it runs.
+`sequencer/events` message per step transition. It holds control of the HV driver while a sequence runs
+(`hv/claim_control`, then `hv/heartbeat` at `heartbeat_rate_hz`, `hv/release_control` at the end).
 One goal at a time: a second goal is rejected while one runs. See docs/sequences.md.
 """
 import threading
 
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from softblock_interfaces.action import RunSequence
 from softblock_interfaces.msg import SequenceEvent
-from std_msgs.msg import Empty
 
+from sequencing.engine import SequenceEngine, StepEvent
+from sequencing.ports import RobotError, RunOptions
+from sequencing.schema import Limits, SequenceError, StepDefaults, load_sequence
+
+from .parameters import Param, declare
 from .paths import resolve_path
 from .ros_robot import RosRobot
 from .runner import run_node
-from .sequencing.engine import RunOptions, SequenceEngine, StepEvent
-from .sequencing.schema import Limits, SequenceError, load_sequence
 
 FEEDBACK_PHASES = {"precondition", "running", "succeeded"}
 EVENT_PHASES = {"running": "started", "succeeded": "succeeded", "failed": "failed", "canceled": "canceled"}
 
-PARAMETERS = {  # name: (default, description, (min, max) or None)
-    "sequences_dir": ("config/sequences", "directory of <name>.yaml files (relative: to the project root)", None),
-    "heartbeat_rate": (10.0, "hv/heartbeat rate while a sequence runs [Hz]", (1.0, 100.0)),
-    "voltage_ceiling": (2500.0, "highest voltage a sequence may command [V]", (0.0, 10000.0)),
-    "max_pulse_frequency": (5.0, "highest pulse-train frequency [Hz]", (0.1, 50.0)),
-    "max_slew_rate": (0.0, "HV driver slew limit checked at load [V/s]; 0 = left to the driver", (0.0, 1e6)),
-    "default_tolerance": (50.0, "voltage tolerance of steps that give none [V]", (1.0, 1000.0)),
-    "default_timeout": (30.0, "timeout of steps that give none [s]", (0.1, 3600.0)),
-    "settle_time": (1.0, "how long a precondition may take to become true [s]", (0.0, 60.0)),
-    "poll_period": (0.02, "fault / cancel / timeout check period [s]", (0.001, 1.0)),
-    "safe_stop_timeout": (15.0, "time allowed for ramping every channel to 0 V [s]", (0.1, 600.0)),
-    "server_timeout": (2.0, "wait for arm/move, hv/ramp, hv/estop servers [s]", (0.1, 60.0)),
-    "state_timeout": (0.5, "hv/state older than this counts as a link fault [s]", (0.05, 10.0)),
-}
+PARAMETERS = (
+    Param("sequences_dir", "sequences", "directory of <name>.yaml files (relative and not found from the working "
+          "directory: the shipped config/sequences)", kind=str),
+    Param("heartbeat_rate_hz", 10.0, "hv/heartbeat rate while a sequence runs", "Hz", 1.0, 100.0),
+    Param.of(Limits, "voltage_ceiling_v", "highest voltage a sequence may command", "V", 0.0, 10000.0),
+    Param.of(Limits, "max_pulse_frequency_hz", "highest pulse-train frequency", "Hz", 0.1, 50.0),
+    Param.of(Limits, "max_slew_rate_v_per_s", "HV driver slew limit checked at load; 0 = left to the driver", "V/s",
+             0.0, 1e6, none_as=0.0),
+    Param.of(StepDefaults, "default_tolerance_v", "voltage tolerance of steps that give none", "V", 1.0, 1000.0,
+             field="tolerance_v"),
+    Param.of(StepDefaults, "default_timeout_s", "timeout of steps that give none", "s", 0.1, 3600.0,
+             field="timeout_s"),
+    Param.of(RunOptions, "settle_time_s", "how long a precondition may take to become true", "s", 0.0, 60.0),
+    Param.of(RunOptions, "poll_period_s", "fault / cancel / timeout check period", "s", 0.001, 1.0),
+    Param.of(RunOptions, "safe_stop_timeout_s", "time allowed for ramping every channel to 0 V", "s", 0.1, 600.0),
+    Param.of(RunOptions, "off_voltage_v", "a disabled output below this needs no ramp-down in a safe stop", "V",
+             0.0, 1000.0),
+    Param("server_timeout_s", 2.0, "wait for the arm/move, hv/ramp, hv/estop servers", "s", 0.1, 60.0),
+    Param("state_timeout_s", 0.5, "hv/state older than this counts as a link fault", "s", 0.05, 10.0),
+)
 
 
 class SequencerNode(Node):
     def __init__(self, **kwargs):
         super().__init__("sequencer", **kwargs)
-        for name, (default, description, bounds) in PARAMETERS.items():
-            ranges = [] if bounds is None else [FloatingPointRange(from_value=bounds[0], to_value=bounds[1])]
-            self.declare_parameter(name, default, ParameterDescriptor(description=description,
-                                                                      floating_point_range=ranges))
-        value = lambda name: self.get_parameter(name).value  # noqa: E731
-        self._sequences_dir = resolve_path(value("sequences_dir"))
-        self._limits = Limits(value("voltage_ceiling"), value("max_pulse_frequency"),
-                              value("max_slew_rate") or None)
-        self._defaults = {"tolerance": value("default_tolerance"), "timeout": value("default_timeout")}
-        self._options = RunOptions(value("poll_period"), value("settle_time"), value("safe_stop_timeout"))
+        value = declare(self, PARAMETERS)
+        self._sequences_dir = resolve_path(value["sequences_dir"])
+        self._limits = Limits(value["voltage_ceiling_v"], value["max_pulse_frequency_hz"],
+                              value["max_slew_rate_v_per_s"] or None)
+        self._defaults = {"tolerance": value["default_tolerance_v"], "timeout": value["default_timeout_s"]}
+        self._options = RunOptions(value["poll_period_s"], value["settle_time_s"], value["safe_stop_timeout_s"],
+                                   value["off_voltage_v"])
         group = ReentrantCallbackGroup()
-        self._robot = RosRobot(self, group, value("server_timeout"), value("state_timeout"))
+        self._robot = RosRobot(self, group, value["server_timeout_s"], value["state_timeout_s"],
+                               value["heartbeat_rate_hz"])
         self._events = self.create_publisher(SequenceEvent, "sequencer/events", 10)
-        self._heartbeat = self.create_publisher(Empty, "hv/heartbeat", 10)
-        self.create_timer(1.0 / value("heartbeat_rate"), self._beat, callback_group=group)
         self._busy = threading.Lock()
-        self._running = False
         self._cancel = threading.Event()
         self._running_name = ""
         self._server = ActionServer(self, RunSequence, "sequencer/run", execute_callback=self._execute,
                                     goal_callback=self._on_goal, cancel_callback=self._on_cancel,
                                     callback_group=group)
-
-    def _beat(self) -> None:
-        if self._running:
-            self._heartbeat.publish(Empty())
 
     def _on_goal(self, goal: RunSequence.Goal) -> GoalResponse:
         if not self._busy.acquire(blocking=False):
@@ -108,9 +107,16 @@ class SequencerNode(Node):
             except SequenceError as error:
                 goal_handle.abort()
                 return RunSequence.Result(success=False, message=f"rejected: {error}")
-            self._running = True
-            engine = SequenceEngine(self._robot, self._options, lambda event: self._on_step(goal_handle, event))
-            outcome = engine.run(sequence, self._cancel)
+            try:
+                self._robot.take_control()
+            except RobotError as error:
+                goal_handle.abort()
+                return RunSequence.Result(success=False, message=str(error))
+            try:
+                engine = SequenceEngine(self._robot, self._options, lambda event: self._on_step(goal_handle, event))
+                outcome = engine.run(sequence, self._cancel)
+            finally:
+                self.get_logger().info(f"HV control: {self._robot.give_up_control()}")
             if outcome.canceled:
                 goal_handle.canceled()
             elif outcome.success:
@@ -121,7 +127,6 @@ class SequencerNode(Node):
                                       failed_step=outcome.failed_step, step_names=outcome.step_names,
                                       step_durations=outcome.step_durations)
         finally:
-            self._running = False
             self._busy.release()
 
 

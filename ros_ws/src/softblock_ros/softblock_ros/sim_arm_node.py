@@ -1,4 +1,4 @@
-"""Simulated arm node: action `arm/move` (MoveArm) and `arm/pose` (PoseStamped) at `publish_rate`.
+"""Simulated arm node: action `arm/move` (MoveArm) and `arm/pose` (PoseStamped) at `publish_rate_hz`.
 
 The motion model is sim_fallback.arm (straight line, trapezoidal speed, slerped orientation). A real
 arm is bridged by serving the same action and topic (see docs/sequences.md). A new goal preempts
@@ -9,7 +9,6 @@ import time
 
 from geometry_msgs.msg import Pose as PoseMsg
 from geometry_msgs.msg import PoseStamped
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
@@ -18,16 +17,24 @@ from sim_fallback.arm import ArmLimits, Pose, SimulatedArm
 from softblock_interfaces.action import MoveArm
 
 from .conversions import pose_msg
+from .parameters import Param, declare
 from .runner import run_node
 
-LIMITS = {  # ArmLimits field: description
-    "max_speed": "linear speed limit [m/s]",
-    "max_acceleration": "linear acceleration limit [m/s^2]",
-    "max_angular_speed": "angular speed limit [rad/s]",
-    "max_angular_acceleration": "angular acceleration limit [rad/s^2]",
-    "position_tolerance": "a target counts as reached within this distance [m]",
-    "orientation_tolerance": "... and within this angle [rad]",
-}
+LIMITS = (  # the ArmLimits fields
+    Param.of(ArmLimits, "max_speed_m_per_s", "linear speed limit", "m/s", 1e-6, 100.0),
+    Param.of(ArmLimits, "max_acceleration_m_per_s2", "linear acceleration limit", "m/s^2", 1e-6, 100.0),
+    Param.of(ArmLimits, "max_angular_speed_rad_per_s", "angular speed limit", "rad/s", 1e-6, 100.0),
+    Param.of(ArmLimits, "max_angular_acceleration_rad_per_s2", "angular acceleration limit", "rad/s^2", 1e-6, 100.0),
+    Param.of(ArmLimits, "position_tolerance_m", "a target counts as reached within this distance", "m", 1e-6, 1.0),
+    Param.of(ArmLimits, "orientation_tolerance_rad", "... and within this angle", "rad", 1e-6, 1.0),
+)
+PARAMETERS = LIMITS + (
+    Param("frame_id", "base_link", "frame of poses and targets", kind=str),
+    Param("publish_rate_hz", 50.0, "arm/pose rate and simulation step rate", "Hz", 20.0, 1000.0),
+    Param("initial_position", [0.45, 0.0, 0.3], "start position (x, y, z)", "m", -10.0, 10.0, size=3),
+    Param("initial_orientation", [1.0, 0.0, 0.0, 0.0], "start orientation, quaternion (x, y, z, w)", "", -1.0, 1.0,
+          size=4),
+)
 
 
 def to_msg(pose: Pose) -> PoseMsg:
@@ -42,29 +49,17 @@ def from_msg(msg: PoseMsg) -> Pose:
 class SimArmNode(Node):
     def __init__(self, **kwargs):
         super().__init__("sim_arm", **kwargs)
-        positive = [FloatingPointRange(from_value=1e-6, to_value=100.0)]
-        defaults = ArmLimits()
-        for name, description in LIMITS.items():
-            self.declare_parameter(name, getattr(defaults, name),
-                                   ParameterDescriptor(description=description, floating_point_range=positive))
-        self.declare_parameter("frame_id", "base_link", ParameterDescriptor(description="frame of poses and targets"))
-        self.declare_parameter("publish_rate", 50.0, ParameterDescriptor(
-            description="arm/pose rate and simulation step rate [Hz]",
-            floating_point_range=[FloatingPointRange(from_value=20.0, to_value=1000.0)]))
-        self.declare_parameter("initial_position", [0.45, 0.0, 0.3], ParameterDescriptor(description="[m]"))
-        self.declare_parameter("initial_orientation", [1.0, 0.0, 0.0, 0.0],
-                               ParameterDescriptor(description="quaternion (x, y, z, w)"))
-        value = lambda name: self.get_parameter(name).value  # noqa: E731
-        self._frame_id = value("frame_id")
-        self._arm = SimulatedArm(Pose(tuple(value("initial_position")), tuple(value("initial_orientation"))),
-                                 ArmLimits(**{name: value(name) for name in LIMITS}))
+        value = declare(self, PARAMETERS)
+        self._frame_id = value["frame_id"]
+        self._arm = SimulatedArm(Pose(tuple(value["initial_position"]), tuple(value["initial_orientation"])),
+                                 ArmLimits(**{param.name: value[param.name] for param in LIMITS}))
         self._lock = threading.Lock()
         self._stepped = threading.Condition(self._lock)
         self._active_goal = None
         self._last_step = time.monotonic()
         group = ReentrantCallbackGroup()
         self._pose_pub = self.create_publisher(PoseStamped, "arm/pose", 10)
-        self.create_timer(1.0 / value("publish_rate"), self._on_timer)  # default group: one step at a time
+        self.create_timer(1.0 / value["publish_rate_hz"], self._on_timer)  # default group: one step at a time
         self._server = ActionServer(self, MoveArm, "arm/move", execute_callback=self._execute,
                                     cancel_callback=lambda _: CancelResponse.ACCEPT, callback_group=group)
 
@@ -87,7 +82,7 @@ class SimArmNode(Node):
                 raise ValueError(f"target frame {frame!r} is not the arm frame {self._frame_id!r} (no TF here)")
             target = from_msg(goal.target.pose)
             with self._lock:
-                self._arm.move_to(target, goal.max_speed)
+                self._arm.move_to(target, goal.max_speed)  # [m/s]
                 self._active_goal = goal_handle
         except ValueError as error:
             goal_handle.abort()

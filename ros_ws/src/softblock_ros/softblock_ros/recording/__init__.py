@@ -1,4 +1,4 @@
-"""Recording to MCAP (ROS 2 profile), replay, recovery and grasp analysis.
+"""The recorder and player nodes and the `python -m softblock_ros.recording` command line.
 
-The analysis, file and definition modules never import rclpy; the recorder and player nodes do.
+The files, replay timing and analysis they use are the ROS-free core package `recording`.
 """

@@ -2,16 +2,15 @@
 
 `python -m softblock_ros.recording {record,play,info,recover,analyze} ...`. ROS arguments go
 after `--ros-args` (e.g. `--ros-args -r __ns:=/robot1`). rclpy is imported only by the record
-and play subcommands.
+and play subcommands; info, recover and analyze are the core's (`python -m recording`, no ROS needed).
 """
 import argparse
-import json
-import os
 import sys
 
 from mcap.exceptions import McapError
 
-from .mcap_file import COMPRESSIONS, DEFAULT_CHUNK_SIZE, describe, recover
+from recording.cli import add_file_commands, run_file_command
+from recording.mcap_file import COMPRESSIONS, DEFAULT_CHUNK_SIZE
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -52,17 +51,7 @@ def _parser() -> argparse.ArgumentParser:
     play.add_argument("--keep-alive", action="store_true",
                       help="stay up after the end so latched topics remain available")
 
-    info = commands.add_parser("info", help="topics, types, counts and QoS of a recording")
-    info.add_argument("recording")
-    info.add_argument("--json", action="store_true", help="print JSON instead of text")
-
-    rescue = commands.add_parser("recover", help="rewrite a truncated recording as a valid one")
-    rescue.add_argument("recording")
-    rescue.add_argument("-o", "--output", help="default: <name>.recovered.mcap")
-
-    analyze = commands.add_parser("analyze", help="plots and summary of a grasp recording")
-    analyze.add_argument("recording")
-    analyze.add_argument("--out-dir", help="where <name>.png/.json go (default: beside it)")
+    add_file_commands(commands)
     return parser
 
 
@@ -70,55 +59,19 @@ def _record(args, ros_args) -> int:
     from .recorder_node import run
     given = {"output": args.output, "topics": args.topics or None, "exclude": args.exclude,
              "compression": args.compression, "chunk_size": args.chunk_size,
-             "flush_period": args.flush_period, "discovery_period": args.discovery_period}
+             "flush_period_s": args.flush_period, "discovery_period_s": args.discovery_period}
     return run({name: value for name, value in given.items() if value is not None},
                ["--ros-args", *ros_args])
 
 
 def _play(args, ros_args) -> int:
-    from .playback import PlaybackOptions
+    from recording.playback import PlaybackOptions
     from .player_node import run
     options = PlaybackOptions(rate=args.rate, loop=args.loop, include=args.include,
-                              exclude=args.exclude, start_offset=args.start_offset,
-                              skip_unknown=args.skip_unknown, clock_frequency=args.clock,
-                              delay=args.delay)
+                              exclude=args.exclude, start_offset_s=args.start_offset,
+                              skip_unknown=args.skip_unknown, clock_frequency_hz=args.clock,
+                              delay_s=args.delay)
     return run(args.recording, options, args.keep_alive, ["--ros-args", *ros_args])
-
-
-def _info(args) -> int:
-    details = describe(args.recording)
-    if args.json:
-        print(json.dumps(details, indent=2))
-        return 0
-    print(f"{details['path']}: profile {details['profile']!r}, {details['message_count']} "
-          f"messages in {details['chunk_count']} chunks over {details['duration']:.3f} s")
-    for topic, topic_info in details["topics"].items():
-        print(f"  {topic}  {topic_info['type']}  {topic_info['count']} messages  "
-              f"{'/'.join(topic_info['durability']) or 'no QoS recorded'}")
-    return 0
-
-
-def _recover(args) -> int:
-    output = args.output or os.path.splitext(args.recording)[0] + ".recovered.mcap"
-    result = recover(args.recording, output)
-    print(result.message)
-    return 0 if result.success else 1
-
-
-def _analyze(args) -> int:
-    from .analysis import format_summary, load, summarize
-    from .analysis_plot import plot
-    stem = os.path.splitext(os.path.basename(args.recording))[0]
-    out_dir = args.out_dir or os.path.dirname(os.path.abspath(args.recording))
-    os.makedirs(out_dir, exist_ok=True)
-    data = load(args.recording)
-    summary = summarize(data)
-    with open(os.path.join(out_dir, stem + ".json"), "w", encoding="utf-8") as out:
-        json.dump(summary, out, indent=2)
-    plot(data, os.path.join(out_dir, stem + ".png"), title=stem)
-    print(format_summary(summary))
-    print(f"wrote {os.path.join(out_dir, stem)}.json and .png")
-    return 0
 
 
 def main(argv=None) -> int:
@@ -128,12 +81,10 @@ def main(argv=None) -> int:
         split = argv.index("--ros-args")
         argv, ros_args = argv[:split], argv[split + 1:]
     args = _parser().parse_args(argv)
+    if args.command not in ("record", "play"):
+        return run_file_command(args)
     try:
-        if args.command == "record":
-            return _record(args, ros_args)
-        if args.command == "play":
-            return _play(args, ros_args)
-        return {"info": _info, "recover": _recover, "analyze": _analyze}[args.command](args)
+        return _record(args, ros_args) if args.command == "record" else _play(args, ros_args)
     except (OSError, ValueError, McapError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 1
@@ -146,6 +97,3 @@ def record_main() -> int:
 def play_main() -> int:
     return main(["play", *sys.argv[1:]])
 
-
-def analyze_main() -> int:
-    return main(["analyze", *sys.argv[1:]])

@@ -15,9 +15,10 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rosgraph_msgs.msg import Clock
 
+from recording.playback import PlaybackClock, PlaybackOptions, Recording, play
+
 from ..runner import init
 from .message_types import UnknownMessageTypeError, import_message_type
-from .playback import PlaybackClock, PlaybackOptions, Recording, play
 from .qos_metadata import parse_offered_qos, playback_qos
 
 
@@ -35,9 +36,9 @@ class PlayerNode(Node):
         self.finished = threading.Event()
         self.published = 0
         self.clock = PlaybackClock(self.options.rate, self.stop_event)
-        if self.options.clock_frequency > 0:
+        if self.options.clock_frequency_hz > 0:
             self._clock_publisher = self.create_publisher(Clock, "/clock", QoSProfile(depth=1))
-            self.create_timer(1.0 / self.options.clock_frequency, self._publish_clock)
+            self.create_timer(1.0 / self.options.clock_frequency_hz, self._publish_clock)
         self._thread = threading.Thread(target=self._play, name="playback", daemon=True)
 
     def _advertise(self, channel) -> None:

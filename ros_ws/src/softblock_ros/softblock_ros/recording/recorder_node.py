@@ -6,17 +6,28 @@ for what the publishers offer, so latched (transient_local) samples are captured
 import re
 import sys
 
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from recording.mcap_file import COMPRESSIONS, RecordingWriter
+from recording.message_definitions import DefinitionNotFoundError
+
+from ..parameters import Param, ParameterError, declare, with_defaults
 from ..runner import run_node
-from .mcap_file import COMPRESSIONS, DEFAULT_CHUNK_SIZE, RecordingWriter
-from .message_definitions import DefinitionNotFoundError
 from .message_types import UnknownMessageTypeError, import_message_type
 from .qos_metadata import offered_qos_yaml, recording_qos
 
 DEFAULT_EXCLUDE = r"^/(rosout|parameter_events)$"
+PARAMETERS = (
+    Param("output", "recording.mcap", "MCAP file to write", kind=str),
+    Param("topics", [], "topics to record (relative names resolve in the node's namespace); empty: every "
+          "discovered topic", kind=str, size=(0, 10_000)),
+    Param("exclude", DEFAULT_EXCLUDE, "regex of topics not recorded in all-topics mode", kind=str),
+    Param.of(RecordingWriter, "compression", "chunk compression", choices=tuple(COMPRESSIONS)),
+    Param.of(RecordingWriter, "chunk_size", "bytes per chunk before writing", low=1, high=1 << 30),
+    Param("flush_period_s", 1.0, "time between flushes: the most a SIGKILL can lose", "s", 0.01, 60.0),
+    Param("discovery_period_s", 1.0, "time between topic discoveries", "s", 0.05, 60.0),
+)
 
 
 def is_hidden(topic: str) -> bool:
@@ -25,21 +36,19 @@ def is_hidden(topic: str) -> bool:
 
 
 class RecorderNode(Node):
-    def __init__(self, output: str = "recording.mcap", topics=(), **kwargs):
+    def __init__(self, output: str | None = None, topics=(), **kwargs):
+        """``output`` and ``topics`` replace the parameters' defaults (a parameter file still wins)."""
         super().__init__("recorder", **kwargs)
-        declare = self._declare
-        self.output = declare("output", output, "MCAP file to write")
-        self.topics = declare("topics", list(topics) or Parameter.Type.STRING_ARRAY,
-                              "topics to record (relative names resolve in the node's "
-                              "namespace); empty: every discovered topic") or []
-        self.exclude = re.compile(declare("exclude", DEFAULT_EXCLUDE,
-                                          "regex of topics not recorded in all-topics mode"))
-        compression = declare("compression", "zstd",
-                              f"chunk compression: {', '.join(COMPRESSIONS)}")
-        chunk_size = declare("chunk_size", DEFAULT_CHUNK_SIZE, "bytes per chunk before writing")
-        flush_period = declare("flush_period", 1.0,
-                               "seconds between flushes: the most a SIGKILL can lose")
-        discovery_period = declare("discovery_period", 1.0, "seconds between topic discovery")
+        given = {"output": output, "topics": list(topics)}
+        value = declare(self, with_defaults(PARAMETERS, **{name: v for name, v in given.items() if v}))
+        self.output, self.topics = value["output"], value["topics"]
+        try:
+            self.exclude = re.compile(value["exclude"])
+        except re.error as error:
+            raise ParameterError(f"parameter exclude={value['exclude']!r} refused: not a regular expression "
+                                 f"({error})") from None
+        compression, chunk_size = value["compression"], value["chunk_size"]
+        flush_period, discovery_period = value["flush_period_s"], value["discovery_period_s"]
         self.wanted = {self.resolve_topic_name(topic) for topic in self.topics}
         self.writer = RecordingWriter(self.output, compression, chunk_size)
         self.skipped: dict[str, str] = {}
@@ -47,10 +56,6 @@ class RecorderNode(Node):
         self.create_timer(flush_period, self.writer.flush)
         self.create_timer(discovery_period, self.discover)
         self.discover()
-
-    def _declare(self, name, default, description):
-        return self.declare_parameter(
-            name, default, ParameterDescriptor(description=description)).value
 
     def _selected(self, topic: str) -> bool:
         if self.wanted:

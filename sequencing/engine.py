@@ -5,9 +5,9 @@ view of the channel states. The ROS sequencer node adapts its action clients to 
 tests use a fake. Every step:
 
 1. precondition: no HV fault on the sequence's channels and the expected channel voltages within
-   tolerance (re-checked for up to ``settle_time``, since the state arrives a little after a ramp);
+   tolerance (re-checked for up to ``settle_time_s``, since the state arrives a little after a ramp);
 2. running: motions are watched until done; a cancel, the step's timeout or an HV fault cancels them;
-3. a ramp must end with the measured voltage within tolerance of its target (allowed ``settle_time``).
+3. a ramp must end with the measured voltage within tolerance of its target (allowed ``settle_time_s``).
 
 On failure the step's ``on_failure`` reaction runs (``safe_stop``: arm stops, every channel ramps to
 0 V, e-stop if a ramp-down fails; ``estop``: arm stops, e-stop at once). A cancel always does the
@@ -17,64 +17,14 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Protocol
 
 from hv_driver.ramp import MIN_JERK_PEAK_RATE
 
+from .ports import Motion, Outcome, Robot, RobotError, RunOptions
 from .schema import MoveArmStep, ParallelStep, PulseTrainStep, RampStep, Sequence, Step, WaitStep
-
-
-@dataclass(frozen=True)
-class Outcome:
-    """End of a motion or command; ``value`` carries e.g. the final measured voltage of a ramp."""
-
-    success: bool
-    message: str = ""
-    value: float | None = None
-
-
-@dataclass(frozen=True)
-class ChannelReading:
-    """Latest state of one HV channel."""
-
-    voltage: float             # measured [V]
-    faults: int = 0            # latched fault bits (0 = none)
-    fault_text: str = ""
-    output_enabled: bool = False
-
-
-class Motion(Protocol):
-    """A running arm move or channel ramp."""
-
-    def wait(self, timeout: float) -> bool:
-        """Block up to ``timeout`` seconds; True once the motion has finished."""
-
-    def outcome(self) -> Outcome:
-        """How it ended (only after ``wait`` returned True)."""
-
-    def cancel(self) -> None:
-        """Ask the backend to stop it (an arm brakes, a channel ramps to 0 V)."""
-
-
-class Robot(Protocol):
-    """What the engine drives. Methods raise `RobotError` when the backend cannot be reached."""
-
-    def move_arm(self, position, orientation, frame_id: str, speed: float) -> Motion: ...
-
-    def ramp(self, channel: str, target: float, slew_rate: float) -> Motion: ...
-
-    def channel_states(self) -> Mapping[str, ChannelReading]: ...
-
-    def stop_arm(self) -> None: ...
-
-    def estop(self) -> Outcome: ...
-
-
-class RobotError(RuntimeError):
-    """The backend could not take a command (server missing, goal refused)."""
 
 
 @dataclass(frozen=True)
@@ -86,14 +36,6 @@ class StepEvent:
     description: str
     phase: str        # "precondition", "running", "succeeded", "failed", "canceled"
     message: str = ""
-
-
-@dataclass(frozen=True)
-class RunOptions:
-    poll_period: float = 0.02        # [s] how often faults, cancel and timeouts are checked
-    settle_time: float = 1.0         # [s] how long a precondition may take to become true
-    safe_stop_timeout: float = 15.0  # [s] for the ramp-down of every channel
-    off_voltage: float = 20.0        # [V] a disabled output below this needs no ramp-down
 
 
 @dataclass(frozen=True)
@@ -207,7 +149,7 @@ class SequenceEngine:
         return problems
 
     def _check_precondition(self, step: Step, ctx: _Context) -> None:
-        settle_until = self.clock() + self.options.settle_time
+        settle_until = self.clock() + self.options.settle_time_s
         while True:
             faults = self._faults(ctx.sequence)
             if faults:
@@ -218,7 +160,7 @@ class SequenceEngine:
                 return
             if self.clock() > settle_until:
                 raise StepFailure(f"precondition: {'; '.join(problems)}", step.on_failure)
-            if ctx.cancel.wait(self.options.poll_period):
+            if ctx.cancel.wait(self.options.poll_period_s):
                 raise SequenceCanceled()
 
     # -- waiting ----------------------------------------------------------------------------------------
@@ -231,7 +173,7 @@ class SequenceEngine:
                 if not pending:
                     return [motion.outcome() for motion in motions]
                 self._check_interrupts(ctx)
-                pending[0].wait(self.options.poll_period)
+                pending[0].wait(self.options.poll_period_s)
         except (SequenceCanceled, StepFailure):
             for motion in motions:
                 motion.cancel()
@@ -240,7 +182,7 @@ class SequenceEngine:
     def _sleep_until(self, when: float, ctx: _Context) -> None:
         while (remaining := when - self.clock()) > 0:
             self._check_interrupts(ctx)
-            ctx.cancel.wait(min(remaining, self.options.poll_period))
+            ctx.cancel.wait(min(remaining, self.options.poll_period_s))
         self._check_interrupts(ctx)
 
     # -- step kinds -------------------------------------------------------------------------------------
@@ -276,13 +218,13 @@ class SequenceEngine:
         """The ramp succeeded and the measured voltage settled within tolerance (it lags the setpoint a little)."""
         if not outcome.success:
             raise StepFailure(f"ramp of {channel!r} to {target:.0f} V failed: {outcome.message}")
-        voltage, settle_until = outcome.value, self.clock() + self.options.settle_time
+        voltage, settle_until = outcome.value, self.clock() + self.options.settle_time_s
         while voltage is None or abs(voltage - target) > tolerance:
             if self.clock() > settle_until:
                 raise StepFailure(f"channel {channel!r} ended at {voltage:.0f} V, expected {target:.0f} "
                                   f"+- {tolerance:.0f} V")
             self._check_interrupts(ctx)
-            ctx.cancel.wait(self.options.poll_period)
+            ctx.cancel.wait(self.options.poll_period_s)
             voltage = self.robot.channel_states()[channel].voltage
 
     def _ramp(self, step: RampStep, ctx: _Context) -> str:
@@ -371,14 +313,14 @@ class SequenceEngine:
         states = self.robot.channel_states()
         live = [channel for channel in sequence.channels
                 if channel not in states or states[channel].output_enabled
-                or abs(states[channel].voltage) > self.options.off_voltage]
+                or abs(states[channel].voltage) > self.options.off_voltage_v]
         problems, motions = [], {}
         for channel in live:
             try:
                 motions[channel] = self.robot.ramp(channel, 0.0, 0.0)
             except RobotError as error:
                 problems.append(f"{channel}: {error}")
-        deadline = self.clock() + self.options.safe_stop_timeout
+        deadline = self.clock() + self.options.safe_stop_timeout_s
         for channel, motion in motions.items():
             if not motion.wait(max(0.0, deadline - self.clock())):
                 motion.cancel()

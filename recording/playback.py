@@ -19,21 +19,21 @@ class PlaybackOptions:
     loop: bool = False           # start over at the end until stopped
     include: str = ""            # regex: play only matching topics
     exclude: str = ""            # regex: never play matching topics
-    start_offset: float = 0.0    # seconds into the recording to start from
+    start_offset_s: float = 0.0  # seconds into the recording to start from
     skip_unknown: bool = False   # play the other topics when a type cannot be imported
-    clock_frequency: float = 0.0  # Hz of /clock (rosgraph_msgs/Clock); 0 = no /clock
-    delay: float = 0.0           # seconds between advertising the topics and the first message,
+    clock_frequency_hz: float = 0.0  # Hz of /clock (rosgraph_msgs/Clock); 0 = no /clock
+    delay_s: float = 0.0         # seconds between advertising the topics and the first message,
                                  # so subscribers can discover and match the publishers first
 
     def validate(self) -> None:
         if not self.rate > 0:
             raise ValueError(f"rate must be positive, not {self.rate}")
-        if self.start_offset < 0:
-            raise ValueError(f"start_offset must be >= 0 s, not {self.start_offset}")
-        if self.clock_frequency < 0:
-            raise ValueError(f"clock_frequency must be >= 0 Hz, not {self.clock_frequency}")
-        if self.delay < 0:
-            raise ValueError(f"delay must be >= 0 s, not {self.delay}")
+        if self.start_offset_s < 0:
+            raise ValueError(f"start_offset_s must be >= 0 s, not {self.start_offset_s}")
+        if self.clock_frequency_hz < 0:
+            raise ValueError(f"clock_frequency_hz must be >= 0 Hz, not {self.clock_frequency_hz}")
+        if self.delay_s < 0:
+            raise ValueError(f"delay_s must be >= 0 s, not {self.delay_s}")
         for name in ("include", "exclude"):
             try:
                 re.compile(getattr(self, name))
@@ -65,9 +65,9 @@ class Recording:
         return [c for c in self.channels
                 if include.search(c.topic) and not (options.exclude and exclude.search(c.topic))]
 
-    def messages(self, channels: list[Channel], start_offset: float):
-        """(channel, message) in log-time order from `start_offset` seconds in."""
-        start = self.start_time + round(start_offset * 1e9)
+    def messages(self, channels: list[Channel], start_offset_s: float):
+        """(channel, message) in log-time order from `start_offset_s` seconds in."""
+        start = self.start_time + round(start_offset_s * 1e9)
         topics = [c.topic for c in channels]
         for _, channel, message in self._reader.iter_messages(topics=topics, starting_at=start):
             yield channel, message
@@ -105,11 +105,11 @@ def play(recording: Recording, channels: list[Channel], options: PlaybackOptions
          clock: PlaybackClock, publish) -> int:
     """Calls publish(channel, message) at the recorded timing; returns how many were published."""
     published = 0
-    if clock.stop.wait(options.delay):
+    if clock.stop.wait(options.delay_s):
         return published
     while not clock.stop.is_set():
-        clock.restart(recording.start_time + round(options.start_offset * 1e9))
-        for channel, message in recording.messages(channels, options.start_offset):
+        clock.restart(recording.start_time + round(options.start_offset_s * 1e9))
+        for channel, message in recording.messages(channels, options.start_offset_s):
             if not clock.wait_until(message.log_time):
                 return published
             publish(channel, message)

@@ -82,7 +82,7 @@ def _residuals(predicted: dict) -> np.ndarray:
         *[math.log(p / t) / RANGE_LOG_TOLERANCE if p > 0 else math.inf
           for p, t in zip(predicted["range"], PAPER_THETA0_RANGE)],
     ]
-    # An invalid equilibrium (NaN) is a very bad fit, not a crash of the optimiser.
+    # An invalid equilibrium (NaN) is a very bad fit, not a crash of the optimizer.
     return np.nan_to_num(np.array(values, dtype=float), nan=1e3, posinf=1e3)
 
 

@@ -1,6 +1,7 @@
-"""The demo's finger-design figure: designed fingers over the object, at rest and at 2.4 kV."""
+"""Designed fingers over their object, at rest and at 2.4 kV (the demo's finger figure)."""
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 
 import matplotlib
@@ -10,6 +11,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
+from planner.assembly import Chain  # noqa: E402
 from planner.contours import load_catalog_object  # noqa: E402
 from planner.kinematics import BLOCK_RADIUS, chain_shape, design_parameters  # noqa: E402
 from planner.table import load_table  # noqa: E402
@@ -17,40 +19,37 @@ from planner.table import load_table  # noqa: E402
 ACTUATED_VOLTAGE = 2400.0  # [V] the paper's grasp voltage
 
 
-def finger_centerline(chain, table, voltage: float | None) -> np.ndarray:
+def finger_centerline(chain: Chain, table, voltage: float | None) -> np.ndarray:
     """(P, 2) x-z centerline of a designed finger chain (base pose in the object frame)."""
-    ids = [block.design.id for block in chain.blocks]
-    theta, length, _ = design_parameters(table, ids, voltage)
-    q = chain.base_pose.orientation
-    p = chain.base_pose.position
-    shape = chain_shape(theta, length).transformed(Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix(),
-                                                   [p.x, p.y, p.z])
+    theta, length, _ = design_parameters(table, list(chain.design_ids), voltage)
+    shape = chain_shape(theta, length).transformed(Rotation.from_quat(chain.base_orientation).as_matrix(),
+                                                   chain.base_position)
     return shape.points[:, [0, 2]]
 
 
-def plot_fingers(responses: dict, object_name: str, path: Path) -> None:
-    """One panel per finger set (DesignFingers responses by name): object, contours, fingers."""
+def plot_fingers(fingers: Mapping[str, Mapping[str, tuple[Chain, float]]], object_name: str, path: Path) -> None:
+    """One panel per finger set: the object, its contours and the set's ``left``/``right`` (chain, objective [m])."""
     table = load_table()
     contours = load_catalog_object(object_name)
     height, width = contours.mask.shape
     ox, oz = contours.origin_pixel  # object-frame origin in pixel coordinates (column, row)
     extent = np.array([-ox, width - ox, oz - height, oz]) * contours.pixel_size
-    fig, axes = plt.subplots(1, len(responses), figsize=(4.5 * len(responses), 5.5), squeeze=False)
-    for axis, (finger_set, response) in zip(axes[0], responses.items()):
+    fig, axes = plt.subplots(1, len(fingers), figsize=(4.5 * len(fingers), 5.5), squeeze=False)
+    for axis, (finger_set, sides) in zip(axes[0], fingers.items()):
         axis.imshow(contours.mask, cmap="Greys", alpha=0.35, extent=extent * 1e3, origin="upper")
         for side, colour in (("left", "tab:blue"), ("right", "tab:red")):
-            chain = getattr(response, side)
+            chain = sides[side][0]
             rest = finger_centerline(chain, table, None)
             actuated = finger_centerline(chain, table, ACTUATED_VOLTAGE)
-            ids = [block.design.id for block in chain.blocks]
+            ids = list(chain.design_ids)
             axis.plot(*(1e3 * rest.T), color=colour, lw=2, label=f"{side} {ids} at 0 V")
             axis.plot(*(1e3 * actuated.T), color=colour, lw=1, ls="--", label=f"{side} at 2.4 kV")
             for point in rest[::5]:
                 axis.add_patch(plt.Circle(1e3 * point, 1e3 * BLOCK_RADIUS, color=colour, alpha=0.05))
         for contour in (contours.left, contours.right):
             axis.plot(*(1e3 * contour.T), color="k", lw=1)
-        axis.set_title(f"{finger_set} fingers (objective {response.left_cost:.3f} / "
-                       f"{response.right_cost:.3f} m)", fontsize=9)
+        axis.set_title(f"{finger_set} fingers (objective {sides['left'][1]:.3f} / {sides['right'][1]:.3f} m)",
+                       fontsize=9)
         axis.set_aspect("equal")
         axis.set_xlabel("x [mm]")
         axis.set_ylabel("z [mm]")

@@ -32,14 +32,32 @@ class SequenceError(ValueError):
 class Limits:
     """What the hardware allows; sequences beyond it are rejected before anything moves.
 
-    voltage_ceiling: highest voltage any step may command [V].
-    max_pulse_frequency: highest pulse-train frequency [Hz] (the paper's legs run up to 5 Hz).
-    max_slew_rate: the HV driver's slew limit [V/s]; None = not checked here (the driver refuses).
+    voltage_ceiling_v: highest voltage any step may command [V].
+    max_pulse_frequency_hz: highest pulse-train frequency [Hz] (the paper's legs run up to 5 Hz).
+    max_slew_rate_v_per_s: the HV driver's slew limit [V/s]; None = not checked here (the driver refuses).
     """
 
-    voltage_ceiling: float = 2500.0
-    max_pulse_frequency: float = 5.0
-    max_slew_rate: float | None = None
+    voltage_ceiling_v: float = 2500.0
+    max_pulse_frequency_hz: float = 5.0
+    max_slew_rate_v_per_s: float | None = None
+
+
+@dataclass(frozen=True)
+class StepDefaults:
+    """Values of the steps that give none; a file's ``defaults`` and the sequencer's parameters override them."""
+
+    timeout_s: float = 30.0
+    tolerance_v: float = 50.0
+    speed_m_per_s: float = 0.0      # 0 = the arm's default
+    slew_rate_v_per_s: float = 0.0  # 0 = the driver's configured rate
+    frame_id: str = "base_link"
+    on_failure: str = "safe_stop"
+
+
+# A file's `defaults:` keys (the step keys they stand for) and the StepDefaults fields they set.
+DEFAULT_FIELDS = {"timeout": "timeout_s", "tolerance": "tolerance_v", "speed": "speed_m_per_s",
+                  "slew_rate": "slew_rate_v_per_s", "frame_id": "frame_id", "on_failure": "on_failure"}
+DEFAULTS = {key: getattr(StepDefaults(), name) for key, name in DEFAULT_FIELDS.items()}
 
 
 @dataclass(frozen=True)
@@ -47,7 +65,7 @@ class Precondition:
     """What must hold before a step starts: channel voltages within ``tolerance`` (no HV fault is always required)."""
 
     voltages: Mapping[str, float] = field(default_factory=dict)  # channel -> expected voltage [V]
-    tolerance: float = 50.0                                       # [V]
+    tolerance: float = StepDefaults.tolerance_v                   # [V]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -55,7 +73,7 @@ class Step:
     name: str
     description: str = ""
     precondition: Precondition = Precondition()
-    timeout: float = 30.0  # [s]
+    timeout: float = StepDefaults.timeout_s  # [s]
     on_failure: str = "safe_stop"
 
 
@@ -185,7 +203,7 @@ class _Parser:
         return value
 
     def voltage(self, where: _Where, spec: Mapping, key: str, field_name: str) -> float:
-        ceiling = self.limits.voltage_ceiling
+        ceiling = self.limits.voltage_ceiling_v
         value = _number(where, spec, key, field_name, minimum=0.0)
         if value > ceiling:
             where.fail(field_name, spec[key], f"above the voltage ceiling {ceiling:g} V")
@@ -193,7 +211,7 @@ class _Parser:
 
     def slew_rate(self, where: _Where, spec: Mapping, field_name: str, default) -> float:
         value = _number(where, spec, "slew_rate", field_name, default, minimum=0.0)
-        limit = self.limits.max_slew_rate
+        limit = self.limits.max_slew_rate_v_per_s
         if limit is not None and value > limit:
             where.fail(field_name, spec["slew_rate"], f"above the HV driver's slew limit {limit:g} V/s")
         return value
@@ -303,7 +321,7 @@ class _Parser:
             **common, channels=tuple(channels), cycles=cycles,
             voltage=self.voltage(where, spec, "voltage", "pulse_train.voltage"),
             frequency=_number(where, spec, "frequency", "pulse_train.frequency", exclusive_minimum=0.0,
-                              maximum=self.limits.max_pulse_frequency),
+                              maximum=self.limits.max_pulse_frequency_hz),
             duty=_number(where, spec, "duty", "pulse_train.duty", exclusive_minimum=0.0, maximum=0.999),
             phase=_number(where, spec, "phase", "pulse_train.phase", 0.0, minimum=0.0, maximum=1.0),
             slew_rate=self.slew_rate(where, spec, "pulse_train.slew_rate", _MISSING),
@@ -319,10 +337,6 @@ class _Parser:
                        f"({MIN_JERK_PEAK_RATE:g} x voltage / slew_rate) but the shortest on/off phase "
                        f"is {shortest_phase * 1e3:.0f} ms")
         return replace(step, timeout=step.length + self.defaults["timeout"])
-
-
-DEFAULTS = {"timeout": 30.0, "tolerance": 50.0, "speed": 0.0, "slew_rate": 0.0, "frame_id": "base_link",
-            "on_failure": "safe_stop"}
 
 
 def parse_sequence(document, limits: Limits = Limits(), source: str = "", defaults: Mapping | None = None) -> Sequence:

@@ -1,0 +1,103 @@
+"""Who may command the outputs: one client at a time holds control, proven by a random session token.
+
+Pure logic, time passed in. A client claims control under its name and gets a fresh token; ramps and
+heartbeats must carry that token. Control ends when the client releases it, when its heartbeat stops for
+longer than the timeout (it lapses), or at an e-stop. A token from an earlier session (a recording played
+back, a restarted client) is never the live one, so it can neither feed the watchdog nor ramp.
+"""
+import hmac
+import math
+import secrets
+
+from .errors import HvError, SettingError
+
+MAX_CLIENT_NAME = 64  # [characters] names appear in refusals and /diagnostics
+TOKEN_BYTES = 16
+
+
+class ControlError(HvError, RuntimeError):
+    """A command from a client that does not hold control; the message names the current owner."""
+
+
+def _valid_client_name(client) -> str:
+    if not (isinstance(client, str) and client.strip() and client.isprintable() and len(client) <= MAX_CLIENT_NAME):
+        raise SettingError(f"client={client!r}: a printable name of 1 to {MAX_CLIENT_NAME} characters")
+    return client
+
+
+class ControlClaim:
+    """The controlling client of one supply.
+
+    timeout_s: seconds without a heartbeat after which control lapses (math.inf: never lapses; then only a
+        release or an e-stop ends it).
+    new_token: source of session tokens (default: 128 random bits from `secrets`).
+    """
+
+    def __init__(self, timeout_s: float, new_token=lambda: secrets.token_hex(TOKEN_BYTES)):
+        self.timeout_s = timeout_s
+        self._new_token = new_token
+        self.owner: str | None = None
+        self._token: str | None = None
+        self._last_heartbeat = -math.inf
+        self.ended = ""  # why the last control session ended, e.g. "control released by 'demo'"
+
+    def heartbeat_age(self, now: float) -> float | None:
+        """Seconds since the owner's last sign of life (None without an owner)."""
+        return None if self.owner is None else max(0.0, now - self._last_heartbeat)
+
+    def silent(self, now: float) -> bool:
+        """True when the owner's heartbeat is older than the timeout."""
+        return self.owner is not None and now - self._last_heartbeat > self.timeout_s
+
+    def claim(self, client: str, now: float) -> str:
+        """Take control as ``client``; returns the session token. Refused while another session is live."""
+        client = _valid_client_name(client)
+        self.lapse_if_silent(now)
+        if self.owner is not None:
+            raise ControlError(f"control is held by {self.owner!r} (last heartbeat {self.heartbeat_age(now):.1f} s "
+                               f"ago); it must release it first{self._lapse_hint()}")
+        self.owner, self._token, self._last_heartbeat = client, self._new_token(), now
+        self.ended = ""
+        return self._token
+
+    def _lapse_hint(self) -> str:
+        return "" if math.isinf(self.timeout_s) else f" or stay silent for {self.timeout_s:g} s"
+
+    def confirm(self, token, now: float) -> None:
+        """A command carrying ``token``: accepted as the owner's sign of life, else ControlError naming the owner."""
+        self.lapse_if_silent(now)
+        if not self._is_live(token):
+            raise ControlError(self._refusal())
+        self._last_heartbeat = max(self._last_heartbeat, now)
+
+    def release(self, token, now: float) -> str:
+        """End the session of ``token``; returns the name of the client that released."""
+        self.lapse_if_silent(now)
+        if not self._is_live(token):
+            raise ControlError(self._refusal())
+        owner = self.owner
+        self.end(f"control released by {owner!r}")
+        return owner
+
+    def lapse_if_silent(self, now: float) -> str | None:
+        """End a session whose heartbeat stopped; returns the lapsed owner's name."""
+        if not self.silent(now):
+            return None
+        owner = self.owner
+        self.end(f"control of {owner!r} lapsed: no heartbeat for more than {self.timeout_s:g} s")
+        return owner
+
+    def end(self, reason: str) -> None:
+        if self.owner is not None:
+            self.ended = reason
+        self.owner = self._token = None
+
+    def _is_live(self, token) -> bool:
+        return (self._token is not None and isinstance(token, str) and token.isascii()
+                and hmac.compare_digest(token, self._token))
+
+    def _refusal(self) -> str:
+        if self.owner is not None:
+            return f"refused: control is held by {self.owner!r}, and this token is not its session's"
+        ended = f" ({self.ended})" if self.ended else ""
+        return f"refused: no client holds control{ended}; claim it first"

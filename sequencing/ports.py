@@ -1,0 +1,66 @@
+"""The engine's ports: what it drives (`Robot`, `Motion`), what those report (`Outcome`, `ChannelReading`)
+and how it runs (`RunOptions`). A backend (the ROS adapter, a test fake) implements `Robot`; nothing here runs.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Protocol
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """End of a motion or command; ``value`` carries e.g. the final measured voltage of a ramp."""
+
+    success: bool
+    message: str = ""
+    value: float | None = None
+
+
+@dataclass(frozen=True)
+class ChannelReading:
+    """Latest state of one HV channel."""
+
+    voltage: float             # measured [V]
+    faults: int = 0            # latched fault bits (0 = none)
+    fault_text: str = ""
+    output_enabled: bool = False
+
+
+class Motion(Protocol):
+    """A running arm move or channel ramp."""
+
+    def wait(self, timeout: float) -> bool:
+        """Block up to ``timeout`` seconds; True once the motion has finished."""
+
+    def outcome(self) -> Outcome:
+        """How it ended (only after ``wait`` returned True)."""
+
+    def cancel(self) -> None:
+        """Ask the backend to stop it (an arm brakes, a channel ramps to 0 V)."""
+
+
+class Robot(Protocol):
+    """What the engine drives. Methods raise `RobotError` when the backend cannot be reached."""
+
+    def move_arm(self, position, orientation, frame_id: str, speed: float) -> Motion: ...
+
+    def ramp(self, channel: str, target: float, slew_rate: float) -> Motion: ...
+
+    def channel_states(self) -> Mapping[str, ChannelReading]: ...
+
+    def stop_arm(self) -> None: ...
+
+    def estop(self) -> Outcome: ...
+
+
+class RobotError(RuntimeError):
+    """The backend could not take a command (server missing, goal refused)."""
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    poll_period_s: float = 0.02        # how often faults, cancel and timeouts are checked
+    settle_time_s: float = 1.0         # how long a precondition may take to become true
+    safe_stop_timeout_s: float = 15.0  # for the ramp-down of every channel
+    off_voltage_v: float = 20.0        # a disabled output below this needs no ramp-down

@@ -1,0 +1,160 @@
+"""Who may command the HV: the control claim and the heartbeat watchdog, in the pure supervisor.
+
+Only the client holding control (its session token) ramps and feeds the watchdog; control ends on
+release, on a lapsed heartbeat and at an e-stop; the watchdog is on unless switched off with math.inf."""
+import math
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from hv_driver import ChannelConfig, ControlError, Fault, Supervisor
+from hv_driver.control import MAX_CLIENT_NAME, ControlClaim
+from hv_driver.supervisor import DEFAULT_HEARTBEAT_TIMEOUT_S
+
+CONFIG = ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=1000.0)
+
+
+def hold(supervisor: Supervisor, token: str, t0: float, t1: float, dt: float = 0.01, beat: bool = True) -> float:
+    """Step from t0 to t1 (heartbeats with ``token`` every step when ``beat``); returns t1."""
+    t = t0
+    while t < t1 - 1e-12:
+        t = min(t + dt, t1)
+        if beat:
+            supervisor.heartbeat(t, token)
+        supervisor.step(t)
+    return t1
+
+
+def energised(heartbeat_timeout_s: float = 0.5) -> tuple[Supervisor, str]:
+    """A supervisor whose client 'sequencer' holds control and has ramped front to 1000 V."""
+    supervisor = Supervisor([CONFIG], link_timeout_s=100.0, heartbeat_timeout_s=heartbeat_timeout_s)
+    supervisor.enable("front", 0.0)
+    token = supervisor.claim_control("sequencer", 0.0)
+    supervisor.ramp_to("front", 0.0, 1000.0, token=token)
+    hold(supervisor, token, 0.0, 2.0)
+    assert supervisor.channel("front").setpoint == 1000.0
+    return supervisor, token
+
+
+def test_the_heartbeat_watchdog_is_on_by_default():
+    supervisor = Supervisor([CONFIG], link_timeout_s=1.0)
+    assert supervisor.heartbeat_timeout_s == DEFAULT_HEARTBEAT_TIMEOUT_S == 2.0
+    assert not supervisor.heartbeat_watchdog_off
+
+
+@pytest.mark.parametrize("timeout", [None, 0.0, -1.0, math.nan, "2"])
+def test_the_watchdog_is_never_off_by_omission(timeout):
+    with pytest.raises(ValueError, match="math.inf to switch the heartbeat watchdog off on purpose"):
+        Supervisor([CONFIG], link_timeout_s=1.0, heartbeat_timeout_s=timeout)
+
+
+def test_switched_off_on_purpose_the_watchdog_never_trips_and_control_never_lapses():
+    supervisor, token = energised(heartbeat_timeout_s=math.inf)
+    assert supervisor.heartbeat_watchdog_off
+    hold(supervisor, token, 2.0, 1000.0, dt=1.0, beat=False)
+    assert not supervisor.channel("front").faults and supervisor.control.owner == "sequencer"
+
+
+def test_a_claim_answers_a_fresh_token_and_is_refused_while_another_client_holds_control():
+    supervisor = Supervisor([CONFIG], link_timeout_s=1.0)
+    token = supervisor.claim_control("sequencer", 0.0)
+    assert len(token) == 32 and int(token, 16) >= 0
+    with pytest.raises(ControlError, match="control is held by 'sequencer' .*release it first or stay silent for 2 s"):
+        supervisor.claim_control("demo", 0.5)
+    supervisor.release_control(token, 1.0)
+    assert supervisor.claim_control("sequencer", 1.0) != token
+
+
+def test_a_ramp_without_the_live_token_is_refused_naming_the_owner():
+    supervisor = Supervisor([CONFIG], link_timeout_s=1.0)
+    supervisor.enable("front", 0.0)
+    with pytest.raises(ControlError, match="no client holds control; claim it first"):
+        supervisor.ramp_to("front", 0.0, 500.0, token="")
+    supervisor.claim_control("sequencer", 0.0)
+    with pytest.raises(ControlError, match="control is held by 'sequencer'"):
+        supervisor.ramp_to("front", 0.1, 500.0, token="0" * 32)
+    assert supervisor.channel("front").target == 0.0
+
+
+def test_a_replayed_heartbeat_cannot_keep_an_output_energised():
+    """A recording of an earlier session replays that session's token: it is not the live one."""
+    supervisor = Supervisor([CONFIG], link_timeout_s=100.0, heartbeat_timeout_s=0.5)
+    recorded = supervisor.claim_control("sequencer", 0.0)
+    supervisor.release_control(recorded, 0.3)
+    supervisor.enable("front", 1.0)
+    live = supervisor.claim_control("sequencer", 1.0)
+    supervisor.ramp_to("front", 1.0, 1000.0, token=live)
+    t = hold(supervisor, live, 1.0, 3.0)  # then the live client dies; the recording plays on
+    refused = 0
+    for k in range(1, 101):
+        try:
+            supervisor.heartbeat(t + 0.01 * k, recorded)
+        except ControlError as error:
+            refused += 1
+            assert "not its session's" in str(error) or "no client holds control" in str(error)
+        supervisor.step(t + 0.01 * k)
+    assert refused == 100
+    front = supervisor.channel("front")
+    assert front.faults == Fault.HEARTBEAT and "'sequencer'" in front.fault_text
+    assert supervisor.control.owner is None
+    assert front.fault_text == "heartbeat: control of 'sequencer' lapsed: no heartbeat for more than 0.5 s"
+
+
+def test_control_lapses_with_the_heartbeat_and_its_token_is_dead_for_good():
+    supervisor, token = energised()
+    supervisor.step(2.6)
+    assert supervisor.control.owner is None and supervisor.channel("front").faults == Fault.HEARTBEAT
+    with pytest.raises(ControlError, match="lapsed: no heartbeat for more than 0.5 s"):
+        supervisor.heartbeat(2.61, token)
+    assert supervisor.claim_control("demo", 2.7) != token
+
+
+def test_release_ramps_the_outputs_the_session_left_energised_down_without_a_fault():
+    supervisor, token = energised()
+    supervisor.release_control(token, 2.0)
+    commands = [supervisor.step(2.0 + 0.01 * k)["front"] for k in range(1, 300)]
+    front = supervisor.channel("front")
+    assert not front.faults and front.output_enabled and front.setpoint == 0.0
+    assert any(0.0 < c.setpoint < 1000.0 for c in commands)  # ramped, not cut
+
+
+def test_the_estop_is_open_to_everyone_and_ends_the_control_session():
+    supervisor, token = energised()
+    supervisor.estop()
+    assert supervisor.estop_latched and supervisor.control.owner is None
+    with pytest.raises(ControlError, match=r"no client holds control \(control ended by an emergency stop\)"):
+        supervisor.heartbeat(2.1, token)
+
+
+@pytest.mark.parametrize("client", ["", "   ", "x" * (MAX_CLIENT_NAME + 1), "two\nlines", None, 7])
+def test_bad_client_names_are_refused_naming_the_rule(client):
+    with pytest.raises(ValueError, match="a printable name of 1 to 64 characters"):
+        Supervisor([CONFIG], link_timeout_s=1.0).claim_control(client, 0.0)
+
+
+@given(st.one_of(st.none(), st.text(max_size=80), st.binary(max_size=40), st.integers(), st.floats()))
+def test_no_token_but_the_live_one_is_accepted(token):
+    claim = ControlClaim(timeout_s=2.0)
+    live = claim.claim("sequencer", 0.0)
+    if token == live:
+        claim.confirm(token, 0.1)
+    else:
+        with pytest.raises(ControlError, match="held by 'sequencer'"):
+            claim.confirm(token, 0.1)
+    assert claim.owner == "sequencer"
+
+
+@given(timeout=st.floats(min_value=0.05, max_value=5.0),
+       gaps=st.lists(st.floats(min_value=0.0, max_value=10.0), min_size=1, max_size=30))
+def test_control_lapses_exactly_when_a_heartbeat_gap_exceeds_the_timeout(timeout, gaps):
+    supervisor = Supervisor([CONFIG], link_timeout_s=100.0, heartbeat_timeout_s=timeout)
+    token, t = supervisor.claim_control("sequencer", 0.0), 0.0
+    for gap in gaps:
+        previous, t = t, t + gap
+        if t - previous > timeout:  # the gap as the clock sees it
+            with pytest.raises(ControlError, match="lapsed"):
+                supervisor.heartbeat(t, token)
+            return
+        supervisor.heartbeat(t, token)
+    assert supervisor.control.owner == "sequencer"

@@ -1,0 +1,163 @@
+"""Who may command the HV driver node: the control claim over ROS.
+
+Only the client holding control ramps and feeds the heartbeat watchdog; others are refused with the
+owner's name; /diagnostics shows the owner and its heartbeat age; the e-stop is open to everyone; a
+silent owner loses control and its outputs ramp down; a replayed recording of an earlier session's
+heartbeats cannot keep an output energised."""
+import pytest
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.lifecycle import TransitionCallbackReturn
+from rclpy.parameter import Parameter
+from ros_testing import Inbox, Spinner, call, wait_for
+from softblock_interfaces.action import RampChannel
+from softblock_interfaces.msg import HvChannelState, HvHeartbeat, HvState
+from softblock_interfaces.srv import ClaimControl, InjectFault
+from std_srvs.srv import Trigger
+
+from recording.playback import PlaybackOptions
+from softblock_ros.client import ActionClient, ClientError, run_action
+from softblock_ros.hv_control import HvControl
+from softblock_ros.hv_driver_node import HvDriverNode
+from softblock_ros.recording.player_node import PlayerNode
+from softblock_ros.recording.recorder_node import RecorderNode
+
+HEARTBEAT_TIMEOUT = 1.0  # [s]
+RAMP_TIMEOUT = 20.0  # [s] for a ramp's result on two loaded cores
+
+
+class Clients:
+    def __init__(self, ros_context, spin):
+        self.driver = HvDriverNode(context=ros_context, parameter_overrides=[
+            Parameter("slew_rate_v_per_s", value=8000.0), Parameter("link_timeout_s", value=1.0),
+            Parameter("heartbeat_timeout_s", value=HEARTBEAT_TIMEOUT)])
+        self.node = n = rclpy.create_node("hv_control_test_client", context=ros_context)
+        self.owner = HvControl(n, "sequencer", heartbeat_rate_hz=20.0)
+        self.claim = n.create_client(ClaimControl, "hv/claim_control")
+        self.estop = n.create_client(Trigger, "hv/estop")
+        self.reset = n.create_client(Trigger, "hv/reset_faults")
+        self.inject = n.create_client(InjectFault, "hv/inject_fault")
+        self.ramp = ActionClient(n, RampChannel, "hv/ramp")
+        self.state = Inbox(n, HvState, "hv/state")
+        self.diagnostics = Inbox(n, DiagnosticArray, "/diagnostics")
+        self.heartbeats = Inbox(n, HvHeartbeat, "hv/heartbeat", 100)
+        spin(self.driver, n)
+        assert self.driver.trigger_configure() == TransitionCallbackReturn.SUCCESS
+        assert self.driver.trigger_activate() == TransitionCallbackReturn.SUCCESS
+
+    def ramp_result(self, channel: str, target: float, token: str):
+        status, result = run_action(self.ramp, RampChannel.Goal(channel=channel, target=target, token=token),
+                                    RAMP_TIMEOUT)
+        return result
+
+    def latest_state(self, predicate=lambda s: True, timeout: float = 15.0) -> HvState:
+        self.state.messages.clear()
+        return self.state.wait(predicate, timeout)
+
+    def control_status(self, predicate=lambda s: True):
+        def matching(array):
+            status = next((s for s in array.status if s.name.endswith(": control")), None)
+            return status is not None and predicate(status)
+        self.diagnostics.messages.clear()
+        array = self.diagnostics.wait(matching)
+        status = next(s for s in array.status if s.name.endswith(": control"))
+        return status, {kv.key: kv.value for kv in status.values}
+
+
+@pytest.fixture(scope="module")
+def clients(ros_context, spin):
+    return Clients(ros_context, spin)
+
+
+@pytest.fixture
+def ready(clients):
+    """No session, no faults, outputs on at 0 V: an e-stop ends whatever session a test left, a reset clears it."""
+    clients.owner.release()
+    assert call(clients.estop, Trigger.Request()).success
+    clients.latest_state(lambda s: s.estop)
+    assert call(clients.reset, Trigger.Request()).success
+    clients.latest_state(lambda s: all(c.output_enabled and not c.faults for c in s.channels))
+    return clients
+
+
+def test_a_ramp_without_the_live_token_is_refused_naming_the_owner(ready):
+    ready.owner.claim()
+    result = ready.ramp_result("front", 500.0, token="")
+    assert not result.success
+    assert result.message == "refused: control is held by 'sequencer', and this token is not its session's"
+    reply = call(ready.claim, ClaimControl.Request(client="demo"))
+    assert not reply.success and reply.token == "" and "control is held by 'sequencer'" in reply.message
+    assert ready.ramp_result("front", 500.0, token=ready.owner.token).success
+    assert ready.latest_state().channels[0].setpoint == 500.0
+
+
+def test_diagnostics_show_the_owner_and_its_heartbeat_age(ready):
+    status, values = ready.control_status(lambda s: "no client" in s.message)
+    assert values["controller"] == "" and values["heartbeat_timeout_s"] == "1.0"
+    ready.owner.claim()
+    status, values = ready.control_status(lambda s: "held by" in s.message)
+    assert values["controller"] == "sequencer" and 0.0 <= float(values["heartbeat_age_s"]) < HEARTBEAT_TIMEOUT
+    assert status.message.startswith("held by 'sequencer', last heartbeat")
+
+
+def test_the_estop_is_open_to_every_client_and_ends_the_session(ready):
+    token = ready.owner.claim()
+    assert ready.ramp_result("back", 800.0, token).success
+    spinner = Spinner(ready.node.context, num_threads=2)
+    try:
+        stranger = rclpy.create_node("stranger", context=ready.node.context)  # holds no control
+        spinner.add(stranger)
+        assert call(stranger.create_client(Trigger, "hv/estop"), Trigger.Request()).success
+    finally:
+        spinner.close()
+    state = ready.latest_state(lambda s: s.estop)
+    assert all(not c.output_enabled for c in state.channels)
+    assert "control ended by an emergency stop" in ready.ramp_result("back", 100.0, token).message
+
+
+def test_a_silent_owner_loses_control_and_its_outputs_ramp_down(ready):
+    reply = call(ready.claim, ClaimControl.Request(client="silent client"))  # claims, then never beats
+    assert reply.success and reply.heartbeat_timeout == HEARTBEAT_TIMEOUT
+    assert ready.ramp_result("front", 1500.0, reply.token).success
+    state = ready.latest_state(lambda s: s.channels[0].faults & HvChannelState.FAULT_HEARTBEAT)
+    assert "control of 'silent client' lapsed" in state.channels[0].fault_text
+    ready.latest_state(lambda s: not s.channels[0].output_enabled and s.channels[0].measured_voltage < 50.0)
+    ready.control_status(lambda s: "no client" in s.message)
+    assert ready.owner.claim()  # control is free again
+
+
+def test_a_replayed_recording_cannot_feed_the_watchdog(ready, tmp_path):
+    """An earlier session's heartbeats, recorded and played back, while the live client has died."""
+    recording = str(tmp_path / "session.mcap")
+    recorder = RecorderNode(recording, topics=["/hv/heartbeat"], context=ready.node.context)
+    recorder_spinner = Spinner(ready.node.context, num_threads=2)
+    recorder_spinner.add(recorder)
+    recorded = ready.owner.claim()
+    wait_for(lambda: recorder.writer.message_counts.get("/hv/heartbeat", 0) >= 20, what="20 recorded heartbeats")
+    ready.owner.release()
+    recorder_spinner.close()  # closes the recording
+
+    live = call(ready.claim, ClaimControl.Request(client="sequencer"))  # the client restarted, then dies
+    assert live.success and live.token != recorded
+    assert ready.ramp_result("front", 1500.0, live.token).success
+    player = PlayerNode(recording, PlaybackOptions(include="^/hv/heartbeat$", loop=True), context=ready.node.context)
+    player_spinner = Spinner(ready.node.context, num_threads=2)
+    player_spinner.add(player)
+    ready.heartbeats.messages.clear()
+    player.start()
+    try:
+        replayed = ready.heartbeats.wait(lambda msg: msg.token == recorded)
+        assert replayed.token != live.token
+        state = ready.latest_state(lambda s: s.channels[0].faults & HvChannelState.FAULT_HEARTBEAT)
+        assert "control of 'sequencer' lapsed" in state.channels[0].fault_text
+        ready.latest_state(lambda s: not s.channels[0].output_enabled and s.channels[0].measured_voltage < 50.0)
+        assert len([m for m in ready.heartbeats.messages if m.token == recorded]) > 10  # it kept playing
+    finally:
+        player_spinner.close()
+
+
+def test_a_claim_with_an_unusable_name_is_refused(ready):
+    reply = call(ready.claim, ClaimControl.Request(client=""))
+    assert not reply.success and "a printable name of 1 to 64 characters" in reply.message
+    with pytest.raises(ClientError, match="hv/claim_control refused"):
+        HvControl(ready.node, "x" * 65).claim()

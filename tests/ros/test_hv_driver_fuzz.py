@@ -1,0 +1,204 @@
+"""Fuzz of every input of the hv_driver node: ramp goals, inject_fault, estop, reset_faults, claim and release
+of control, assembly/safe_voltage and hv/heartbeat, as random sequences of messages built by hypothesis
+strategies for the message types (absurd numbers, arbitrary text, live and dead tokens).
+
+After every input the node answers and keeps publishing hv/state, no setpoint is above its ceiling, no
+output above the hard maximum, latched faults stay latched until a reset, an e-stop latches on every
+channel, and a ramp goal is obeyed only with the live control session's token."""
+import math
+import threading
+
+import pytest
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from hypothesis import HealthCheck, settings
+from hypothesis import strategies as st
+from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, rule
+from rclpy.lifecycle import TransitionCallbackReturn
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, QoSProfile
+from ros_testing import Inbox, call, wait_for
+from softblock_interfaces.action import RampChannel
+from softblock_interfaces.msg import HvHeartbeat, HvState
+from softblock_interfaces.srv import ClaimControl, InjectFault, ReleaseControl
+from std_msgs.msg import Float64
+from std_srvs.srv import Trigger
+
+from sim_fallback.hv_supply import FAULTS
+from softblock_ros.client import ActionClient
+from softblock_ros.hv_driver_node import HvDriverNode
+
+MAX_VOLTAGE = 3000.0
+TOLERANCE = 100.0  # [V] readback tolerance: the measured voltage may lag a falling ceiling by this much
+LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+LIVE = object()  # strategy marker: use the live session's token
+
+text = st.text(st.characters(exclude_categories=("Cs",)), max_size=80)  # anything a ROS string can carry
+names = st.one_of(st.sampled_from(["front", "back", ""]), text)
+numbers = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.floats(min_value=-10.0, max_value=3500.0),
+                    st.sampled_from([0.0, -0.0, 1e-9, 1e-300, 2400.0, 3000.0, 3000.0000001, 1e308]))
+tokens = st.one_of(st.just(LIVE), text, st.sampled_from(["", "0" * 32]))
+# "disconnect" closes the simulated device for good; its handling is tested in tests/hv_driver.
+faults = st.one_of(st.sampled_from([f for f in FAULTS if f != "disconnect"] + ["clear"]), text)
+ramp_goals = st.builds(lambda channel, target, slew, token: (channel, target, slew, token),
+                       names, numbers, numbers, tokens)
+
+
+class Fuzz:
+    """The node under test and one client handle per input."""
+
+    def __init__(self, ros_context, spin):
+        self.driver = HvDriverNode(context=ros_context, parameter_overrides=[
+            Parameter("slew_rate_v_per_s", value=8000.0), Parameter("link_timeout_s", value=1.0),
+            Parameter("heartbeat_timeout_s", value=1.0)])
+        self.node = n = rclpy.create_node("hv_fuzz_client", context=ros_context)
+        self.ramp = ActionClient(n, RampChannel, "hv/ramp")
+        self.services = {name: n.create_client(kind, f"hv/{name}") for name, kind in (
+            ("estop", Trigger), ("reset_faults", Trigger), ("inject_fault", InjectFault),
+            ("claim_control", ClaimControl), ("release_control", ReleaseControl))}
+        self.heartbeat = n.create_publisher(HvHeartbeat, "hv/heartbeat", 10)
+        self.safe_voltage = n.create_publisher(Float64, "assembly/safe_voltage", LATCHED)
+        self.state = Inbox(n, HvState, "hv/state")
+        self.diagnostics = Inbox(n, DiagnosticArray, "/diagnostics")
+        spin(self.driver, n)
+        assert self.driver.trigger_configure() == TransitionCallbackReturn.SUCCESS
+        assert self.driver.trigger_activate() == TransitionCallbackReturn.SUCCESS
+        assert self.ramp.wait_for_server(timeout_sec=15.0)
+
+
+@pytest.fixture(scope="module")
+def fuzz(ros_context, spin):
+    return Fuzz(ros_context, spin)
+
+
+def link_answers(array: DiagnosticArray) -> bool:
+    """The driver's last exchange with the supply succeeded (no link error on any channel's status)."""
+    return all(kv.value == "" for status in array.status for kv in status.values if kv.key == "link_error")
+
+
+class DriverInputs(RuleBasedStateMachine):
+    fuzz: Fuzz  # set by the test
+
+    @initialize()
+    def clean_state(self):
+        """No session, no injected fault, no latched fault, outputs on at 0 V, no assembly ceiling."""
+        f = self.fuzz
+        self.live = ""        # token of the live control session, as far as this client knows
+        self.goals = []       # (token was live when sent, result future)
+        self.lock = threading.Lock()
+        call(f.services["inject_fault"], InjectFault.Request(fault="clear"))
+        # A reset before the supply answers again after an injected link fault latches LINK again at once (still
+        # no valid reply for longer than link_timeout_s: the cause is present), so wait for a valid reply first.
+        f.diagnostics.messages.clear()
+        f.diagnostics.wait(link_answers)
+        f.safe_voltage.publish(Float64(data=5000.0))
+        assert call(f.services["estop"], Trigger.Request()).success
+        wait_for(lambda: self._state(lambda s: s.estop), what="the e-stop")
+        assert call(f.services["reset_faults"], Trigger.Request()).success
+        self.settled = self._state(lambda s: not s.estop and all(not c.faults for c in s.channels))
+
+    def _state(self, predicate=lambda s: True) -> HvState:
+        """The next hv/state (from now on) that satisfies ``predicate``: the node is alive and publishing."""
+        self.fuzz.state.messages.clear()
+        return self.fuzz.state.wait(predicate)
+
+    def _token(self, token):
+        return self.live if token is LIVE else token
+
+    @rule(goal=ramp_goals)
+    def ramp(self, goal):
+        channel, target, slew, token = goal
+        token = self._token(token)
+        sent = self.fuzz.ramp.send_goal_async(RampChannel.Goal(channel=channel, target=target, slew_rate=slew,
+                                                                token=token))
+        handle = wait_for(sent.done, what="the goal response") and sent.result()
+        assert handle.accepted  # refusals come back as aborted results naming the reason
+        self.goals.append((bool(self.live) and token == self.live, handle.get_result_async()))
+
+    @rule(fault=faults, channel=names)
+    def inject_fault(self, fault, channel):
+        reply = call(self.fuzz.services["inject_fault"], InjectFault.Request(channel=channel, fault=fault))
+        if fault not in FAULTS and fault != "clear":  # refused, naming the choices of what was wrong
+            assert not reply.success and ("over_current, no_reply" in reply.message
+                                          or "unknown, configured are ['back', 'front']" in reply.message)
+
+    @rule()
+    def estop(self):
+        assert call(self.fuzz.services["estop"], Trigger.Request()).success
+        self.live = ""
+        state = self._state(lambda s: s.estop)
+        assert all(not c.output_enabled and c.faults & c.FAULT_ESTOP for c in state.channels)
+
+    @rule()
+    def reset_faults(self):
+        assert call(self.fuzz.services["reset_faults"], Trigger.Request()).message.startswith("faults cleared")
+        self.settled = None  # faults may clear now
+
+    @rule(client=names)
+    def claim(self, client):
+        reply = call(self.fuzz.services["claim_control"], ClaimControl.Request(client=client))
+        if reply.success:
+            assert len(reply.token) == 32 and reply.heartbeat_timeout == 1.0
+            self.live = reply.token
+        else:
+            assert reply.token == "" and reply.message
+
+    @rule(token=tokens)
+    def release(self, token):
+        token = self._token(token)
+        reply = call(self.fuzz.services["release_control"], ReleaseControl.Request(token=token))
+        if reply.success:
+            assert token == self.live
+            self.live = ""
+        else:
+            assert reply.message.startswith("refused:")
+
+    @rule(token=tokens)
+    def heartbeat(self, token):
+        self.fuzz.heartbeat.publish(HvHeartbeat(token=self._token(token)))
+
+    @rule(voltage=numbers)
+    def safe_voltage(self, voltage):
+        self.fuzz.safe_voltage.publish(Float64(data=voltage))
+
+    @invariant()
+    def alive_and_safe(self):
+        if not hasattr(self, "goals"):
+            return
+        state = self._state()
+        for channel in state.channels:
+            assert 0.0 <= channel.setpoint <= channel.ceiling <= MAX_VOLTAGE, channel
+            assert channel.measured_voltage <= MAX_VOLTAGE + TOLERANCE, channel
+        if self.settled is not None:  # latched: no fault bit clears without a reset
+            for before, now in zip(self.settled.channels, state.channels):
+                assert now.faults & before.faults == before.faults, (before.fault_text, now.fault_text)
+        self.settled = state
+
+    def teardown(self):
+        """Every goal ended; those sent without the live token were refused, naming the control holder."""
+        if not hasattr(self, "goals"):
+            return
+        call(self.fuzz.services["estop"], Trigger.Request())  # ends every ramp still running
+        for live, future in self.goals:
+            wait_for(future.done, what="a ramp goal's result")
+            result = future.result().result
+            if not live:
+                assert not result.success and result.message.startswith(
+                    ("refused:", "target=", "slew_rate=", "channel=")), result.message
+
+
+def test_every_input_of_the_hv_driver_node(fuzz):
+    DriverInputs.fuzz = fuzz
+    machine = DriverInputs.TestCase
+    machine.settings = settings(max_examples=25, stateful_step_count=12, deadline=None,
+                                suppress_health_check=list(HealthCheck))
+    machine("runTest").runTest()
+
+
+def test_a_fuzzed_ceiling_never_raises_the_setpoint(fuzz):
+    """A NaN, infinite or negative safe voltage sets the ceiling to 0 V rather than lifting it."""
+    for voltage in (math.nan, math.inf, -math.inf, -1.0):
+        fuzz.safe_voltage.publish(Float64(data=voltage))
+        fuzz.state.messages.clear()
+        fuzz.state.wait(lambda s: all(c.ceiling == 0.0 and c.setpoint == 0.0 for c in s.channels))
+    fuzz.safe_voltage.publish(Float64(data=5000.0))
