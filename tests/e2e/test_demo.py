@@ -1,14 +1,17 @@
 """The README's main job end to end: `python -m softblock_ros.demo` on the simulated backend, then its
 recording replayed into a fresh ROS graph and recorded again, with the same analysis."""
 import json
+import math
 import subprocess
 import sys
 import threading
 
 import pytest
 import rclpy
+import yaml
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
+from softblock_config import config_file
 
 from softblock_ros.client import wait_until
 from recording.analysis import analyze
@@ -93,3 +96,15 @@ def test_demo_recording_replayed_and_recorded_again_gives_the_same_analysis(demo
         recorder.destroy_node()
         rclpy.try_shutdown(context=context)
     assert analyze(replayed) == analyze(original)
+
+
+def test_demo_camera_images_and_estimates_are_recorded_and_show_the_fingers_perturbation(demo):
+    _, out = demo
+    summary = json.loads((out / "summary.json").read_text())
+    counts = summary["recording"]["message_counts"]
+    assert counts["/camera/silhouette"] > 0 and counts["/assembly/estimated"] > 0
+    camera = yaml.safe_load(config_file("camera.yaml").read_text())["sim_camera"]["ros__parameters"]
+    seen = summary["recording"]["estimated_chains"][camera["chain"]]
+    assert seen["samples"] >= 10
+    # The estimate differs from the prediction by the simulated blocks' offsets (4 blocks in the front fingers).
+    assert seen["median_minus_predicted"] == pytest.approx(camera["block_offsets_rad"][:4], abs=math.radians(0.5))
