@@ -15,6 +15,7 @@ from softblock_config import config_file
 
 from softblock_ros.client import wait_until
 from recording.analysis import analyze
+from recording.mcap_file import describe
 from recording.playback import PlaybackOptions
 from softblock_ros.recording.player_node import PlayerNode
 from softblock_ros.recording.recorder_node import RecorderNode
@@ -101,8 +102,9 @@ def test_demo_recording_replayed_and_recorded_again_gives_the_same_analysis(demo
 def test_demo_camera_images_and_estimates_are_recorded_and_show_the_fingers_perturbation(demo):
     _, out = demo
     summary = json.loads((out / "summary.json").read_text())
-    counts = summary["recording"]["message_counts"]
-    assert counts["/camera/silhouette"] > 0 and counts["/assembly/estimated"] > 0
+    topics = describe(str(out / "run.mcap"))["topics"]
+    assert topics["/camera/silhouette"]["type"] == "sensor_msgs/msg/Image" and topics["/camera/silhouette"]["count"] > 0
+    assert topics["/assembly/estimated"]["count"] > 0 and topics["/diagnostics"]["count"] > 0
     camera = yaml.safe_load(config_file("camera.yaml").read_text())["sim_camera"]["ros__parameters"]
     seen = summary["recording"]["estimated_chains"][camera["chain"]]
     assert seen["samples"] >= 10
