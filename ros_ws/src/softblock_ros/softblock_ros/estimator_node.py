@@ -55,6 +55,13 @@ VIEW_PARAMETERS = (
           -10.0, 10.0, size=3),
     Param("mirrored", False, "the camera looks along the chain's -y (its bending side appears on the left)", kind=bool),
 )
+
+
+def camera_view(value: dict) -> tuple[str, float, ImagePose]:
+    """(chain name, pixel size [m], base pose in the image) from the declared VIEW_PARAMETERS."""
+    return value["chain"], value["pixel_size_m"], ImagePose(*value["base_pose"], mirrored=value["mirrored"])
+
+
 PARAMETERS = VIEW_PARAMETERS + (
     Param("threshold", -1.0, "grey level above which a pixel is the chain; -1: the image is a binary silhouette",
           "", -1.0, 255.0),
@@ -72,8 +79,7 @@ class EstimatorNode(Node):
     def __init__(self, **kwargs):
         super().__init__("estimator", **kwargs)
         value = declare(self, PARAMETERS)
-        self._chain_name, self._pixel_size = value["chain"], value["pixel_size_m"]
-        self._pose = ImagePose(*value["base_pose"], mirrored=value["mirrored"])
+        self._chain_name, self._pixel_size, self._pose = camera_view(value)
         self._threshold = None if value["threshold"] < 0 else value["threshold"]
         self._max_pixels, self._frame_id = value["max_image_pixels"], value["frame_id"]
         self._output = value["calibration_output"]

@@ -17,12 +17,11 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import Image
 from softblock_interfaces.msg import Assembly, HvState
 
-from estimation import ImagePose
 from estimation.render import render_chain, to_binary
 from planner.table import load_table
 
 from .conversions import assembly_from_msg, channel_voltages, image_msg
-from .estimator_node import VIEW_PARAMETERS
+from .estimator_node import VIEW_PARAMETERS, camera_view
 from .parameters import Param, declare
 from .runner import run_node
 
@@ -40,8 +39,8 @@ class SimCameraNode(Node):
     def __init__(self, **kwargs):
         super().__init__("sim_camera", **kwargs)
         value = declare(self, PARAMETERS)
-        self._chain_name, self._pixel_size = value["chain"], value["pixel_size_m"]
-        self._frame = (ImagePose(*value["base_pose"], mirrored=value["mirrored"]), tuple(value["image_size"]))
+        self._chain_name, self._pixel_size, pose = camera_view(value)
+        self._frame = (pose, tuple(value["image_size"]))
         self._offsets, self._frame_id = np.array(value["block_offsets_rad"], dtype=float), value["frame_id"]
         self._table = load_table()
         self._chain = None
