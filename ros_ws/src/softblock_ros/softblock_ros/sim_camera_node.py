@@ -3,8 +3,8 @@
 The simulated scene's chain is the assembly's (``assembly/current``) at the channel voltage measured on
 ``hv/state``, each block bent ``block_offsets_rad`` more than the look-up table says (the hand-made blocks
 of the real gripper differ a little from their design). Drawn by ``estimation.render`` (the reference renderer
-the estimator's tests use) at ``rate_hz`` into a fixed ``image_size`` frame and published as mono8 (0 / 255) on
-``camera/silhouette``. The view parameters are the estimator's (``chain``, ``pixel_size_m``, ``base_pose``,
+the estimator's tests use) into a fixed ``image_size`` frame and published as mono8 (0 / 255) on
+``camera/silhouette`` whenever the scene changed (assembly or voltage), at most ``rate_hz`` times a second. The view parameters are the estimator's (``chain``, ``pixel_size_m``, ``base_pose``,
 ``mirrored``), so the same parameter file serves both.
 """
 from __future__ import annotations
@@ -28,7 +28,8 @@ from .runner import run_node
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 PARAMETERS = VIEW_PARAMETERS + (
     Param("image_size", [480, 320], "image rows and columns", "pixels", 8, 4000, kind=int, size=2),
-    Param("rate_hz", 1.0, "images per second", "Hz", 0.01, 30.0),
+    Param("rate_hz", 1.0, "most images per second (a new one only when the assembly or the voltage changed)", "Hz",
+          0.01, 30.0),
     Param("block_offsets_rad", [], "angle added to each block's table angle, base first (missing: 0)", "rad",
           -0.17, 0.17, size=(0, 64)),
     Param("frame_id", "camera", "frame of the images", kind=str),
@@ -45,7 +46,7 @@ class SimCameraNode(Node):
         self._table = load_table()
         self._chain = None
         self._voltages: dict[str, float] = {}
-        self._drawn_scene, self._drawn = None, None  # (chain, voltage) last drawn, and its image
+        self._drawn_scene = None  # (chain, voltage) last drawn
         self._image_pub = self.create_publisher(Image, "camera/silhouette", 1)
         self.create_subscription(Assembly, "assembly/current", self._on_assembly, LATCHED)
         self.create_subscription(HvState, "hv/state", self._on_hv_state, qos_profile_sensor_data)
@@ -77,9 +78,10 @@ class SimCameraNode(Node):
         if chain is None:
             return
         scene = (chain, self._voltages.get(chain.hv_channel, 0.0))
-        if scene != self._drawn_scene:  # drawing costs a fifth of a second: only when the scene changed
-            self._drawn_scene, self._drawn = scene, self._draw(*scene)
-        image = image_msg(self._drawn)
+        if scene == self._drawn_scene:  # nothing moved: no new image to draw (a fifth of a second) or estimate
+            return
+        self._drawn_scene = scene
+        image = image_msg(self._draw(*scene))
         image.header.stamp = self.get_clock().now().to_msg()
         image.header.frame_id = self._frame_id
         self._image_pub.publish(image)
