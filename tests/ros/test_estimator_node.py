@@ -66,10 +66,10 @@ def client(ros_context, spin, frame, table, calibration_file):
 class Camera:
     """Publishes images with a unique stamp and returns what the estimator made of each."""
 
-    def __init__(self, client):
-        self._publisher = client.create_publisher(Image, "camera/silhouette", 10)
+    def __init__(self, client, topic="camera/silhouette"):
+        self._publisher = client.create_publisher(Image, topic, 10)
         self.diagnostics = Inbox(client, DiagnosticArray, "/diagnostics")
-        self.estimates = Inbox(client, AssemblyState, "assembly/estimated")
+        self.estimates = Inbox(client, AssemblyState, topic.replace("camera/silhouette", "assembly/estimated"))
 
     def show(self, image: Image | np.ndarray) -> DiagnosticStatus:
         message = image if isinstance(image, Image) else image_msg(image)
@@ -133,6 +133,8 @@ def with_a_second_object(image):
     (lambda image: np.roll(image, 40, axis=1), "the chain does not start at the given base"),
     (lambda image: np.pad(image, ((0, 1), (0, 0))), "larger than max_image_pixels"),
     (rgb_image, "encoding must be mono8"),
+    (lambda image: np.where(image > 0, 200, 0).astype(np.uint8) + (np.arange(image.shape[1]) % 2).astype(np.uint8),
+     "is not binary"),
 ])
 def test_a_bad_image_is_refused_with_its_reason_and_the_next_good_one_is_estimated(camera, table, frame, bad, reason):
     image, _ = drawn(table, frame)
@@ -140,6 +142,22 @@ def test_a_bad_image_is_refused_with_its_reason_and_the_next_good_one_is_estimat
     assert status.level == DiagnosticStatus.ERROR
     assert status.message.startswith("image refused:") and reason in status.message, status.message
     assert camera.show(image).message == "as built"
+
+
+def test_a_grey_image_is_read_with_the_threshold_parameter(ros_context, spin, client, table, frame):
+    pose, _ = frame
+    grey = EstimatorNode(context=ros_context, namespace="/grey", parameter_overrides=[
+        Parameter("chain", value="rig"), Parameter("pixel_size_m", value=PIXEL_SIZE),
+        Parameter("base_pose", value=[pose.x, pose.y, pose.angle]), Parameter("threshold", value=128.0)])
+    spin(grey)
+    client.create_publisher(Assembly, "/grey/assembly/current", LATCHED).publish(
+        assembly_msg(CoreAssembly("rig", (RIG,)), table))
+    camera = Camera(client, "/grey/camera/silhouette")
+    image, theta = drawn(table, frame, grey=True)
+    status = camera.show(image)
+    assert (status.level, status.message) == (DiagnosticStatus.OK, "as built")
+    estimate = camera.estimates.wait(lambda m: m.header.stamp == camera.stamp)
+    np.testing.assert_allclose(estimate.chains[0].block_angles, theta, atol=math.radians(0.5))
 
 
 def test_calibration_from_the_last_images_returns_and_writes_each_blocks_offset(camera, client, table, frame,
