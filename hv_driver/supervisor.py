@@ -196,14 +196,15 @@ class ChannelSupervisor:
             self._start_ramp(self._clock, 0.0, self.config.slew_rate_v_per_s)
             self._off_at_zero = True
 
-    def observe(self, now: float, voltage: float, current: float, device_fault: str | None = None,
+    def observe(self, now: float, voltage: float, current: float | None, device_fault: str | None = None,
                 device_over_current: bool = False) -> None:
-        """Check one readback: measured voltage [V] and current [A], the device's own flags."""
+        """Check one readback: measured voltage [V] and current [A] (None: the supply has no current readback),
+        the device's own flags."""
         now = self._now(now)
-        if not (_finite(voltage) and _finite(current)):
+        if not (_finite(voltage) and (current is None or _finite(current))):
             self.trip(Fault.LINK, f"readback not a finite number ({voltage!r} V, {current!r} A)")
             return
-        if current > self.config.current_trip_a:
+        if current is not None and current > self.config.current_trip_a:
             self.trip(Fault.OVER_CURRENT, f"measured {current:.3g} A above the trip level "
                                           f"{self.config.current_trip_a:.3g} A")
         if device_over_current:
@@ -277,7 +278,7 @@ class Supervisor:
         if not configs:
             raise SettingError("channels: at least one ChannelConfig")
         for parameter, values in (("channel names", [c.name for c in configs]),
-                                  ("channel indices", [c.index for c in configs])):
+                                  ("channel indices", [(c.device, c.index) for c in configs])):
             if len(set(values)) != len(values):
                 raise SettingError(f"{parameter} must be unique, got {values}")
         if not (_finite(link_timeout_s) and link_timeout_s > 0):
@@ -292,10 +293,10 @@ class Supervisor:
         self._clock = float(now) if _finite(now) else 0.0
         self.channels = {c.name: ChannelSupervisor(c, self._clock, nominal_period_s) for c in configs}
         self.control = ControlClaim(self.heartbeat_timeout_s)
-        # Start of the current run of failed exchanges (None while the link answers). Timing the
-        # failures, not the gap since the last success, keeps a host that was merely descheduled (a
-        # loaded machine) from tripping while a supply that stops answering still trips on time.
-        self._link_failing_since: float | None = None
+        # Per supply (device): start of the current run of failed exchanges (None while its link answers). Timing
+        # the failures, not the gap since the last success, keeps a host that was merely descheduled (a loaded
+        # machine) from tripping while a supply that stops answering still trips on time.
+        self._link_failing_since: dict[int, float | None] = {c.device: None for c in configs}
 
     @property
     def heartbeat_watchdog_off(self) -> bool:
@@ -316,16 +317,16 @@ class Supervisor:
         except (KeyError, TypeError):
             raise SettingError(f"channel={name!r}: unknown, configured are {sorted(self.channels)}") from None
 
-    def link_ok(self, now: float) -> None:
-        """A complete, valid exchange with the supply finished at ``now``."""
+    def link_ok(self, now: float, device: int = 0) -> None:
+        """A complete, valid exchange with supply ``device`` finished at ``now``."""
         self._now(now)
-        self._link_failing_since = None
+        self._link_failing_since[device] = None
 
-    def link_failed(self, now: float) -> None:
-        """An exchange with the supply failed at ``now`` (no, partial, garbled or wrong answer)."""
+    def link_failed(self, now: float, device: int = 0) -> None:
+        """An exchange with supply ``device`` failed at ``now`` (no, partial, garbled or wrong answer)."""
         now = self._now(now)
-        if self._link_failing_since is None:
-            self._link_failing_since = now
+        if self._link_failing_since.get(device) is None:
+            self._link_failing_since[device] = now
 
     # --- who may command ---------------------------------------------------------------------
     def claim_control(self, client: str, now: float) -> str:
@@ -383,8 +384,12 @@ class Supervisor:
 
     def step(self, now: float) -> dict[str, ChannelCommand]:
         now = self._now(now)
-        if self._link_failing_since is not None and now - self._link_failing_since > self.link_timeout_s:
-            self.trip_all(Fault.LINK, f"no valid reply from the supply for more than {self.link_timeout_s:g} s")
+        for device, since in self._link_failing_since.items():
+            if since is not None and now - since > self.link_timeout_s:
+                for channel in self.channels.values():
+                    if channel.config.device == device:
+                        channel.trip(Fault.LINK, f"no valid reply from the supply for more than "
+                                                 f"{self.link_timeout_s:g} s")
         self.control.lapse_if_silent(now)
         if not self.heartbeat_watchdog_off and self.control.owner is None:
             # Only an output held or raised above 0 V needs a live client; one on its way to 0 V does not.

@@ -1,5 +1,7 @@
-"""Wire dialects of HV supplies. A new supply is one new module defining a `Dialect`."""
-from .base import OPERATIONS, Command, Dialect, ProtocolError, StatusReport
+"""Wire dialects of HV supplies. A new supply is one new module defining a `Dialect` (and its simulator)."""
+from .base import (BASE_OPERATIONS, Capabilities, Command, CurrentSensing, DeviceSwitching, Dialect, ProtocolError,
+                   StatusReport)
 from .iseg_edcp import IsegEdcp
 
-__all__ = ["OPERATIONS", "Command", "Dialect", "IsegEdcp", "ProtocolError", "StatusReport"]
+__all__ = ["BASE_OPERATIONS", "Capabilities", "Command", "CurrentSensing", "DeviceSwitching", "Dialect", "IsegEdcp",
+           "ProtocolError", "StatusReport"]

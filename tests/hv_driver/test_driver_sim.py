@@ -342,7 +342,7 @@ def test_open_ramps_down_an_output_an_earlier_session_left_on(sim, wait_until):
 
 def test_a_channel_index_the_supply_does_not_have_is_refused_at_open(sim):
     hv = HvSupply(sim.port, channels=[ChannelConfig("front", 999, max_voltage_v=3000.0)], handle_signals=False)
-    with pytest.raises(ConfigurationError, match=r"channel 'front': index 999 is not on this supply, which has 2 "
+    with pytest.raises(ConfigurationError, match=r"channel 'front': index 999 is not on the supply at \S+, which has 2 "
                                                  r"channel\(s\) \(indices 0-1\)"):
         hv.open()
     assert not [line for _, line in sim.command_log if "999" in line]  # nothing sent to it
