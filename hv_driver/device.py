@@ -84,6 +84,9 @@ class Device:
     # --- session start -----------------------------------------------------------------------------
     def identify(self, expected_identity: str) -> str:
         self.device_id = self.query("identify")
+        problem = self.dialect.identity_problem(self.device_id)
+        if problem:
+            raise ConfigurationError(f"device on {self.port_name}: {problem}")
         if expected_identity not in self.device_id:
             raise ConfigurationError(f"device on {self.port_name} identifies as {self.device_id!r}, "
                                      f"expected_identity={expected_identity!r} is not part of it")
@@ -100,6 +103,8 @@ class Device:
         """Known state: 0 V, output off (an output left on ramps down at the device ramp, if it has one)."""
         self.query("set_voltage", self.indices, 0.0)
         self.query("output_off", self.indices)
+        for operation, value in self.dialect.session_settings():
+            self.query(operation, self.indices, value)
 
     def configure(self) -> dict[str, DeviceSide]:
         """Device-side second line of defence, set and read back: ramp speed, current trip/limit, voltage limit."""

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 from .config import ChannelConfig
 from .device import ConfigurationError, Device
-from .dialects import Dialect, IsegEdcp, ProtocolError
+from .dialects import CurrentSensing, Dialect, IsegEdcp, ProtocolError
 from .errors import SettingError, StateError
 from .faults import Fault
 from .link import LinkError
@@ -238,6 +238,8 @@ class HvSupply:
                 channel = self._supervisor.channel(name)
                 channel.set_device_limit(side.voltage_limit)
                 channel.set_device_ramp(side.ramp_rate_v_per_s)  # outputs move, and ramp down when off, at it
+                # Without current readback a breakdown shows only as the voltage collapsing.
+                channel.breakdown_guard = device.capabilities.current is CurrentSensing.NONE
 
     def close(self, ramp_down_timeout: float = 5.0) -> None:
         """Ramp every output to 0 V and switch it off, stop the loop, close the ports."""
@@ -458,7 +460,8 @@ class HvSupply:
                     fault, over_current = None, False
                     if not sent.emergency:  # after our own cut the device flags are expected
                         fault, over_current = reading.report.fault, reading.report.over_current
-                        if fault is None and sent.output_on != reading.report.output_on:
+                        # An output the device cut for over-current is explained by that fault.
+                        if fault is None and not over_current and sent.output_on != reading.report.output_on:
                             fault = "supply output " + ("off although commanded on (reset or interlock)"
                                                         if sent.output_on else "on although commanded off")
                     self._supervisor.channel(config.name).observe(now, reading.voltage, reading.current, fault,

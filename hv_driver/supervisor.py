@@ -14,6 +14,8 @@ Rules enforced here:
 - only the client holding control (its session token) may ramp or feed the heartbeat watchdog; the
   watchdog is on unless switched off on purpose (heartbeat_timeout_s=math.inf);
 - the readback must follow the commands at the device's own ramp (`ReadbackCheck`);
+- on a supply without current readback (breakdown guard on), a measured voltage far below a setpoint held for a
+  moment is a film breakdown (BREAKDOWN);
 - faults latch until `reset`; every fault but HEARTBEAT puts the output to 0 V and off at once
   (emergency off), a lost heartbeat ramps to 0 V at the slew limit and then switches off;
 - after a reset the outputs stay off until enabled again (never resume by themselves).
@@ -31,6 +33,13 @@ from .readback import ReadbackCheck
 # A lost heartbeat ramps down smoothly; every other fault cuts the output at once.
 RAMP_DOWN_FAULTS = Fault.HEARTBEAT
 IMMEDIATE_FAULTS = Fault(sum(Fault)) & ~RAMP_DOWN_FAULTS
+
+# Breakdown guard (supplies without current readback): a readback below COLLAPSE_FRACTION of a setpoint of at least
+# COLLAPSE_MIN_V held for COLLAPSE_SETTLE_S (the output regulates towards it), COLLAPSE_READBACKS times in a row.
+COLLAPSE_FRACTION = 0.5
+COLLAPSE_MIN_V = 50.0
+COLLAPSE_SETTLE_S = 0.05
+COLLAPSE_READBACKS = 2
 
 # The control loop's nominal period [s] unless told otherwise: the largest time step credited to the slew
 # allowance (a stalled loop resumes with a slew-limited move instead of a jump) and to the readback check.
@@ -78,6 +87,9 @@ class ChannelSupervisor:
         self._off_at_zero = False
         self._readback = ReadbackCheck(config.mismatch_tolerance_v, config.mismatch_time_s, max_step_s, self._clock)
         self._creep_since: float | None = None
+        self.breakdown_guard = False
+        self._held = (0.0, self._clock)  # (setpoint, since when) as last commanded
+        self._collapsed = 0              # readbacks in a row far below the held setpoint
         self.ramp_id = 0  # counts accepted ramp requests, so a waiting caller sees being superseded
 
     # --- state -------------------------------------------------------------------------------
@@ -214,6 +226,8 @@ class ChannelSupervisor:
         mismatch = self._readback.check(now, voltage)
         if mismatch:
             self.trip(Fault.READBACK_MISMATCH, mismatch)
+        if self.breakdown_guard:
+            self._check_collapse(now, voltage)
         if self.config.creep_voltage_v is not None and voltage >= self.config.creep_voltage_v:
             self._creep_since = now if self._creep_since is None else self._creep_since
             if now - self._creep_since > self.config.max_time_at_voltage_s:
@@ -221,6 +235,18 @@ class ChannelSupervisor:
                                                  f"{self.config.max_time_at_voltage_s:g} s")
         else:
             self._creep_since = None
+
+    def _check_collapse(self, now: float, voltage: float) -> None:
+        held, since = self._held
+        if (self.output_enabled and held >= COLLAPSE_MIN_V and now - since >= COLLAPSE_SETTLE_S
+                and voltage < COLLAPSE_FRACTION * held):
+            self._collapsed += 1
+        else:
+            self._collapsed = 0
+        if self._collapsed >= COLLAPSE_READBACKS:
+            self.trip(Fault.BREAKDOWN, f"measured {voltage:.0f} V, below {COLLAPSE_FRACTION:g} x the held setpoint of "
+                                       f"{held:.0f} V in {COLLAPSE_READBACKS} readbacks: the voltage collapsed (film "
+                                       f"breakdown); this supply has no current readback")
 
     def reset(self) -> None:
         """Clear the latched faults; the output stays off until enabled again."""
@@ -238,6 +264,8 @@ class ChannelSupervisor:
         """Advance to ``now`` and return the command for this cycle."""
         command = self._command(now)
         self._readback.command(self._clock, command.setpoint, ramped=not command.emergency_off)
+        if command.setpoint != self._held[0]:
+            self._held = (command.setpoint, self._clock)
         return command
 
     def _command(self, now: float) -> ChannelCommand:

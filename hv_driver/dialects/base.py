@@ -166,6 +166,15 @@ class Dialect(ABC):
             raise ProtocolError(f"{operation}: expected {count} value(s), got {reply!r}")
         return [self.parse_number(field, command, operation) for field in fields]
 
+    def session_settings(self) -> list[tuple[str, float]]:
+        """(operation, value) sent at the start of every session, after the outputs are off (modes the driver
+        relies on)."""
+        return []
+
+    def identity_problem(self, identity: str) -> str | None:
+        """Why a device answering ``identity`` is not one this dialect drives (None: it is)."""
+        return None
+
     def device_trip_settings(self, current_a: float) -> list[tuple[str, float, str | None]]:
         """(set operation, value, read-back operation or None) that make the device cut or limit an output drawing
         more than ``current_a`` [A] (capability DEVICE_TRIP)."""

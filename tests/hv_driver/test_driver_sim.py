@@ -13,7 +13,7 @@ import pytest
 
 from hv_driver import (ChannelConfig, ConfigurationError, ControlError, Fault, FaultLatchedError, HvSupply, LimitError,
                        LinkError)
-from hv_driver.dialects.iseg_edcp import ChannelEvent
+from sim_fallback.hv_plant import PlantEvent
 from sim_fallback.hv_plant import ChannelDefaults
 from sim_fallback.hv_supply import SimulatedSupply
 
@@ -123,7 +123,7 @@ def test_every_injected_fault_ends_with_outputs_off_and_the_named_fault(fault, s
 
 def test_an_interlock_pulse_between_two_polls_is_caught_by_the_event_register(sim, supply, token, wait_until):
     ramp_both(supply, token, 800.0)
-    sim.plant[1].events |= ChannelEvent.EVENT_EXTERNAL_INHIBIT  # the status bit came and went unseen
+    sim.plant[1].events |= PlantEvent.EXTERNAL_INHIBIT  # the status bit came and went unseen
     assert wait_until(lambda: supply.snapshot().channel("back").faults == Fault.DEVICE)
     assert "event_external_inhibit" in supply.snapshot().channel("back").fault_text
     assert wait_until(lambda: not sim.plant[1].output_on) and sim.plant[0].output_on
