@@ -2,14 +2,15 @@
 
 Public API: `HvSupply` (driver), `ChannelConfig` (per-channel limits), `DIALECTS` / `dialect(name)` (the supplies
 it speaks), `Fault` (latched fault
-bits, equal to HvChannelState.msg), `SupplySnapshot` / `ChannelSnapshot`, `RampHandle`, and the
+bits, equal to HvChannelState.msg), `SupplySnapshot` / `ChannelSnapshot`, `RampHandle`, `PulseHandle` (periodic actuation), and the
 errors, all `HvError`: `SettingError` (and its `LimitError`), `StateError`, `FaultLatchedError`,
-`ConfigurationError`, `LinkError`, `ProtocolError`.
+`ConfigurationError`, `LinkError`, `ProtocolError`, `PulseLimitError` (a waveform the supply cannot produce).
 """
 from .config import ChannelConfig
 from .control import ControlError
 from .dialects import DIALECTS, Dialect, IsegEdcp, ProtocolError, dialect
-from .driver import ChannelSnapshot, ConfigurationError, HvSupply, RampHandle, SupplySnapshot
+from .driver import ChannelSnapshot, ConfigurationError, HvSupply, PulseHandle, RampHandle, SupplySnapshot
+from .pulse import PulseLimitError
 from .errors import HvError, SettingError, StateError
 from .faults import Fault, fault_names
 from .link import LinkError
@@ -17,4 +18,4 @@ from .supervisor import FaultLatchedError, LimitError, Supervisor
 
 __all__ = ["ChannelConfig", "ChannelSnapshot", "ConfigurationError", "ControlError", "DIALECTS", "Dialect", "Fault",
            "FaultLatchedError", "HvError", "HvSupply", "IsegEdcp", "LimitError", "LinkError", "ProtocolError",
-           "RampHandle", "SettingError", "StateError", "Supervisor", "SupplySnapshot", "dialect", "fault_names"]
+           "PulseHandle", "PulseLimitError", "RampHandle", "SettingError", "StateError", "Supervisor", "SupplySnapshot", "dialect", "fault_names"]

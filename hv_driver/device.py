@@ -11,6 +11,7 @@ from .config import ChannelConfig
 from .dialects import CurrentSensing, Dialect, ProtocolError, StatusReport
 from .errors import HvError
 from .link import Link, LinkError
+from .pulse import PulseTrain
 
 # The device-side ramp is set this much faster than the host slew limit: fast enough to follow the
 # streamed setpoints, slow enough to cap the slew if the host misbehaves.
@@ -28,6 +29,10 @@ class Sent:
     setpoint: float = 0.0
     output_on: bool = False
     emergency: bool = False  # cut for a fault; released when the fault is reset
+    pulse: PulseTrain | None = None        # the square train armed on the device (frequency and count sent)
+    switching_since: float | None = None   # [s] when the device was told to start switching it
+    armed: PulseTrain | None = None        # the last train armed (kept after it ended) ...
+    frequency: float | None = None         # ... and the device's answer to its frequency [Hz] (quantised)
 
 
 @dataclass(frozen=True)
@@ -161,8 +166,10 @@ class Device:
             self.sent[config.name] = Sent(0.0, False, True)
         self.query("set_voltage", indices, 0.0)
 
-    def apply(self, config: ChannelConfig, setpoint: float, output_on: bool) -> None:
-        """Send what changed on one channel since the last cycle."""
+    def apply(self, config: ChannelConfig, setpoint: float, output_on: bool, pulse: PulseTrain | None = None,
+              now: float = 0.0) -> None:
+        """Send what changed on one channel since the last cycle; ``pulse``: a square train the device switches
+        itself (armed at once, started on the first cycle at or after its start)."""
         sent, ch = self.sent[config.name], [config.index]
         if sent.emergency:  # faults were reset: release what the cut latched in the device
             if self.capabilities.emergency_off:
@@ -170,10 +177,18 @@ class Device:
             if self.has("clear_events"):
                 self.query("clear_events", ch)
             sent.emergency = False
+        if output_on and pulse is not None:
+            self._switch(config, pulse, now)
+            return
         if output_on and not sent.output_on:
             self.query("set_voltage", ch, 0.0)
             self.query("output_on", ch)
             sent.setpoint, sent.output_on = 0.0, True
+        if sent.pulse is not None:  # the train ended or was stopped: 0 V, and back to a plain output
+            self.query("set_voltage", ch, 0.0)
+            if output_on:
+                self.query("output_on", ch)
+            sent.setpoint, sent.pulse, sent.switching_since = 0.0, None, None
         if output_on and setpoint != sent.setpoint:
             self.query("set_voltage", ch, setpoint)
             sent.setpoint = setpoint
@@ -181,6 +196,40 @@ class Device:
             self.query("set_voltage", ch, 0.0)
             self.query("output_off", ch)
             sent.setpoint, sent.output_on = 0.0, False
+
+    def _switch(self, config: ChannelConfig, train: PulseTrain, now: float) -> None:
+        """Arm the device for ``train`` with its output off (0 V whatever the set voltage): amplitude, frequency,
+        cycle count (it stops by itself after them even if the host dies); then start it with one line on the
+        first cycle at or after its start, so the first edge is the device's own."""
+        sent, ch = self.sent[config.name], [config.index]
+        if sent.pulse is not train:
+            self.query("output_off", ch)
+            self.query("set_voltage", ch, train.amplitude)
+            (sent.frequency,) = self.query("set_frequency", ch, train.frequency)
+            self.query("set_cycles", ch, train.cycles)
+            sent.pulse = sent.armed = train
+            sent.setpoint, sent.output_on, sent.switching_since = train.amplitude, False, None
+        self._start_if_due(config, train, now)
+
+    def _start_if_due(self, config: ChannelConfig, train: PulseTrain, now: float) -> None:
+        sent = self.sent[config.name]
+        if sent.pulse is train and sent.switching_since is None and now >= train.start:
+            self.query("start_switching", [config.index])
+            sent.output_on, sent.switching_since = True, now
+
+    def start_due_trains(self, pulses: dict[str, PulseTrain | None], now: float) -> None:
+        """Start the armed trains whose start has come (``pulses``: channel name -> its running train): one line
+        each, sent before any other exchange of the cycle, so trains of several supplies start together."""
+        for config in self.configs:
+            train = pulses.get(config.name)
+            if train is not None:
+                self._start_if_due(config, train, now)
+
+    def count_ended(self, config: ChannelConfig, now: float) -> bool:
+        """The device may have stopped switching by itself: its cycle count is (within a period) over."""
+        sent = self.sent[config.name]
+        return (sent.pulse is not None and sent.switching_since is not None
+                and now >= sent.switching_since + (sent.pulse.cycles - 1) * sent.pulse.period)
 
     def reset(self) -> None:
         """The device's own reset (outputs off, Vset 0, defaults); the cut state is forgotten with it."""

@@ -21,6 +21,7 @@ from .dialects import CurrentSensing, Dialect, IsegEdcp, ProtocolError
 from .errors import SettingError, StateError
 from .faults import Fault
 from .link import LinkError
+from .pulse import PulseTrain, plan_pulse_train
 from .supervisor import DEFAULT_HEARTBEAT_TIMEOUT_S, Supervisor
 
 log = logging.getLogger(__name__)
@@ -118,6 +119,68 @@ class RampHandle:
                 down = RampHandle(self._supply, self.channel, ch.ramp_to(self._supply._clock(), 0.0), 0.0)
         self._supply._wake.set()
         return down
+
+
+class PulseHandle:
+    """A running pulse train on one or more channels: ``wait``, ``done``, ``cancel`` (back to 0 V), ``cycles_done``
+    (periods begun on the driver's clock), ``frequency`` (as the device quantised it, or as generated)."""
+
+    def __init__(self, supply: "HvSupply", trains: dict[str, PulseTrain], ramp_ids: dict[str, int]):
+        self._supply, self.trains = supply, trains
+        self._channels = [RampHandle(supply, name, ramp_ids[name], trains[name].end) for name in trains]
+        self.generated_by = "device" if next(iter(trains.values())).on_device else "loop"
+        self._ended_at: float | None = None
+
+    def _ended(self) -> bool:
+        """Every channel's train is over, or one ended without completing (fault, superseded)."""
+        states = [(channel, channel._state()[1]) for channel in self._channels]
+        return all(done for _, done in states) or any(done and not c.succeeded for c, done in states)
+
+    @property
+    def done(self) -> bool:
+        with self._supply._lock:
+            return self._ended()
+
+    @property
+    def message(self) -> str:
+        """Why it ended ("" while it runs): the channels that did not complete, else "completed"."""
+        if not self.done:
+            return ""
+        failed = [f"{c.channel}: {c.message}" for c in self._channels if c.done and not c.succeeded]
+        return "; ".join(failed) if failed else f"completed {self.cycles_done} cycles"
+
+    @property
+    def succeeded(self) -> bool:
+        return self.done and all(channel.succeeded for channel in self._channels)
+
+    @property
+    def cycles_done(self) -> int:
+        if self._ended_at is None and self.done:
+            self._ended_at = self._supply._clock()
+        at = self._supply._clock() if self._ended_at is None else self._ended_at
+        return min(train.cycles_done(at) for train in self.trains.values())
+
+    @property
+    def frequency(self) -> float:
+        """[Hz] the device's quantised frequency once it is armed (square), else the requested one."""
+        with self._supply._lock:
+            answered = [d.sent[n].frequency for d in self._supply._devices for n in self.trains
+                        if n in d.sent and d.sent[n].armed is self.trains[n]]
+        return answered[0] if answered else next(iter(self.trains.values())).frequency
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Block until every channel's train ends or ``timeout`` [s] passes; True when they ended."""
+        with self._supply._cycle_done:
+            ended = self._supply._cycle_done.wait_for(self._ended, timeout)
+        if ended and not self.succeeded:  # one channel failed: the others stop too (one train, one outcome)
+            for channel in self._channels:
+                channel.cancel()
+        return ended
+
+    def cancel(self) -> None:
+        """Stop the train: each channel still running it goes back to 0 V (square: at once; smooth: ramped); the
+        handle then follows those ramps down."""
+        self._channels = [channel.cancel() or channel for channel in self._channels]
 
 
 class HvSupply:
@@ -324,6 +387,21 @@ class HvSupply:
             lambda now: self._supervisor.ramp_to(channel, now, target_v, slew_rate_v_per_s, token=token))
         return RampHandle(self, channel, ramp_id, float(target_v))
 
+    def pulse(self, channels: Sequence[str], amplitude_v: float, frequency_hz: float, duty: float = 0.5,
+              phase: float = 0.0, cycles: int = 1, edge: str = "smooth", slew_rate_v_per_s: float | None = None, *,
+              token: str) -> "PulseHandle":
+        """Switch ``channels`` together between 0 V and ``amplitude_v``, ``cycles`` periods at ``frequency_hz``,
+        on for ``duty`` of each period, the on-edges delayed by ``phase`` of a period on a time grid shared by
+        every train of that frequency. ``edge`` "square": the device switches itself (supplies with device-side
+        switching); "smooth": minimum-jerk edges at ``slew_rate_v_per_s`` (None: the configured slew limit),
+        generated in this loop. What the supply cannot produce raises PulseLimitError naming the limit, before
+        anything changes (all channels or none); the control claim applies as for `ramp_to`."""
+        def plan(config, now):
+            return plan_pulse_train(config, self.dialect.capabilities, self.dialect.name, now, self._period,
+                                    amplitude_v, frequency_hz, duty, phase, cycles, edge, slew_rate_v_per_s)
+        trains, ramp_ids = self._change(lambda now: self._supervisor.pulse(list(channels), now, plan, token=token))
+        return PulseHandle(self, trains, ramp_ids)
+
     def claim_control(self, client: str) -> str:
         """Take control as ``client`` (a name); returns the session token that ramps and heartbeats carry.
         ControlError while another client holds control."""
@@ -431,6 +509,12 @@ class HvSupply:
             reconfigure, self._reconfigure = self._reconfigure, False
             device_reset, self._device_reset = self._device_reset, False
             faults_before = {n: c.faults for n, c in self._supervisor.channels.items()}
+        pulses = {name: c.pulse for name, c in commands.items() if c.output_on and not c.emergency_off}
+        for device in self._devices:  # trains the supplies switch start first, together
+            try:
+                device.start_due_trains(pulses, self._clock())
+            except (LinkError, ProtocolError):
+                pass  # retried below by apply, where a failure counts against the link
         for k, device in enumerate(self._devices):
             try:
                 if device_reset:
@@ -442,7 +526,7 @@ class HvSupply:
                 for config in device.configs:
                     command = commands[config.name]
                     if not command.emergency_off:
-                        device.apply(config, command.setpoint, command.output_on)
+                        device.apply(config, command.setpoint, command.output_on, command.pulse, self._clock())
                 readings = device.read()
             except (LinkError, ProtocolError, ConfigurationError) as error:
                 with self._lock:
@@ -461,7 +545,8 @@ class HvSupply:
                     if not sent.emergency:  # after our own cut the device flags are expected
                         fault, over_current = reading.report.fault, reading.report.over_current
                         # An output the device cut for over-current is explained by that fault.
-                        if fault is None and not over_current and sent.output_on != reading.report.output_on:
+                        if (fault is None and not over_current and sent.output_on != reading.report.output_on
+                                and not device.count_ended(config, now)):
                             fault = "supply output " + ("off although commanded on (reset or interlock)"
                                                         if sent.output_on else "on although commanded off")
                     self._supervisor.channel(config.name).observe(now, reading.voltage, reading.current, fault,

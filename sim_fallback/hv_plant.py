@@ -174,21 +174,26 @@ class PlantChannel:
         if dt <= 0:
             return
         load, before = self.load, self.voltage
+        # Target in the middle of the step: a step begins or ends on a switching edge, whose own time would
+        # fall on either side of it by rounding.
+        target = self.target(now - dt / 2)
+        rise_rate = tau = None  # how the output moves in this step, for the exact time of a watched crossing
         if self.arcing and self.output_on:
             self.voltage *= math.exp(-dt / load.arc_collapse_time)
         elif self.output_on and self.ramp_up is not None:
-            delta = self.target(now - dt) - self.voltage
+            delta = target - self.voltage
             limit = (self.ramp_up if delta > 0 else self.ramp_down) * dt
             self.voltage += max(-limit, min(limit, delta))
+            rise_rate = self.ramp_up
         elif self.output_on:
             tau = self.defaults.regulation_time_s * load.capacitance / NOMINAL_CAPACITANCE
-            self.voltage += (self.target(now - dt) - self.voltage) * -math.expm1(-dt / tau)
+            self.voltage += (target - self.voltage) * -math.expm1(-dt / tau)
         elif self.ramping_down:
             self.voltage = max(0.0, self.voltage - self.ramp_down * dt)
             self.ramping_down = self.voltage > 0.0
         else:
             self.voltage *= math.exp(-dt / (load.discharge_resistance * load.capacitance))
-        self._record_edge(now, dt, before)
+        self._record_edge(now - dt, dt, before, target, rise_rate, tau)
         self.current = load.capacitance * (self.voltage - before) / dt + self.voltage / load.leakage_resistance
         if self.arcing and self.output_on:
             self.current += load.arc_current
@@ -196,10 +201,20 @@ class PlantChannel:
         self.drift += self.drift_rate * dt
         self._device_trip(now)
 
-    def _record_edge(self, now: float, dt: float, before: float) -> None:
+    def _record_edge(self, start: float, dt: float, before: float, target: float, rise_rate: float | None,
+                     tau: float | None) -> None:
+        """A rising crossing of the watched level in the step from ``start``, timed by the step's own law (a ramp
+        at ``rise_rate`` or a first-order lag ``tau`` towards ``target``), so long steps keep exact edge times."""
         level = self.watch_level
-        if level is not None and before < level <= self.voltage:
-            self.rising_edges.append(now - dt + dt * (level - before) / (self.voltage - before))
+        if level is None or not before < level <= self.voltage:
+            return
+        if rise_rate is not None:
+            into = (level - before) / rise_rate
+        elif tau is not None and target > level:
+            into = tau * math.log((target - before) / (target - level))
+        else:
+            into = dt * (level - before) / (self.voltage - before)
+        self.rising_edges.append(start + min(dt, into))
 
     def _device_trip(self, now: float) -> None:
         """Delayed current trip (trip time and action), the device's own defence."""

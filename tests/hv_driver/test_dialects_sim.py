@@ -3,9 +3,10 @@
 Every injected fault ends with the outputs off and the fault each device's capabilities let the driver name."""
 import pytest
 
-from hv_driver import ChannelConfig, Fault, FaultLatchedError, HvSupply
-from hv_driver.dialects import DIALECTS, dialect
-from sim_fallback.rig import SIMULATORS
+from dialect_rig import Rig
+
+from hv_driver import Fault, FaultLatchedError
+from hv_driver.dialects import DIALECTS
 
 FAST = dict(max_voltage_v=3000.0, slew_rate_v_per_s=8000.0, mismatch_tolerance_v=150.0, mismatch_time_s=0.2)
 
@@ -25,46 +26,9 @@ MATRIX = {
 }
 
 
-class Rig:
-    """Two channels ``a`` and ``b`` of the dialect's simulator(s) behind one HvSupply."""
-
-    def __init__(self, name: str):
-        cls = SIMULATORS[name]
-        single = cls.dialect.capabilities.channels_per_device == 1
-        self.sims = [cls(1, rng=k).start() for k in range(2)] if single else [cls(2).start()]
-        # channel -> (simulator, plant index)
-        self.where = {"a": (self.sims[0], 0), "b": (self.sims[-1], 0 if single else 1)}
-        configs = [ChannelConfig("a", 0, device=0, **FAST),
-                   ChannelConfig("b", 0 if single else 1, device=1 if single else 0, **FAST)]
-        self.supply = HvSupply([s.port for s in self.sims], channels=configs, dialect=dialect(name),
-                               link_timeout_s=0.5, heartbeat_timeout_s=30.0, handle_signals=False).open()
-        self.token = self.supply.claim_control("test")
-
-    def plant(self, channel: str):
-        sim, index = self.where[channel]
-        return sim.plant[index]
-
-    def inject(self, fault: str, channel: str | None = None) -> None:
-        targets = [self.where[channel]] if channel else [(sim, None) for sim in self.sims]
-        for sim, index in targets:
-            sim.inject(fault, index)
-
-    def ramp(self, volts: float) -> list:
-        for name in "ab":
-            self.supply.enable(name)
-        handles = [self.supply.ramp_to(name, volts, token=self.token) for name in "ab"]
-        assert all(h.wait(5.0) for h in handles)
-        return handles
-
-    def close(self) -> None:
-        self.supply.abort()
-        for sim in self.sims:
-            sim.stop()
-
-
 @pytest.fixture(params=list(DIALECTS))
 def rig(request):
-    made = Rig(request.param)
+    made = Rig(request.param, FAST, link_timeout_s=0.5)
     yield request.param, made
     made.close()
 
@@ -116,7 +80,7 @@ def test_fault_matrix(rig, fault, wait_until):
 
 
 def test_a_supply_that_stops_answering_trips_only_its_own_channels():
-    made = Rig("ppv")
+    made = Rig("ppv", FAST, link_timeout_s=0.5)
     try:
         made.ramp(800.0)
         made.sims[1].inject("no_reply")
@@ -133,7 +97,7 @@ def test_a_supply_that_stops_answering_trips_only_its_own_channels():
 
 
 def test_a_reset_clears_a_breakdown_and_the_board_comes_back_at_0_v(wait_until):
-    made = Rig("ppv")
+    made = Rig("ppv", FAST, link_timeout_s=0.5)
     try:
         made.ramp(1200.0)
         made.inject("over_current", "a")

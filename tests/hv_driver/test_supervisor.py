@@ -8,6 +8,7 @@ from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, pr
 
 from hv_driver import ChannelConfig, ControlError, Fault, FaultLatchedError, LimitError, Supervisor
 from hv_driver.dialects import DIALECTS, CurrentSensing
+from hv_driver.pulse import EDGES, plan_pulse_train
 from hv_driver.ramp import MinimumJerkRamp
 from hv_driver.supervisor import (COLLAPSE_FRACTION, COLLAPSE_SETTLE_S, DEFAULT_PERIOD_S, IMMEDIATE_FAULTS, ChannelCommand,
                                   ChannelSupervisor)
@@ -278,6 +279,7 @@ class SupervisorMachine(RuleBasedStateMachine):
         """The supervisor as the driver sets it up for each dialect's capabilities (device ramp or host ramp,
         current readback or the breakdown guard; single-channel dialects: one supply per channel)."""
         capabilities = DIALECTS[dialect].capabilities
+        self.dialect, self.capabilities = dialect, capabilities
         single = capabilities.channels_per_device == 1
         configs = [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=1000.0, mismatch_time_s=0.3),
                    ChannelConfig("back", 0 if single else 1, max_voltage_v=2500.0, slew_rate_v_per_s=300.0,
@@ -294,6 +296,7 @@ class SupervisorMachine(RuleBasedStateMachine):
         self.faults_seen = {n: Fault(0) for n in NAMES}
         self.allowed_on = {n: False for n in NAMES}
         self.exempt_fall = {n: False for n in NAMES}
+        self.switched = {n: False for n in NAMES}  # the last command was a train the device switches itself
         self.tokens: list[str] = []   # every token ever issued
         self.ended: set[str] = set()  # tokens of sessions that ended (released, lapsed, e-stop)
 
@@ -348,6 +351,20 @@ class SupervisorMachine(RuleBasedStateMachine):
         token = self._token(which)
         self._note_ended()
         self._obeyed(token, lambda: self.sup.ramp_to(name, self.now, volts, slew, token=token))
+
+    @rule(names=st.lists(st.sampled_from(NAMES), min_size=1, max_size=2, unique=True), volts=absurd_floats,
+          frequency=st.one_of(st.sampled_from([0.5, 2.0, 5.0, 50.0]), absurd_floats),
+          duty=st.sampled_from([0.5, 0.2, 0.0, 1.0, math.nan]), cycles=st.integers(min_value=0, max_value=30),
+          edge=st.sampled_from(EDGES + ("ramp",)), slew=st.one_of(st.none(), absurd_floats),
+          which=st.integers(min_value=-1, max_value=5))
+    def pulse(self, names, volts, frequency, duty, cycles, edge, slew, which):
+        """A periodic train as the driver plans it for this dialect (refusals included)."""
+        token = self._token(which)
+
+        def plan(config, now):
+            return plan_pulse_train(config, self.capabilities, self.dialect, now, DEFAULT_PERIOD_S, volts, frequency,
+                                    duty, 0.0, cycles, edge, slew)
+        self._obeyed(token, lambda: self.sup.pulse(names, self.now, plan, token=token))
 
     @rule(name=st.sampled_from(NAMES))
     def disable(self, name):
@@ -425,8 +442,13 @@ class SupervisorMachine(RuleBasedStateMachine):
             last_setpoint, _ = self.last[name]
             slew = channel.config.slew_rate_v_per_s
             assert 0.0 <= command.setpoint <= channel.ceiling
-            assert command.setpoint - last_setpoint <= slew * allowance_dt + 1e-9
-            fault_free = not channel.faults and not self.exempt_fall[name]
+            # Square edges are the device's own: the setpoint is the amplitude while it switches, 0 V once stopped.
+            device_edges = command.pulse is not None or self.switched[name]
+            self.switched[name] = command.pulse is not None
+            if command.pulse is not None:
+                assert self.capabilities.switching is not None and command.output_on
+            assert device_edges or command.setpoint - last_setpoint <= slew * allowance_dt + 1e-9
+            fault_free = not channel.faults and not self.exempt_fall[name] and not device_edges
             if fault_free and channel.ceiling >= last_setpoint and command.output_on:
                 assert last_setpoint - command.setpoint <= slew * allowance_dt + 1e-9
             assert channel.faults >= self.faults_seen[name]  # latched: never cleared without reset

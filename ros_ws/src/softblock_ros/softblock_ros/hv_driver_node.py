@@ -3,7 +3,8 @@
 configure = open the supplies of the ``dialect`` (backend ``sim``: simulated ones in a process of their own, one per
 supply the channels name; ``serial``: the ``ports`` parameter, one per supply) and identify them; activate = outputs on at 0 V; deactivate = ramp to 0 V
 and off; cleanup / shutdown = close (outputs off); error = outputs off at once. Only the client holding
-control (hv/claim_control) may ramp and feed the heartbeat watchdog; hv/estop is open to everyone.
+control (hv/claim_control) may ramp (hv/ramp), run pulse trains (hv/pulse: on the device where it switches itself,
+else in the driver's loop) and feed the heartbeat watchdog; hv/estop is open to everyone.
 """
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallb
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from rclpy.qos import DurabilityPolicy, QoSProfile
-from softblock_interfaces.action import RampChannel
+from softblock_interfaces.action import PulseChannels, RampChannel
 from softblock_interfaces.msg import HvHeartbeat, HvState
 from softblock_interfaces.srv import ClaimControl, InjectFault, ReleaseControl
 from std_msgs.msg import Float64
@@ -24,6 +25,7 @@ from sim_fallback.hv_supply_process import SimulatedSupplyProcess
 
 from .hv_conversions import diagnostics_msg, hv_state_msg
 from .hv_parameters import PARAMETERS, channel_configs, device_count
+from .hv_pulse_goal import execute_pulse_goal
 from .hv_ramp_goal import execute_ramp_goal
 from .log_forwarding import forward_logging, stop_forwarding
 from .parameters import ParameterError, declare
@@ -93,6 +95,8 @@ class HvDriverNode(LifecycleNode):
             self.create_subscription(HvHeartbeat, "hv/heartbeat", self._on_heartbeat, 10, callback_group=g),
             self.create_subscription(Float64, "assembly/safe_voltage", self._on_safe_voltage, LATCHED, callback_group=g),
             ActionServer(self, RampChannel, "hv/ramp", self._execute_ramp, callback_group=g,
+                         cancel_callback=lambda _: CancelResponse.ACCEPT),
+            ActionServer(self, PulseChannels, "hv/pulse", self._execute_pulse, callback_group=g,
                          cancel_callback=lambda _: CancelResponse.ACCEPT)]
         self.get_logger().info(f"configured: {self._supply.device_id} on {', '.join(ports)} ({backend})")
         return SUCCESS
@@ -232,6 +236,12 @@ class HvDriverNode(LifecycleNode):
             goal_handle.abort()
             return RampChannel.Result(message="hv_driver is not active")
         return execute_ramp_goal(self._supply, goal_handle)
+
+    def _execute_pulse(self, goal_handle):
+        if not self._active:
+            goal_handle.abort()
+            return PulseChannels.Result(message="hv_driver is not active")
+        return execute_pulse_goal(self._supply, goal_handle)
 
 
 def main(args=None) -> int:
