@@ -113,6 +113,7 @@ class PlantChannel:
         self.current_limit = d.current_limit
         self.trip_time_ms = d.trip_time_ms
         self.trip_action = d.trip_action
+        self.voltage_bounds = self.current_bounds = 0.0  # iseg :VOLT:BOU / :CURR:BOU (stored, not acted on)
         self.current_trip = False
         self.events = PlantEvent(0)
         self.switching: Switching | None = None

@@ -18,6 +18,14 @@ __all__ = ["ERROR_REPLY", "FAULTS", "IDENTITY", "SimulatedSupply"]
 
 IDENTITY = "iseg Spezialelektronik GmbH,NHR 42 50r (simulated),SIM00001,1.00"
 ERROR_REPLY = "?"  # answer to a line the simulated device cannot execute
+INSTRUCTION_SET = "EDCP"
+FIRMWARE_NAME, FIRMWARE_RELEASE = "E08F05", "1.00"
+NOMINAL_CURRENT = 2e-3  # [A] the module's rating; its hardware current limit (potentiometer) at full scale
+# SCPI keywords may be sent in long or short form (the short form is their upper-case part): long -> short.
+_SHORT_FORMS = {"STATUS": "STAT", "EVENT": "EV", "CHANNEL": "CHAN", "VOLTAGE": "VOLT", "CURRENT": "CURR",
+                "MEASURE": "MEAS", "CONFIGURE": "CONF", "BOUNDS": "BOU", "ACTION": "ACT", "INHIBIT": "INH",
+                "NOMINAL": "NOM", "LIMIT": "LIM", "MODULE": "MOD", "FIRMWARE": "FIRM", "RELEASE": "REL",
+                "EMERGENCY": "EMCY", "OUTPUT": "OUTP"}
 
 _UNIT = re.compile(r"^(?P<header>[*:A-Z]+\??)(?:\s+(?P<args>.*))?$")
 _CHANNELS = re.compile(r"\(@(?P<list>[0-9,\-]+)\)")
@@ -62,24 +70,46 @@ def channel_events(ch: PlantChannel) -> ChannelEvent:
     return ChannelEvent(sum(bit for event, bit in _EVENT_BITS.items() if event in ch.events))
 
 
-# Per-channel queries: header -> answer of one channel (channels answer comma-separated).
+def short_header(header: str) -> str:
+    """The header with every keyword in its SCPI short form (``:READ:CHAN:EVENT:STATUS?`` ->
+    ``:READ:CHAN:EV:STAT?``), so both forms reach the same command."""
+    query = header.endswith("?")
+    words = header.rstrip("?").split(":")
+    return ":".join(_SHORT_FORMS.get(word, word) for word in words) + ("?" if query else "")
+
+
+# Per-channel queries (short-form headers): header -> answer of one channel (channels answer comma-separated).
 _QUERIES = {
     ":MEAS:VOLT?": lambda ch: _reading(ch.measured_voltage, "V"),
     ":MEAS:CURR?": lambda ch: _reading(ch.measured_current, "A"),
-    ":READ:CHAN:STATUS?": lambda ch: str(int(channel_status(ch))),
-    ":READ:CHAN:EVENT:STATUS?": lambda ch: str(int(channel_events(ch))),
+    ":READ:CHAN:STAT?": lambda ch: str(int(channel_status(ch))),
+    ":READ:CHAN:EV:STAT?": lambda ch: str(int(channel_events(ch))),
+    ":READ:VOLT?": lambda ch: _reading(ch.voltage_set, "V"),  # the setpoint
     ":READ:VOLT:LIM?": lambda ch: _reading(ch.defaults.voltage_limit, "V"),
+    ":READ:VOLT:NOM?": lambda ch: _reading(ch.defaults.voltage_limit, "V"),
+    ":READ:VOLT:ON?": lambda ch: str(int(ch.output_on)),
+    ":READ:VOLT:EMCY?": lambda ch: str(int(ch.emergency)),
     ":READ:RAMP:VOLT?": lambda ch: _reading(ch.ramp_up, "V/s"),
-    ":READ:CURR?": lambda ch: _reading(ch.current_limit, "A"),
+    ":CONF:RAMP:VOLT:UP?": lambda ch: _reading(ch.ramp_up, "V/s"),
+    ":CONF:RAMP:VOLT:DOWN?": lambda ch: _reading(ch.ramp_down, "V/s"),
+    ":READ:CURR?": lambda ch: _reading(ch.current_limit, "A"),  # the current setpoint (trip level)
+    ":READ:CURR:NOM?": lambda ch: _reading(NOMINAL_CURRENT, "A"),
+    ":READ:CURR:LIM?": lambda ch: _reading(NOMINAL_CURRENT, "A"),
+    ":READ:VOLT:BOU?": lambda ch: _reading(ch.voltage_bounds, "V"),
+    ":READ:CURR:BOU?": lambda ch: _reading(ch.current_bounds, "A"),
     ":CONF:TRIP:TIME?": lambda ch: _reading(ch.trip_time_ms, "ms"),
-    ":CONF:TRIP:ACTION?": lambda ch: str(ch.trip_action),
+    ":CONF:TRIP:ACT?": lambda ch: str(ch.trip_action),
 }
+# Module queries without a channel list.
+_MODULE_QUERIES = {"*IDN?": IDENTITY, "*OPC?": "1", "*INSTR?": INSTRUCTION_SET, ":READ:FIRM:NAME?": FIRMWARE_NAME,
+                   ":READ:FIRM:REL?": FIRMWARE_RELEASE}
 
 
 class SimulatedSupply(PtyDevice):
     """A multi-channel EDCP supply with DEA loads on a pty, with fault injection (see `PtyDevice`): it echoes every
-    line, answers settings sent with ``;*OPC?``, numbers with units, channel lists; ``?`` for a line it cannot
-    execute. It has no host watchdog unless ``watchdog_s`` is given, as on an iseg module."""
+    line, answers settings sent with ``;*OPC?`` (a setting alone is answered by its echo only), numbers with units,
+    channel lists, SCPI keywords in long or short form; ``?`` for a line it cannot execute. It has no host watchdog
+    unless ``watchdog_s`` is given, as on an iseg module."""
 
     dialect = IsegEdcp
     command_terminator = reply_terminator = b"\r\n"
@@ -87,6 +117,7 @@ class SimulatedSupply(PtyDevice):
 
     def __init__(self, channels: int = 2, defaults: ChannelDefaults | None = None, **options):
         super().__init__(channels, defaults, **options)
+        self.locked_out = False  # *LLO: the front panel is locked
 
     # --- the EDCP command set ------------------------------------------------------------------
     def execute(self, line: str) -> str:
@@ -98,20 +129,21 @@ class SimulatedSupply(PtyDevice):
                     answers.append(answer)
         except CommandError:
             return ERROR_REPLY
-        return ";".join(answers)
+        return ";".join(answers) if answers else None  # a setting alone: the echo is the whole answer
 
     def _execute_unit(self, unit: str) -> str | None:
         match = _UNIT.match(unit.upper())
         if not match:
             raise CommandError(f"malformed: {unit!r}")
-        header, args = match["header"], (match["args"] or "").strip()
+        header, args = short_header(match["header"]), (match["args"] or "").strip()
         now = time.monotonic()
-        if header == "*IDN?":
-            return IDENTITY
+        if header in _MODULE_QUERIES:
+            return _MODULE_QUERIES[header]
         if header == ":READ:MOD:CHAN?":
             return str(len(self.plant))
-        if header == "*OPC?":
-            return "1"
+        if header in ("*LLO", "*GTL"):  # front-panel lockout / back to local control
+            self.locked_out = header == "*LLO"
+            return None
         if header == "*RST":
             for ch in self.plant:
                 ch.switch_off(now, emergency=False)
@@ -161,15 +193,21 @@ class SimulatedSupply(PtyDevice):
                 ch.voltage_set = volts
         elif header == ":CURR":
             ch.current_limit = _number(value)
-        elif header == ":CONF:RAMP:VOLT:UP":
-            ch.ramp_up = min(_number(value), ch.defaults.max_ramp_speed)
-        elif header == ":CONF:RAMP:VOLT:DOWN":
-            ch.ramp_down = min(_number(value), ch.defaults.max_ramp_speed)
+        elif header == ":VOLT:BOU":
+            ch.voltage_bounds = _number(value)
+        elif header == ":CURR:BOU":
+            ch.current_bounds = _number(value)
+        elif header in (":CONF:RAMP:VOLT", ":CONF:RAMP:VOLT:UP", ":CONF:RAMP:VOLT:DOWN"):  # without UP/DOWN: both
+            speed = min(_number(value), ch.defaults.max_ramp_speed)
+            if not header.endswith("DOWN"):
+                ch.ramp_up = speed
+            if not header.endswith("UP"):
+                ch.ramp_down = speed
         elif header == ":CONF:TRIP:TIME":
             ch.trip_time_ms = _number(value)
-        elif header == ":CONF:TRIP:ACTION":
+        elif header == ":CONF:TRIP:ACT":
             ch.trip_action = int(_number(value))
-        elif header == ":EVENT" and value == "CLEAR":
+        elif header == ":EV" and value == "CLEAR":
             ch.events = PlantEvent(0)
             ch.current_trip = False
         else:
