@@ -126,7 +126,7 @@ class PulseHandle:
     (periods begun on the driver's clock), ``frequency`` (as the device quantised it, or as generated)."""
 
     def __init__(self, supply: "HvSupply", trains: dict[str, PulseTrain], ramp_ids: dict[str, int]):
-        self._supply, self.trains = supply, trains
+        self._supply, self.trains, self._ramp_ids = supply, trains, ramp_ids
         self._channels = [RampHandle(supply, name, ramp_ids[name], trains[name].end) for name in trains]
         self.generated_by = "device" if next(iter(trains.values())).on_device else "loop"
         self._ended_at: float | None = None
@@ -142,16 +142,30 @@ class PulseHandle:
             return self._ended()
 
     @property
+    def short_pulses(self) -> dict[str, int]:
+        """Per channel of a streamed train: pulses that fell short of the amplitude (see `PulseTally`)."""
+        with self._supply._lock:
+            tallies = {name: self._supply._supervisor.channel(name).pulse_tally for name in self.trains}
+            return {name: tally.short for name, tally in tallies.items()
+                    if tally is not None and tally.ramp_id == self._ramp_ids[name]}
+
+    @property
     def message(self) -> str:
-        """Why it ended ("" while it runs): the channels that did not complete, else "completed"."""
+        """Why it ended ("" while it runs): the channels that did not complete or whose pulses fell short, else
+        "completed"."""
         if not self.done:
             return ""
         failed = [f"{c.channel}: {c.message}" for c in self._channels if c.done and not c.succeeded]
+        train = next(iter(self.trains.values()))
+        failed += [f"{name}: {short} of {train.cycles} pulses fell short of {train.amplitude:g} V (the control loop "
+                   f"fell behind; slew-limited, it does not catch up)" for name, short in self.short_pulses.items()
+                   if short]
         return "; ".join(failed) if failed else f"completed {self.cycles_done} cycles"
 
     @property
     def succeeded(self) -> bool:
-        return self.done and all(channel.succeeded for channel in self._channels)
+        return (self.done and all(channel.succeeded for channel in self._channels)
+                and not any(self.short_pulses.values()))
 
     @property
     def cycles_done(self) -> int:
@@ -239,6 +253,7 @@ class HvSupply:
         self._reconfigure = self._device_reset = False
         self._cycles = 0
         self._stamp = clock()
+        self._next_start: float | None = None  # start of the next train a supply switches, if one is armed
 
     @property
     def device_id(self) -> str:
@@ -482,6 +497,8 @@ class HvSupply:
                 delay = next_cycle - self._clock()
                 if delay < -self._period:  # fell behind: restart the schedule instead of bursting
                     next_cycle, delay = self._clock(), 0.0
+                if self._next_start is not None:  # a train the supply switches starts on time, not on the grid
+                    delay = min(delay, self._next_start - self._clock())
                 if tripped or self._wake.wait(max(0.0, delay)):
                     # A new fault or a request (e-stop, ramp): run at once and keep the period from there.
                     self._wake.clear()
@@ -510,6 +527,8 @@ class HvSupply:
             device_reset, self._device_reset = self._device_reset, False
             faults_before = {n: c.faults for n, c in self._supervisor.channels.items()}
         pulses = {name: c.pulse for name, c in commands.items() if c.output_on and not c.emergency_off}
+        self._next_start = min((t.start for t in pulses.values() if t is not None and t.start > self._stamp),
+                               default=None)
         for device in self._devices:  # trains the supplies switch start first, together
             try:
                 device.start_due_trains(pulses, self._clock())

@@ -21,6 +21,8 @@ EDGES = ("smooth", "square")
 MIN_EDGE_CYCLES = 2
 # Loop periods of lead before a train's time zero, to arm the device (frequency, cycle count) before it starts.
 LEAD_CYCLES = 3
+# A streamed pulse whose setpoints never reached this fraction of the amplitude fell short.
+SHORT_FRACTION = 0.95
 
 
 class PulseLimitError(SettingError):
@@ -84,6 +86,38 @@ class PulseTrain:
 
     def finished(self, t: float) -> bool:
         return t >= self.stop
+
+
+@dataclass
+class PulseTally:
+    """How many pulses of a streamed (smooth) train fell short: no setpoint in their period reached SHORT_FRACTION
+    of the amplitude, or the loop skipped their period. A loop slower than its nominal rate cannot catch up (the
+    slew allowance per cycle is capped at one nominal period), so its pulses shrink instead of arriving late."""
+
+    train: PulseTrain
+    ramp_id: int
+    short: int = 0
+    _period: int = -1  # period index of the samples so far (-1: before the first)
+    _peak: float = 0.0
+
+    def add(self, t: float, setpoint: float) -> None:
+        if t < self.train.start:
+            return
+        period = min(math.floor((t - self.train.start) * self.train.frequency), self.train.cycles)
+        if period != self._period:
+            self._close()
+            self.short += max(0, period - self._period - 1)  # periods without a single sample
+            self._period, self._peak = period, 0.0
+        self._peak = max(self._peak, setpoint)
+
+    def finish(self) -> None:
+        """The train ended (or was stopped): the running period counts, later ones do not."""
+        self._close()
+        self._period = self.train.cycles
+
+    def _close(self) -> None:
+        if 0 <= self._period < self.train.cycles and self._peak < SHORT_FRACTION * self.train.amplitude:
+            self.short += 1
 
 
 def _min_jerk(s: float) -> float:

@@ -32,7 +32,7 @@ from .config import ChannelConfig
 from .control import ControlClaim
 from .errors import HvError, SettingError, StateError
 from .faults import Fault, fault_names
-from .pulse import PulseTrain
+from .pulse import PulseTally, PulseTrain
 from .ramp import MinimumJerkRamp, check_slew_rate
 from .readback import ReadbackCheck
 
@@ -103,6 +103,7 @@ class ChannelSupervisor:
         self._collapsed = 0              # readbacks in a row far below the held setpoint
         self._low_for = 0.0              # [s] observed time a running pulse train has not reached its guard level
         self._last_observed: float | None = None
+        self.pulse_tally: PulseTally | None = None  # the last streamed train's short pulses (kept after it ends)
         self.ramp_id = 0  # counts accepted ramp requests, so a waiting caller sees being superseded
 
     # --- state -------------------------------------------------------------------------------
@@ -224,6 +225,7 @@ class ChannelSupervisor:
         self._ramp, self.target, self._low_for = train, train.amplitude, 0.0
         self._off_at_zero = False
         self.ramp_id += 1
+        self.pulse_tally = None if train.on_device else PulseTally(train, self.ramp_id)
         return self.ramp_id
 
     def _stop_device_switching(self) -> None:
@@ -234,6 +236,8 @@ class ChannelSupervisor:
 
     def _start_ramp(self, now: float, target: float, slew: float) -> None:
         self._stop_device_switching()
+        if self.pulse_tally is not None and self._ramp is self.pulse_tally.train:  # a streamed train is stopped
+            self.pulse_tally.finish()
         self._ramp = MinimumJerkRamp(self.setpoint, target, now, slew)
         self.target = target
 
@@ -354,6 +358,9 @@ class ChannelSupervisor:
             allowance = self.config.slew_rate_v_per_s * dt
             desired = min(max(desired, self.setpoint - allowance), self.setpoint + allowance)
         self.setpoint = max(0.0, min(desired, ceiling))
+        tally = self.pulse_tally
+        if tally is not None and self._ramp is tally.train:
+            tally.add(now, self.setpoint)
         if self._ramp is not None and self._ramp.finished(now) and self.setpoint == self._ramp.end:
             self.target, self._ramp = self._ramp.end, None
         if self._off_at_zero and self._ramp is None and self.setpoint == 0.0:

@@ -125,3 +125,31 @@ def test_a_square_train_starts_from_0_v():
         channel.step(0.01 * k)
     with pytest.raises(StateError, match="at 300 V; square edges start from 0 V"):
         channel.pulse(1.0, plan(PetaPicoVoltron, edge="square", now=1.0))
+
+
+@pytest.mark.parametrize("interval, short", [(0.01, 0), (0.045, 10)])
+def test_a_loop_too_slow_for_a_streamed_train_counts_its_short_pulses(interval, short):
+    """The slew allowance per cycle is capped at one nominal period: a loop running at 22 Hz instead of 100 Hz
+    cannot reach 600 V within a 100 ms on-phase, and says so instead of reporting a completed train."""
+    channel = ChannelSupervisor(CONFIG, 0.0, PERIOD)
+    channel.enable()
+    train = plan(Keithley2290, now=0.0)  # 5 Hz, 600 V, 10 cycles, 70 ms edges at 16 kV/s
+    channel.pulse(0.0, train)
+    t = 0.0
+    while channel.pulse_train is not None and t < train.stop + 1.0:
+        t += interval
+        channel.step(t)
+    assert channel.pulse_tally.short == short
+
+
+def test_a_stopped_streamed_train_counts_only_the_periods_it_ran():
+    channel = ChannelSupervisor(CONFIG, 0.0, PERIOD)
+    channel.enable()
+    train = plan(Keithley2290, now=0.0)
+    channel.pulse(0.0, train)
+    t = 0.0
+    while t < train.start + 0.35:  # one and three quarter periods, then a ramp to 0 V ends it
+        t += PERIOD
+        channel.step(t)
+    channel.ramp_to(t, 0.0)
+    assert channel.pulse_tally.short == 0

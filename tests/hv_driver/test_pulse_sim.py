@@ -113,7 +113,7 @@ def test_the_control_claim_applies_to_pulse_trains(make_rig):
 def test_stopping_a_running_train_brings_the_output_down(make_rig, wait_until, edge, stop):
     rig = make_rig("ppv")
     handle = rig.supply.pulse(["a", "b"], 600.0, 5.0, cycles=100, edge=edge, token=rig.token)
-    assert wait_until(lambda: rig.plant("a").voltage > 500.0)
+    assert wait_until(lambda: rig.plant("a").voltage > 500.0, 10.0)
     if stop == "cancel":
         handle.cancel()
     elif stop == "estop":
@@ -124,7 +124,7 @@ def test_stopping_a_running_train_brings_the_output_down(make_rig, wait_until, e
     else:
         rig.where["a"][0].inject("over_current", 0)
     assert handle.wait(5.0)
-    assert wait_until(lambda: all(rig.plant(c).voltage < 50.0 and rig.plant(c).switching is None for c in "ab"))
+    assert wait_until(lambda: all(rig.plant(c).voltage < 50.0 and rig.plant(c).switching is None for c in "ab"), 10.0)
     if stop == "estop":
         assert all(Fault.ESTOP in c.faults for c in rig.supply.snapshot().channels)
     if stop == "over_current":
