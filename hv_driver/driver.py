@@ -517,6 +517,14 @@ class HvSupply:
             except (LinkError, ProtocolError):
                 pass
 
+    def _start_due_trains(self, pulses: dict) -> None:
+        """Start every armed train the supplies switch whose start has come, before any other exchange."""
+        for device in self._devices:
+            try:
+                device.start_due_trains(pulses, self._clock())
+            except (LinkError, ProtocolError):
+                pass  # retried by apply, where a failure counts against the link
+
     def _cycle(self) -> bool:
         """One control cycle; True when a new fault latched (the next cycle then runs at once)."""
         with self._lock:
@@ -529,12 +537,8 @@ class HvSupply:
         pulses = {name: c.pulse for name, c in commands.items() if c.output_on and not c.emergency_off}
         self._next_start = min((t.start for t in pulses.values() if t is not None and t.start > self._stamp),
                                default=None)
-        for device in self._devices:  # trains the supplies switch start first, together
-            try:
-                device.start_due_trains(pulses, self._clock())
-            except (LinkError, ProtocolError):
-                pass  # retried below by apply, where a failure counts against the link
         for k, device in enumerate(self._devices):
+            self._start_due_trains(pulses)  # between the supplies' exchanges too: a slow cycle delays no start
             try:
                 if device_reset:
                     device.reset()  # latched faults are cut again below

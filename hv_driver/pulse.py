@@ -19,8 +19,10 @@ from .ramp import MIN_JERK_PEAK_RATE, check_slew_rate
 EDGES = ("smooth", "square")
 # Loop periods a smooth edge must span at least (the loop streams it as setpoints).
 MIN_EDGE_CYCLES = 2
-# Loop periods of lead before a train's time zero, to arm the device (frequency, cycle count) before it starts.
+# Lead before a train's time zero, to arm the device (amplitude, frequency, cycle count) before it starts: some
+# loop periods, and at least LEAD_S for a loop slowed by many supplies on a loaded host.
 LEAD_CYCLES = 3
+LEAD_S = 0.3
 # A streamed pulse whose setpoints never reached this fraction of the amplitude fell short.
 SHORT_FRACTION = 0.95
 
@@ -174,5 +176,5 @@ def plan_pulse_train(config: ChannelConfig, capabilities: Capabilities, dialect_
             raise PulseLimitError(
                 f"channel {name!r}: a smooth edge of {edge_s * 1e3:.1f} ms is shorter than {MIN_EDGE_CYCLES} periods "
                 f"of the {1.0 / loop_period_s:g} Hz control loop that generates it (lower slew_rate)")
-    t0 = math.ceil((now + LEAD_CYCLES * loop_period_s) * frequency) / frequency
+    t0 = math.ceil((now + max(LEAD_CYCLES * loop_period_s, LEAD_S)) * frequency) / frequency
     return PulseTrain(float(amplitude), float(frequency), float(duty), float(phase), cycles, edge, slew, t0)

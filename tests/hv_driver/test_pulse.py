@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 
 from hv_driver import ChannelConfig, Fault, PulseLimitError, SettingError, StateError
 from hv_driver.dialects import IsegEdcp, Keithley2290, PetaPicoVoltron
-from hv_driver.pulse import plan_pulse_train
+from hv_driver.pulse import LEAD_S, plan_pulse_train
 from hv_driver.ramp import MIN_JERK_PEAK_RATE
 from hv_driver.supervisor import ChannelSupervisor
 
@@ -74,7 +74,7 @@ def test_trains_of_one_frequency_share_a_time_grid(now, delay):
     """Two trains sent at different times (e.g. the two diagonal leg pairs of a gait) keep their phase relation."""
     a = plan(PetaPicoVoltron, edge="square", now=now)
     b = plan(PetaPicoVoltron, edge="square", phase=0.5, now=now + delay)
-    assert a.start >= now + 3 * PERIOD and b.start >= now + delay + 3 * PERIOD
+    assert a.start >= now + LEAD_S and b.start >= now + delay + LEAD_S
     shift = (b.start - a.start) * 5.0
     assert shift - math.floor(shift) == pytest.approx(0.5, abs=1e-6)
 
