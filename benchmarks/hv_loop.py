@@ -41,7 +41,7 @@ def start_rig(name: str):
     return [cls(2).start()], [ChannelConfig("front", 0, **LIMITS), ChannelConfig("back", 1, **LIMITS)]
 
 
-def measure_loop(sim, hv, token: str, seconds: float, name: str) -> np.ndarray:
+def measure_loop(sim, hv, token: str, seconds: float, dialect_name: str) -> np.ndarray:
     """Stream ramps on both channels for ``seconds``; return the cycle intervals seen by the device [s]."""
     for name in ("front", "back"):
         hv.enable(name)
@@ -52,15 +52,15 @@ def measure_loop(sim, hv, token: str, seconds: float, name: str) -> np.ndarray:
         for handle in handles:
             handle.wait(5.0)
         k += 1
-        print(f"{name} loop: {time.monotonic() - start:5.1f} / {seconds:g} s", flush=True)
+        print(f"{dialect_name} loop: {time.monotonic() - start:5.1f} / {seconds:g} s", flush=True)
     for name in ("front", "back"):
         hv.ramp_to(name, 0.0, token=token).wait(5.0)
-    query = DIALECTS[name].commands["measure_voltage"].template.split(" ")[0]
+    query = DIALECTS[dialect_name].commands["measure_voltage"].template.split(" ")[0]
     arrivals = np.array([t for t, line in sim.command_log if t >= start and line.startswith(query)])
     return np.diff(arrivals)
 
 
-def fault_latency(sim, hv, trials: int, cause: str, rng: np.random.Generator, name: str) -> np.ndarray:
+def fault_latency(sim, hv, trials: int, cause: str, rng: np.random.Generator, dialect_name: str) -> np.ndarray:
     """Fault-to-output-off latencies [s] over ``trials`` runs of ``cause`` ("over_current" / "estop")."""
     latencies = []
     for trial in range(trials):
@@ -85,7 +85,7 @@ def fault_latency(sim, hv, trials: int, cause: str, rng: np.random.Generator, na
         if hv.snapshot().controller:
             hv.release_control(token)
         if (trial + 1) % 10 == 0:
-            print(f"{name} {cause}: trial {trial + 1}/{trials}", flush=True)
+            print(f"{dialect_name} {cause}: trial {trial + 1}/{trials}", flush=True)
     return np.array(latencies)
 
 

@@ -83,7 +83,10 @@ class Bench:
             "hv_driver": {"backend": "serial", "dialect": dialect, "ports": self.sim.ports,
                           "channel_names": CHANNELS, "channel_indices": [self.where[c][0] for c in CHANNELS],
                           "channel_devices": [self.where[c][1] for c in CHANNELS], "slew_rate_v_per_s": 16_000.0,
-                          "current_trip_a": CURRENT_TRIP, "publish_rate_hz": 100.0},
+                          "current_trip_a": CURRENT_TRIP, "publish_rate_hz": 100.0,
+                          # Six simulated supplies answer from one process on the loaded machine: a reply may
+                          # take longer than the default 0.125 s (a quarter of link_timeout_s).
+                          "link_timeout_s": 2.0},
             "sim_arm": {"max_speed_m_per_s": 2.0, "max_acceleration_m_per_s2": 20.0},
             # The 2-core machine is shared and loaded: hv/state may pause longer than the default 0.5 s.
             "sequencer": {"heartbeat_rate_hz": 10.0, "state_timeout_s": 2.0, "server_timeout_s": 10.0},

@@ -130,6 +130,7 @@ class PulseHandle:
         self._channels = [RampHandle(supply, name, ramp_ids[name], trains[name].end) for name in trains]
         self.generated_by = "device" if next(iter(trains.values())).on_device else "loop"
         self._ended_at: float | None = None
+        self._failure: str | None = None  # why it failed, as it stood before the others were stopped
 
     def _ended(self) -> bool:
         """Every channel's train is over, or one ended without completing (fault, superseded)."""
@@ -155,6 +156,8 @@ class PulseHandle:
         "completed"."""
         if not self.done:
             return ""
+        if self._failure is not None:
+            return self._failure
         failed = [f"{c.channel}: {c.message}" for c in self._channels if c.done and not c.succeeded]
         train = next(iter(self.trains.values()))
         failed += [f"{name}: {short} of {train.cycles} pulses fell short of {train.amplitude:g} V (the control loop "
@@ -186,9 +189,11 @@ class PulseHandle:
         """Block until every channel's train ends or ``timeout`` [s] passes; True when they ended."""
         with self._supply._cycle_done:
             ended = self._supply._cycle_done.wait_for(self._ended, timeout)
-        if ended and not self.succeeded:  # one channel failed: the others stop too (one train, one outcome)
+        if ended and not self.succeeded and self._failure is None:  # the others stop too (one train, one outcome)
+            self._failure = self.message
             for channel in self._channels:
-                channel.cancel()
+                if not channel.done:
+                    channel.cancel()
         return ended
 
     def cancel(self) -> None:

@@ -56,7 +56,9 @@ class Capabilities:
         output by switching it off and setting 0 V.
     device_watchdog_s: the device switches its outputs off by itself after this long without traffic (None: never:
         a dead host or a pulled cable leaves the output as it was).
-    switching: device-side switching (``set_frequency``, ``set_cycles``, ``start_switching``), None without.
+    switching: device-side switching (``set_frequency``, ``set_cycles``, ``start_switching``), None without; a train
+        is armed with the output off (``output_off`` must give 0 V whatever the set voltage) and started with one
+        line, so its first edge is the device's own.
     status_operations: operations read every cycle whose answers `Dialect.status_report` decodes.
     """
 
