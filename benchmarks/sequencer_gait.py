@@ -92,6 +92,7 @@ class Bench:
             "sequencer": {"heartbeat_rate_hz": 10.0, "state_timeout_s": 2.0, "server_timeout_s": 10.0},
         }
         self.directory = directory
+        params["sequencer"]["sequences_dir"] = str(directory)  # where start() writes the goals' files
         path = directory / "params.yaml"
         path.write_text(yaml.safe_dump({node: {"ros__parameters": values} for node, values in params.items()}))
         self.stack = Stack(nodes=["hv_driver", "sim_arm", "sequencer"], params=path, output=log).start()
@@ -138,7 +139,7 @@ class Bench:
         path = self.directory / f"{document['name']}.yaml"
         path.write_text(yaml.safe_dump(document))
         self.samples, self.events = [], []
-        future = self.action.send_goal_async(RunSequence.Goal(sequence=str(path)))
+        future = self.action.send_goal_async(RunSequence.Goal(sequence=document["name"]))
         wait(future.done, what="goal response")
         return future.result()
 
