@@ -1,4 +1,5 @@
-"""Grasp review from a recording, without ROS running: voltages, steps, predicted shape, faults.
+"""Grasp review from a recording, without ROS running: voltages, steps, predicted shape, faults, and the
+samples each topic lost on the way to the recorder (recording.gaps).
 
 Reads with `mcap` + `mcap-ros2-support` (the schemas inside the file), never imports rclpy.
 Topics are found by message type, so namespaced stacks are analysed the same way. Times are in
@@ -12,6 +13,7 @@ from dataclasses import dataclass, field
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
+from .gaps import checkable, find_gaps
 from .mcap_file import require_complete
 
 HV_STATE = "softblock_interfaces/msg/HvState"
@@ -32,6 +34,7 @@ class RecordingData:
     faults: list = field(default_factory=list)
     message_counts: dict = field(default_factory=dict)
     fault_names: dict = field(default_factory=dict)
+    lost_samples: dict = field(default_factory=dict)
     duration: float = 0.0
 
 
@@ -62,10 +65,14 @@ def load(path: str) -> RecordingData:
         for schema, channel, message, decoded in reader.iter_decoded_messages(topics=wanted):
             rows.append((_stamp_ns(decoded, message.log_time), schema.name, decoded))
             data.message_counts[channel.topic] = data.message_counts.get(channel.topic, 0) + 1
+        numbered = defaultdict(list)
+        for _, channel, message in reader.iter_messages():  # in receive order
+            numbered[channel.topic].append((message.sequence, message.publish_time))
     if not rows:
         return data
     rows.sort(key=lambda row: row[0])
     origin = rows[0][0]
+    data.lost_samples = _lost_samples(summary.channels.values(), numbered, origin)
     data.duration = (rows[-1][0] - origin) / 1e9
     latched_faults: dict[str, int] = {}
     for stamp, type_name, message in rows:
@@ -82,6 +89,23 @@ def load(path: str) -> RecordingData:
                 data.angles[chain.name]["time"].append(t)
                 data.angles[chain.name]["angles"].append(list(chain.block_angles))
     return data
+
+
+def _lost_samples(channels, numbered: dict, origin: int) -> dict:
+    """Per topic: the gaps in its publication sequence numbers (times in s from ``origin``), or why not checked."""
+    report = {}
+    for channel in sorted(channels, key=lambda c: c.topic):
+        reason = checkable(channel.metadata.get("offered_qos_profiles", ""))
+        if reason:
+            report[channel.topic] = {"checked": False, "reason": reason}
+            continue
+        found = find_gaps(numbered.get(channel.topic, []))
+        gaps = [{"after": g["after"], "before": g["before"], "lost": g["lost"],
+                 "from": (g["after_time_ns"] - origin) / 1e9, "to": (g["before_time_ns"] - origin) / 1e9}
+                for g in found["gaps"]]
+        report[channel.topic] = {"checked": True, "received": found["received"], "lost": found["lost"],
+                                 "gaps": gaps}
+    return report
 
 
 def _add_hv_state(data: RecordingData, t: float, message, latched_faults: dict) -> None:
@@ -139,7 +163,8 @@ def summarize(data: RecordingData) -> dict:
                         "samples": len(series["time"])}
     return {"duration": data.duration, "message_counts": dict(sorted(data.message_counts.items())),
             "channels": channels, "steps": step_durations(data.events), "faults": data.faults,
-            "chains": chains}
+            "chains": chains, "lost_samples": {topic: report for topic, report in data.lost_samples.items()
+                                               if report["checked"] and report["lost"]}}
 
 
 def analyze(recording: str) -> dict:
@@ -167,4 +192,7 @@ def format_summary(summary: dict) -> str:
     for name, chain in summary["chains"].items():
         degrees = ", ".join(f"{math.degrees(a):.1f}" for a in chain["final_angles"])
         lines.append(f"chain {name}: final block angles [{degrees}] deg")
+    for topic, report in summary["lost_samples"].items():
+        spans = ", ".join(f"{g['lost']} between {g['from']:.3f} and {g['to']:.3f} s" for g in report["gaps"])
+        lines.append(f"{topic}: {report['lost']} samples lost on the way to the recorder ({spans})")
     return "\n".join(lines)

@@ -23,6 +23,7 @@ LIBRARY = "softblock-recorder"
 COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
                 "none": CompressionType.NONE}
 DEFAULT_CHUNK_SIZE = 256 * 1024
+SEQUENCE_MODULUS = 1 << 32  # MCAP's message sequence field is a uint32
 
 
 class RecordingWriter:
@@ -61,9 +62,10 @@ class RecordingWriter:
         self.message_counts[topic] = 0
         return channel_id
 
-    def write(self, channel_id: int, data: bytes, log_time: int, publish_time: int) -> None:
-        """Adds one serialized (CDR) message; times in nanoseconds."""
-        self._writer.add_message(channel_id, log_time, bytes(data), publish_time)
+    def write(self, channel_id: int, data: bytes, log_time: int, publish_time: int, sequence: int = 0) -> None:
+        """Adds one serialized (CDR) message; times in nanoseconds; ``sequence`` is the publisher's own
+        sample counter (DDS publication sequence number; 0 = unknown), kept to 32 bits as MCAP stores it."""
+        self._writer.add_message(channel_id, log_time, bytes(data), publish_time, sequence % SEQUENCE_MODULUS)
         self.message_counts[self._topics[channel_id]] += 1
 
     def flush(self) -> None:

@@ -12,6 +12,7 @@ import time
 from action_msgs.msg import GoalStatus
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from softblock_interfaces.action import MoveArm, RampChannel
 from softblock_interfaces.msg import HvChannelState, HvState
 from std_srvs.srv import Trigger
@@ -21,6 +22,9 @@ from sequencing.ports import ChannelReading, Outcome, RobotError
 from .client import ActionClient, ClientError
 from .conversions import pose_msg
 from .hv_control import HvControl
+
+
+NEWEST_STATE = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
 
 
 class ActionMotion:
@@ -88,7 +92,9 @@ class RosRobot:
         self._state: HvState | None = None
         self._state_time = 0.0
         self._arm_motion: ActionMotion | None = None
-        node.create_subscription(HvState, "hv/state", self._on_state, 10, callback_group=callback_group)
+        # Best effort: the engine wants the newest state; a reliable subscription would hold newer samples back
+        # behind one a lossy link dropped until it is repaired, and the state would look stale.
+        node.create_subscription(HvState, "hv/state", self._on_state, NEWEST_STATE, callback_group=callback_group)
 
     def _on_state(self, msg: HvState) -> None:
         with self._lock:

@@ -1,0 +1,151 @@
+"""The softblock stack split over two emulated hosts, as a lab runs it on two machines: the HV driver on the rig
+PC, everything else on the workstation, an HV console on each (softblock_ros.hv_console --json --commands).
+
+    with EmulatedHosts() as lab, TwoHostStack(lab, out_dir) as stack:
+        stack.rig.wait_state(lambda s: s["channels"]["back"]["voltage_v"] > 2350.0)
+        grasp = stack.start_sequence("finger_grasp")
+
+Every process runs under the launcher's network switch (``--discovery-range subnet --domain-id N``) and
+with Fast DDS limited to UDPv4: its shared-memory transport would otherwise let two processes of this one
+machine talk past the emulated link. Nothing here imports ROS; the processes do.
+"""
+from __future__ import annotations
+
+import json
+import os
+import queue
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Mapping
+from pathlib import Path
+
+from .emulated import EmulatedHosts
+
+RIG_NODES = ("hv_driver",)
+WORKSTATION_NODES = ("assembly_state", "planner", "sim_arm", "sequencer", "recorder")
+COMMAND_TIMEOUT = 60.0  # [s] a console command, e.g. a ramp to 2.4 kV over a lossy link
+
+
+class Console:
+    """An HV console process: its JSON records as they arrive, and its commands."""
+
+    def __init__(self, process: subprocess.Popen, name: str):
+        self.process, self.name = process, name
+        self.records: list[dict] = []
+        self._lock = threading.Lock()
+        self._replies: queue.Queue[dict] = queue.Queue()
+        threading.Thread(target=self._pump, daemon=True).start()
+
+    def _pump(self) -> None:
+        for line in self.process.stdout:
+            try:
+                record = json.loads(line)
+            except json.JSONDecodeError:
+                continue  # a log line
+            if record.get("type") == "reply":
+                self._replies.put(record)
+            else:
+                with self._lock:
+                    self.records.append(record)
+
+    def states(self, since: float = 0.0) -> list[dict]:
+        """hv/state samples received at or after ``since`` (time.time())."""
+        with self._lock:
+            return [r for r in self.records if r["type"] == "state" and r["t"] >= since]
+
+    def controls(self, since: float = 0.0) -> list[dict]:
+        with self._lock:
+            return [r for r in self.records if r["type"] == "control" and r["t"] >= since]
+
+    def wait_state(self, predicate: Callable[[dict], object], timeout: float, since: float = 0.0) -> dict:
+        """The first hv/state sample received since ``since`` that satisfies ``predicate``."""
+        deadline = time.monotonic() + timeout
+        while True:
+            found = next((state for state in self.states(since) if predicate(state)), None)
+            if found is not None:
+                return found
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"{self.name} console: no matching hv/state within {timeout:g} s")
+            time.sleep(0.02)
+
+    def command(self, line: str, timeout: float = COMMAND_TIMEOUT) -> dict:
+        """Send one command and return its answer ({"ok", "message"})."""
+        self.process.stdin.write(line + "\n")
+        self.process.stdin.flush()
+        try:
+            return self._replies.get(timeout=timeout)
+        except queue.Empty:
+            raise TimeoutError(f"{self.name} console: no answer to {line!r} within {timeout:g} s") from None
+
+
+class TwoHostStack:
+    """Launchers and consoles on the lab's ``rig`` and ``workstation`` hosts; node output in ``out``."""
+
+    def __init__(self, lab: EmulatedHosts, out: Path, domain_id: int, params: Path | None = None,
+                 env: Mapping[str, str] | None = None):
+        self.lab, self.out, self.domain_id, self.params = lab, Path(out), domain_id, params
+        self.env = {**(env or os.environ), "FASTDDS_BUILTIN_TRANSPORTS": "UDPv4", "PYTHONUNBUFFERED": "1",
+                    "ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET", "ROS_DOMAIN_ID": str(domain_id)}
+        self.launchers: dict[str, subprocess.Popen] = {}
+        self.logs: dict[str, Path] = {}
+        self.rig: Console | None = None
+        self.workstation: Console | None = None
+
+    def _log(self, name: str):
+        self.logs[name] = self.out / f"{name}.log"
+        return open(self.logs[name], "w")
+
+    def start(self) -> TwoHostStack:
+        self.out.mkdir(parents=True, exist_ok=True)
+        for host, nodes in (("rig", RIG_NODES), ("workstation", WORKSTATION_NODES)):
+            command = [sys.executable, "-m", "softblock_ros.launcher", "--nodes", ",".join(nodes),
+                       "--discovery-range", "subnet", "--domain-id", str(self.domain_id)]
+            if self.params is not None:
+                command += ["--params", str(self.params)]
+            with self._log(host) as log:
+                self.launchers[host] = self.lab.start(host, command, self.env, stdout=log, stderr=subprocess.STDOUT)
+        self.rig, self.workstation = (self.start_console(host) for host in ("rig", "workstation"))
+        return self
+
+    def start_console(self, host: str) -> Console:
+        with self._log(f"{host}_console") as log:
+            process = self.lab.start(host, [sys.executable, "-m", "softblock_ros.hv_console", "--json", "--commands"],
+                                     self.env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, text=True)
+        return Console(process, host)
+
+    def start_sequence(self, name: str, log_name: str = "run_sequence") -> subprocess.Popen:
+        """``softblock_ros.run_sequence <name>`` on the workstation; its output in ``<log_name>.log``."""
+        with self._log(log_name) as log:
+            return self.lab.start("workstation", [sys.executable, "-m", "softblock_ros.run_sequence", name,
+                                                  "--server-timeout", "60"],
+                                  self.env, stdout=log, stderr=subprocess.STDOUT)
+
+    def start_recorder(self, output: Path, topics: tuple[str, ...] = ("hv/state",),
+                       log_name: str = "recorder") -> subprocess.Popen:
+        """A recorder of ``topics`` on the workstation, writing ``output`` (stop it to finish the file)."""
+        with self._log(log_name) as log:
+            return self.lab.start("workstation", [sys.executable, "-m", "softblock_ros.recording", "record",
+                                                  "--output", str(output), *topics],
+                                  self.env, stdout=log, stderr=subprocess.STDOUT)
+
+    def stop(self) -> dict[str, int]:
+        """Consoles, then launchers (each stops its nodes); exit codes by name."""
+        codes = {}
+        for name, process in (("workstation_console", self.workstation and self.workstation.process),
+                              ("rig_console", self.rig and self.rig.process),
+                              *((f"{host}_launcher", p) for host, p in reversed(self.launchers.items()))):
+            if process is not None:
+                codes[name] = self.lab.stop(process, timeout=30.0)
+        return codes
+
+    def __enter__(self) -> TwoHostStack:
+        try:
+            return self.start()
+        except BaseException:
+            self.stop()
+            raise
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
