@@ -1,19 +1,21 @@
 """The softblock stack split over two emulated hosts, as a lab runs it on two machines: the HV driver on the rig
 PC, everything else on the workstation, an HV console on each (softblock_ros.hv_console --json --commands).
 
-    with EmulatedHosts() as lab, TwoHostStack(lab, out_dir) as stack:
+    with EmulatedHosts() as lab, TwoHostStack(lab, out_dir, domain_id=1) as stack:
         stack.rig.wait_state(lambda s: s["channels"]["back"]["voltage_v"] > 2350.0)
         grasp = stack.start_sequence("finger_grasp")
 
-Every process runs under the launcher's network switch (``--discovery-range subnet --domain-id N``) and
-with Fast DDS limited to UDPv4: its shared-memory transport would otherwise let two processes of this one
-machine talk past the emulated link. Nothing here imports ROS; the processes do.
+Every process runs under the launcher's network switch (``--discovery-range subnet --domain-id N``) and with
+Fast DDS limited to UDPv4: its shared-memory transport would otherwise let two processes of this one machine
+talk past the emulated link. The sequencer gets a longer state timeout (SEQUENCER_STATE_TIMEOUT_S) and the
+recorder writes into ``out_dir``. Nothing here imports ROS; the processes do.
 """
 from __future__ import annotations
 
 import json
 import os
 import queue
+import re
 import subprocess
 import sys
 import threading
@@ -21,11 +23,31 @@ import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
+import yaml
+
 from .emulated import EmulatedHosts
 
 RIG_NODES = ("hv_driver",)
 WORKSTATION_NODES = ("assembly_state", "planner", "sim_arm", "sequencer", "recorder")
 COMMAND_TIMEOUT = 60.0  # [s] a console command, e.g. a ramp to 2.4 kV over a lossy link
+RECORDER_TIMEOUT = 60.0  # [s] a recorder's start and subscriptions on two loaded cores
+# The sequencer's state_timeout_s, raised from its 0.5 s default: with both hosts on a few shared cores the
+# driver itself was seen to stall for up to 1.3 s (a gap in its stamps on its own host's console, not a loss on
+# the link), which a 0.5 s timeout rightly reports as a lost driver.
+SEQUENCER_STATE_TIMEOUT_S = 2.0
+
+
+STEP_DURATION = re.compile(r"^  (\S+) +(\d+\.\d+) s$", re.MULTILINE)  # run_sequence's result lines
+
+
+def channels_below(state: dict, volts: float) -> bool:
+    """Every channel of an hv/state record measured and set below ``volts``."""
+    return all(c["voltage_v"] < volts and c["setpoint_v"] < volts for c in state["channels"].values())
+
+
+def step_durations(log: str) -> dict[str, float]:
+    """The step durations [s] that ``softblock_ros.run_sequence`` printed with its result."""
+    return {name: float(seconds) for name, seconds in STEP_DURATION.findall(log)}
 
 
 class Console:
@@ -49,6 +71,11 @@ class Console:
             else:
                 with self._lock:
                     self.records.append(record)
+
+    def snapshot(self) -> list[dict]:
+        """Every record received so far."""
+        with self._lock:
+            return list(self.records)
 
     def states(self, since: float = 0.0) -> list[dict]:
         """hv/state samples received at or after ``since`` (time.time())."""
@@ -83,9 +110,9 @@ class Console:
 class TwoHostStack:
     """Launchers and consoles on the lab's ``rig`` and ``workstation`` hosts; node output in ``out``."""
 
-    def __init__(self, lab: EmulatedHosts, out: Path, domain_id: int, params: Path | None = None,
-                 env: Mapping[str, str] | None = None):
-        self.lab, self.out, self.domain_id, self.params = lab, Path(out), domain_id, params
+    def __init__(self, lab: EmulatedHosts, out: Path, domain_id: int, env: Mapping[str, str] | None = None):
+        self.lab, self.out, self.domain_id = lab, Path(out), domain_id
+        self.params = self.out / "params.yaml"
         self.env = {**(env or os.environ), "FASTDDS_BUILTIN_TRANSPORTS": "UDPv4", "PYTHONUNBUFFERED": "1",
                     "ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET", "ROS_DOMAIN_ID": str(domain_id)}
         self.launchers: dict[str, subprocess.Popen] = {}
@@ -99,11 +126,13 @@ class TwoHostStack:
 
     def start(self) -> TwoHostStack:
         self.out.mkdir(parents=True, exist_ok=True)
+        self.params.write_text(yaml.safe_dump(
+            {"recorder": {"ros__parameters": {"output": str(self.out / "workstation.mcap")}},
+             "sequencer": {"ros__parameters": {"state_timeout_s": SEQUENCER_STATE_TIMEOUT_S}}}))
         for host, nodes in (("rig", RIG_NODES), ("workstation", WORKSTATION_NODES)):
             command = [sys.executable, "-m", "softblock_ros.launcher", "--nodes", ",".join(nodes),
                        "--discovery-range", "subnet", "--domain-id", str(self.domain_id)]
-            if self.params is not None:
-                command += ["--params", str(self.params)]
+            command += ["--params", str(self.params)]
             with self._log(host) as log:
                 self.launchers[host] = self.lab.start(host, command, self.env, stdout=log, stderr=subprocess.STDOUT)
         self.rig, self.workstation = (self.start_console(host) for host in ("rig", "workstation"))
@@ -122,17 +151,31 @@ class TwoHostStack:
                                                   "--server-timeout", "60"],
                                   self.env, stdout=log, stderr=subprocess.STDOUT)
 
-    def start_recorder(self, output: Path, topics: tuple[str, ...] = ("hv/state",),
-                       log_name: str = "recorder") -> subprocess.Popen:
-        """A recorder of ``topics`` on the workstation, writing ``output`` (stop it to finish the file)."""
+    def start_recorder(self, output: Path, topics: tuple[str, ...] = ("hv/state",), log_name: str = "recorder",
+                       timeout: float = RECORDER_TIMEOUT) -> subprocess.Popen:
+        """A recorder of ``topics`` on the workstation, writing ``output`` (stop it to finish the file); returns
+        once it has subscribed to every topic (it waits for each to be offered)."""
         with self._log(log_name) as log:
-            return self.lab.start("workstation", [sys.executable, "-m", "softblock_ros.recording", "record",
-                                                  "--output", str(output), *topics],
-                                  self.env, stdout=log, stderr=subprocess.STDOUT)
+            process = self.lab.start("workstation", [sys.executable, "-m", "softblock_ros.recording", "record",
+                                                     "--output", str(output), *topics],
+                                     self.env, stdout=log, stderr=subprocess.STDOUT)
+        expected = [f"recording /{topic.lstrip('/')} " for topic in topics]
+        deadline = time.monotonic() + timeout
+        while not all(line in self.logs[log_name].read_text() for line in expected):
+            if process.poll() is not None or time.monotonic() > deadline:
+                raise TimeoutError(f"the recorder did not subscribe to {', '.join(topics)} within {timeout:g} s "
+                                   f"(exit code {process.poll()}): {self.logs[log_name].read_text()[-2000:]}")
+            time.sleep(0.1)
+        return process
 
     def stop(self) -> dict[str, int]:
-        """Consoles, then launchers (each stops its nodes); exit codes by name."""
+        """Consoles, then launchers (each stops its nodes); exit codes by name. What each console received
+        is kept in ``<host>_console.jsonl`` for a look after a failure."""
         codes = {}
+        for console in (self.rig, self.workstation):
+            if console is not None:
+                with open(self.out / f"{console.name}_console.jsonl", "w") as stream:
+                    stream.writelines(json.dumps(record) + "\n" for record in console.snapshot())
         for name, process in (("workstation_console", self.workstation and self.workstation.process),
                               ("rig_console", self.rig and self.rig.process),
                               *((f"{host}_launcher", p) for host, p in reversed(self.launchers.items()))):

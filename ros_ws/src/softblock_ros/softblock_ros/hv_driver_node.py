@@ -33,10 +33,12 @@ from .runner import run_node
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # A heartbeat is a sign of life: the newest counts. Taken reliably, one lost on a lossy link would hold up
-# the ones behind it until it is repaired (over a second on a 5 % lossy link), which the watchdog sees as a
-# silent client.
+# the ones behind it until it is repaired (over a second measured on a 5 % lossy link, up to the writer's 3 s
+# heartbeat period), which the watchdog would take for a silent client.
 HEARTBEAT_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
-STATE_HISTORY_S = 2.0  # [s] of hv/state kept for reliable readers (a recorder) to repair what a link lost
+# Fast DDS repairs a sample a reader missed at the writer's next periodic heartbeat (every 3 s by default):
+# 8 s of hv/state let a reliable reader across a lossy link (a recorder) repair a loss and a lost repair.
+STATE_HISTORY_S = 8.0  # [s]
 SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
 SIM_ERRORS = (RuntimeError, ValueError, OSError)  # the simulated supply's process: not started, unknown fault
 SIM_CHANNELS = 4  # the simulated supply models a 4-channel module; configured indices must exist on it

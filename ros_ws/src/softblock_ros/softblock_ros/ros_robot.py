@@ -12,7 +12,7 @@ import time
 from action_msgs.msg import GoalStatus
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import qos_profile_sensor_data
 from softblock_interfaces.action import MoveArm, RampChannel
 from softblock_interfaces.msg import HvChannelState, HvState
 from std_srvs.srv import Trigger
@@ -22,9 +22,6 @@ from sequencing.ports import ChannelReading, Outcome, RobotError
 from .client import ActionClient, ClientError
 from .conversions import pose_msg
 from .hv_control import HvControl
-
-
-NEWEST_STATE = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
 
 
 class ActionMotion:
@@ -92,9 +89,11 @@ class RosRobot:
         self._state: HvState | None = None
         self._state_time = 0.0
         self._arm_motion: ActionMotion | None = None
-        # Best effort: the engine wants the newest state; a reliable subscription would hold newer samples back
-        # behind one a lossy link dropped until it is repaired, and the state would look stale.
-        node.create_subscription(HvState, "hv/state", self._on_state, NEWEST_STATE, callback_group=callback_group)
+        # Best effort: the engine wants the newest state. A reliable subscription holds newer samples back behind
+        # one a lossy link dropped until the driver repairs it (seconds: its next periodic heartbeat), and the
+        # state would look stale.
+        node.create_subscription(HvState, "hv/state", self._on_state, qos_profile_sensor_data,
+                                 callback_group=callback_group)
 
     def _on_state(self, msg: HvState) -> None:
         with self._lock:
@@ -133,7 +132,8 @@ class RosRobot:
         return ActionMotion(self._ramp, goal, _ramp_outcome)
 
     def channel_states(self) -> dict[str, ChannelReading]:
-        """Latest hv/state; a silent driver shows as a link fault on every channel it reported."""
+        """Latest hv/state; a driver silent for longer than the state timeout (stopped, or the network to it
+        down) shows as a link fault on every channel it reported."""
         with self._lock:
             state, age = self._state, time.monotonic() - self._state_time
         if state is None:
@@ -145,7 +145,7 @@ class RosRobot:
             if state.estop:
                 faults, text = faults | HvChannelState.FAULT_ESTOP, text or "ESTOP"
             if silent:
-                faults, text = faults | HvChannelState.FAULT_LINK, f"hv/state silent for {age:.1f} s"
+                faults, text = faults | HvChannelState.FAULT_LINK, f"HV driver lost: no hv/state for {age:.1f} s"
             readings[channel.name] = ChannelReading(channel.measured_voltage, faults, text, channel.output_enabled)
         return readings
 
