@@ -19,7 +19,8 @@ from mcap.reader import make_reader
 
 from hv_driver.ramp import MIN_JERK_PEAK_RATE
 from netlab import Conditions, EmulatedHosts, unavailable_reason
-from netlab.stack import SEQUENCER_STATE_TIMEOUT_S, TwoHostStack, channels_below, step_durations
+from netlab.stack import (SEQUENCER_SERVER_TIMEOUT_S, SEQUENCER_STATE_TIMEOUT_S, TwoHostStack, channels_below,
+                          driver_lost_logged, step_durations)
 from recording.analysis import load
 
 reason = unavailable_reason()
@@ -39,7 +40,9 @@ WRITER_HEARTBEAT_PERIOD_S = 3.0  # [s] Fast DDS's default: a reliable writer's r
 # The sequencer's own timeouts (config/sequencer.yaml): hv/state older than state_timeout_s is a lost driver;
 # then its safe stop waits up to safe_stop_timeout_s for the ramps down, an e-stop and the release of
 # control up to server_timeout_s each for the service and for the reply.
-STATE_TIMEOUT_S, SAFE_STOP_TIMEOUT_S, SERVER_TIMEOUT_S = SEQUENCER_STATE_TIMEOUT_S, 15.0, 2.0
+STATE_TIMEOUT_S, SERVER_TIMEOUT_S = SEQUENCER_STATE_TIMEOUT_S, SEQUENCER_SERVER_TIMEOUT_S
+SAFE_STOP_TIMEOUT_S = 15.0
+SCHEDULING_MARGIN_S = 2.0  # [s] processes on two loaded cores were seen descheduled for up to 1.3 s
 SEQUENCER_REPORT_BOUND_S = STATE_TIMEOUT_S + SAFE_STOP_TIMEOUT_S + 4 * SERVER_TIMEOUT_S
 
 
@@ -157,13 +160,19 @@ def test_a_partition_at_2_4_kv_ramps_down_reports_and_stays_off_until_asked_agai
     back = clean.rig.wait_state(lambda s: s["channels"]["back"]["faults"], 5.0, cut)["channels"]["back"]
     assert back["fault_text"] == "heartbeat: control of 'sequencer' lapsed: no heartbeat for more than 2 s"
 
-    # The sequencer: reports the lost driver within its own timeouts and ends.
+    # The sequencer: logs the lost driver once its state timeout has passed; its goal fails naming it after
+    # its safe stop's bounded waits, and the client ends.
     code = grasp.wait(SEQUENCER_REPORT_BOUND_S + 30.0)
-    reported = time.time() - cut
-    print(f"partition -> the sequencer reported and ended after {reported:.1f} s (bound {SEQUENCER_REPORT_BOUND_S:g} s)")
+    ended = time.time() - cut
+    logged = driver_lost_logged(clean.logs["workstation"].read_text(), cut)
+    assert logged is not None, "the sequencer did not log the lost driver"
+    logged -= cut
+    print(f"partition -> the sequencer logged the lost driver after {logged:.2f} s (state timeout "
+          f"{STATE_TIMEOUT_S:g} s), its goal ended after {ended:.1f} s (bound {SEQUENCER_REPORT_BOUND_S:g} s)")
     log = (clean.out / "grasp_partition.log").read_text()
     assert code == 1 and "HV driver lost: no hv/state for" in log, log[-3000:]
-    assert reported <= SEQUENCER_REPORT_BOUND_S + 2.0, f"reported after {reported:.1f} s"
+    assert 0.0 < logged <= STATE_TIMEOUT_S + SCHEDULING_MARGIN_S
+    assert ended <= SEQUENCER_REPORT_BOUND_S + SCHEDULING_MARGIN_S
 
     # Nothing crossed the cut link (no shared-memory path around it).
     healed = time.time()
