@@ -8,7 +8,8 @@ see netlab). Root only.
 1. Grasp time: the six-step finger grasp (config/sequences/finger_grasp.yaml, 12 steps) run ``--runs`` times
    under each link condition; the time is the sum of the step durations the sequencer reports.
 2. Partition: the grasp started, the link cut once the back fingers are above 2.35 kV; the time from the cut
-   to the rig's hv/state showing every channel (measured and set point) below 50 V, against the bound
+   to the rig's hv/state showing the HEARTBEAT fault latched, and every channel (measured and set point) below
+   50 V, against the bound
    heartbeat timeout + ramp time; the time until the sequencer on the workstation logs "HV driver lost",
    and until its goal ends (after its safe stop's bounded waits). Then the link is healed and the latched
    fault reset for the next run.
@@ -20,6 +21,7 @@ Writes docs/figures/two_hosts.json and .png; node output in a temporary director
 """
 import argparse
 import json
+import math
 import os
 import statistics
 import sys
@@ -75,16 +77,23 @@ def grasp(stack: TwoHostStack, conditions: Conditions, log_name: str) -> dict:
     process = stack.start_sequence("finger_grasp", log_name)
     code = process.wait(GRASP_TIMEOUT)
     log = (stack.out / f"{log_name}.log").read_text()
-    failure = next((line for line in log.splitlines() if line.startswith(("step ", "timed out", "no "))), "")
     return {"exit_code": code, "succeeded": code == 0, "grasp_time_s": round(sum(step_durations(log).values()), 2),
-            "failure": failure}
+            "failure": failure_line(log), "load_average_1min": os.getloadavg()[0]}
+
+
+def failure_line(log: str) -> str:
+    """The line of run_sequence's output that says why the sequence failed ("" if none does)."""
+    return next((line for line in log.splitlines() if line.startswith(("step ", "timed out", "no "))), "")
 
 
 def partition(stack: TwoHostStack, heartbeat_timeout: float, slew_rate: float, log_name: str) -> dict:
     ready(stack)
     started = time.time()
     process = stack.start_sequence("finger_grasp", log_name)
-    high = stack.rig.wait_state(lambda s: s["channels"]["back"]["voltage_v"] > HIGH_V, GRASP_TIMEOUT, started)
+    high = stack.rig.wait_state(lambda s: s["channels"]["back"]["voltage_v"] > HIGH_V or process.poll() is not None,
+                                GRASP_TIMEOUT, started)
+    if process.poll() is not None:  # the grasp failed before its peak (see its failure): no partition this time
+        return {"reached_peak": False, "failure": failure_line((stack.out / f"{log_name}.log").read_text())}
     cut = time.time()
     stack.lab.partition()
     bound = heartbeat_timeout + MIN_JERK_PEAK_RATE * high["channels"]["back"]["setpoint_v"] / slew_rate
@@ -93,7 +102,9 @@ def partition(stack: TwoHostStack, heartbeat_timeout: float, slew_rate: float, l
     code = process.wait(GRASP_TIMEOUT)
     ended = time.time() - cut
     logged = driver_lost_logged(stack.logs["workstation"].read_text(), cut)
-    return {"below_50_v_s": round(safe["stamp"] - cut, 3), "bound_s": round(bound, 3),
+    return {"reached_peak": True, "fault_latched_s": round(faulted["stamp"] - cut, 3),
+            "below_50_v_s": round(safe["stamp"] - cut, 3), "bound_s": round(bound, 3),
+            "load_average_1min": os.getloadavg()[0],
             "sequencer_logged_s": None if logged is None else round(logged - cut, 2),
             "sequencer_ended_s": round(ended, 2), "sequencer_exit_code": code,
             "fault": faulted["channels"]["back"]["fault_text"]}
@@ -103,11 +114,14 @@ def plot(result: dict, path: Path) -> None:
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
     labels = list(result["grasp"])
     times = [[run["grasp_time_s"] for run in result["grasp"][label] if run["succeeded"]] for label in labels]
-    left.boxplot(times, tick_labels=labels)
+    left.boxplot([t or [math.nan] for t in times],
+                 tick_labels=[f"{label}\n{len(t)}/{len(result['grasp'][label])} ok" for label, t in zip(labels, times)])
     left.tick_params(axis="x", labelrotation=20)
     left.set_ylabel("grasp time [s] (sum of the 12 steps)")
     left.set_title(f"finger grasp across the link ({result['runs']} runs each)")
     partitions = result["partition"]["runs"]
+    right.plot(range(1, len(partitions) + 1), [run["fault_latched_s"] for run in partitions], "x",
+               label="cut -> HEARTBEAT fault latched (rig)")
     right.plot(range(1, len(partitions) + 1), [run["below_50_v_s"] for run in partitions], "o",
                label="cut -> every channel < 50 V (rig)")
     right.plot(range(1, len(partitions) + 1), [run["sequencer_logged_s"] for run in partitions], "^",
@@ -115,6 +129,7 @@ def plot(result: dict, path: Path) -> None:
     right.plot(range(1, len(partitions) + 1), [run["sequencer_ended_s"] for run in partitions], "s",
                label="cut -> sequencer's goal ends (after its safe stop)")
     right.axhline(partitions[0]["bound_s"], color="k", ls="--", label="heartbeat timeout + ramp time")
+    right.set_yscale("log")
     right.set_xlabel("run")
     right.set_ylabel("time after the cut [s]")
     right.set_title("partition at 2.4 kV mid-grasp")
@@ -147,19 +162,24 @@ def main() -> int:
             for run in range(args.runs):
                 runs.append(grasp(stack, conditions, f"grasp_{len(result['grasp'])}_{run}"))
                 print(f"grasp, {label}, run {run + 1}/{args.runs}: {runs[-1]}", flush=True)
-        runs = []
-        for run in range(args.partitions):
-            runs.append(partition(stack, heartbeat_timeout, slew_rate, f"partition_{run}"))
-            print(f"partition, run {run + 1}/{args.partitions}: {runs[-1]}", flush=True)
+        runs, attempts = [], []
+        while len(runs) < args.partitions and len(attempts) < 2 * args.partitions:
+            attempts.append(partition(stack, heartbeat_timeout, slew_rate, f"partition_{len(attempts)}"))
+            if attempts[-1]["reached_peak"]:
+                runs.append(attempts[-1])
+            print(f"partition, attempt {len(attempts)} ({len(runs)}/{args.partitions} cut at the peak): "
+                  f"{attempts[-1]}", flush=True)
     for label, grasps in result["grasp"].items():
         times = [run["grasp_time_s"] for run in grasps if run["succeeded"]]
         result["grasp"][label] = grasps
         result.setdefault("grasp_summary", {})[label] = {
             "succeeded": f"{len(times)}/{len(grasps)}", "median_s": statistics.median(times) if times else None}
     logged = [r["sequencer_logged_s"] for r in runs if r["sequencer_logged_s"] is not None]
-    result["partition"] = {"runs": runs,
+    result["partition"] = {"runs": runs, "attempts_not_at_peak": [a for a in attempts if not a["reached_peak"]],
                            "median_below_50_v_s": statistics.median(r["below_50_v_s"] for r in runs),
                            "max_below_50_v_s": max(r["below_50_v_s"] for r in runs),
+                           "within_bound": f"{sum(r['below_50_v_s'] <= r['bound_s'] for r in runs)}/{len(runs)}",
+                           "median_fault_latched_s": statistics.median(r["fault_latched_s"] for r in runs),
                            "sequencer_logged": f"{len(logged)}/{len(runs)}",
                            "median_sequencer_logged_s": statistics.median(logged) if logged else None,
                            "median_sequencer_ended_s": statistics.median(r["sequencer_ended_s"] for r in runs),
