@@ -111,7 +111,7 @@ def partition(stack: TwoHostStack, heartbeat_timeout: float, slew_rate: float, l
 
 
 def plot(result: dict, path: Path) -> None:
-    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 5.0))
     labels = list(result["grasp"])
     times = [[run["grasp_time_s"] for run in result["grasp"][label] if run["succeeded"]] for label in labels]
     left.boxplot([t or [math.nan] for t in times],
@@ -130,10 +130,11 @@ def plot(result: dict, path: Path) -> None:
                label="cut -> sequencer's goal ends (after its safe stop)")
     right.axhline(partitions[0]["bound_s"], color="k", ls="--", label="heartbeat timeout + ramp time")
     right.set_yscale("log")
+    right.set_xticks(range(1, len(partitions) + 1))
     right.set_xlabel("run")
     right.set_ylabel("time after the cut [s]")
     right.set_title("partition at 2.4 kV mid-grasp")
-    right.legend(fontsize=8)
+    right.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
 

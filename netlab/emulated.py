@@ -26,6 +26,7 @@ from .link import Conditions
 
 STARTUP_TIMEOUT = 30.0  # [s] namespaces and devices on a loaded machine
 REPLY_TIMEOUT = 10.0    # [s] for one command's answer
+LINK_NICENESS = -20
 
 
 class LabError(RuntimeError):
@@ -47,7 +48,9 @@ class EmulatedHosts:
     # --- the emulator ----------------------------------------------------------------------------------
     def open(self) -> EmulatedHosts:
         c = self.initial_conditions
-        command = [sys.executable, "-m", "netlab", "--hosts", ",".join(self.names), "--subnet", self.subnet,
+        # The highest priority: a cable is never descheduled, and the emulated link should not be either.
+        command = ["nice", "-n", str(LINK_NICENESS), sys.executable, "-m", "netlab", "--hosts", ",".join(self.names),
+                   "--subnet", self.subnet,
                    "--delay-s", repr(c.delay_s), "--jitter-s", repr(c.jitter_s), "--loss", repr(c.loss)]
         if self.seed is not None:
             command += ["--seed", str(self.seed)]
