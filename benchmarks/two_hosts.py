@@ -88,11 +88,8 @@ def failure_line(log: str) -> str:
 
 def partition(stack: TwoHostStack, heartbeat_timeout: float, slew_rate: float, log_name: str) -> dict:
     ready(stack)
-    started = time.time()
-    process = stack.start_sequence("finger_grasp", log_name)
-    high = stack.rig.wait_state(lambda s: s["channels"]["back"]["voltage_v"] > HIGH_V or process.poll() is not None,
-                                GRASP_TIMEOUT, started)
-    if process.poll() is not None:  # the grasp failed before its peak (see its failure): no partition this time
+    process, high = stack.start_grasp_to_peak(HIGH_V, log_name, GRASP_TIMEOUT)
+    if high is None:  # the grasp failed before its peak (see its failure): no partition this time
         return {"reached_peak": False, "failure": failure_line((stack.out / f"{log_name}.log").read_text())}
     cut = time.time()
     stack.lab.partition()

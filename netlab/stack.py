@@ -166,6 +166,15 @@ class TwoHostStack:
                                                   "--server-timeout", "60"],
                                   self.env, stdout=log, stderr=subprocess.STDOUT)
 
+    def start_grasp_to_peak(self, volts: float, log_name: str, timeout: float) -> tuple[subprocess.Popen, dict | None]:
+        """The finger grasp started; returns it with the first rig hv/state whose back fingers exceed ``volts``,
+        or with None if the grasp ended before (its log says why)."""
+        started = time.time()
+        process = self.start_sequence("finger_grasp", log_name)
+        state = self.rig.wait_state(lambda s: s["channels"]["back"]["voltage_v"] > volts or process.poll() is not None,
+                                    timeout, started)
+        return process, None if process.poll() is not None else state
+
     def start_recorder(self, output: Path, topics: tuple[str, ...] = ("hv/state",), log_name: str = "recorder",
                        timeout: float = RECORDER_TIMEOUT) -> subprocess.Popen:
         """A recorder of ``topics`` on the workstation, writing ``output`` (stop it to finish the file); returns

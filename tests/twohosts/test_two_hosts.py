@@ -144,10 +144,8 @@ def test_a_partition_at_2_4_kv_ramps_down_reports_and_stays_off_until_asked_agai
     recording = clean.out / "partition.mcap"
     recorder = clean.start_recorder(recording, log_name="recorder_partition")
     time.sleep(RECORDER_MATCH_S)
-    started = time.time()
-    grasp = clean.start_sequence("finger_grasp", "grasp_partition")
-    high = clean.rig.wait_state(lambda s: s["channels"]["back"]["voltage_v"] > PEAK_V - SAFE_V, GRASP_TIMEOUT,
-                                since=started)
+    grasp, high = clean.start_grasp_to_peak(PEAK_V - SAFE_V, "grasp_partition", GRASP_TIMEOUT)
+    assert high is not None, (clean.out / "grasp_partition.log").read_text()[-3000:]  # it failed before its peak
     cut = time.time()
     clean.hosts.partition()
 
