@@ -73,7 +73,9 @@ class Bench:
     def __init__(self, directory: Path, log):
         self.directory = directory
         params = directory / "params.yaml"
-        params.write_text(yaml.safe_dump({node: {"ros__parameters": values} for node, values in PARAMS.items()}))
+        sequencer = {**PARAMS["sequencer"], "sequences_dir": str(directory)}  # where start() writes the goals' files
+        nodes = {**PARAMS, "sequencer": sequencer}
+        params.write_text(yaml.safe_dump({node: {"ros__parameters": values} for node, values in nodes.items()}))
         self.stack = Stack(nodes=["hv_driver", "sim_arm", "sequencer"], params=params, output=log).start()
         self.executor = MultiThreadedExecutor(num_threads=4)
         self.client = rclpy.create_node("sequencer_bench")
@@ -108,7 +110,7 @@ class Bench:
         path = self.directory / f"{document['name']}.yaml"
         path.write_text(yaml.safe_dump(document))
         self.samples, self.events = [], []
-        future = self.action.send_goal_async(RunSequence.Goal(sequence=str(path)))
+        future = self.action.send_goal_async(RunSequence.Goal(sequence=document["name"]))
         wait(future.done, what="goal response")
         return future.result()
 

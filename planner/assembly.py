@@ -23,9 +23,11 @@ class PlacedBlock:
     serial: str = ""  # physical block serial, for its calibration offset
 
     def __post_init__(self) -> None:
-        if not isinstance(self.design_id, int) or self.design_id < 1:
+        # bool is an int subclass, but `id: true` is a typo, not design 1
+        if isinstance(self.design_id, bool) or not isinstance(self.design_id, int) or self.design_id < 1:
             raise ValueError(f"design_id must be a positive integer, got {self.design_id!r}")
-        if not isinstance(self.rotation_steps, int) or not 0 <= self.rotation_steps < SNAP_FITS:
+        if (isinstance(self.rotation_steps, bool) or not isinstance(self.rotation_steps, int)
+                or not 0 <= self.rotation_steps < SNAP_FITS):
             raise ValueError(
                 f"rotation_steps must be an integer 0..{SNAP_FITS - 1}, got {self.rotation_steps!r}"
             )
@@ -98,14 +100,37 @@ class Assembly:
         return Assembly(self.name, kept + tuple(replaced.values()))
 
 
+ASSEMBLY_KEYS = {"name", "chains"}
+CHAIN_KEYS = {"name", "hv_channel", "blocks", "base_position", "base_orientation"}
+BLOCK_KEYS = {"id", "rotation_steps", "serial"}
+
+
+def _check_keys(where: str, data, allowed: set[str]) -> None:
+    """ValueError unless ``data`` is a mapping whose keys are all in ``allowed`` (a misspelt key is not
+    silently ignored)."""
+    if not isinstance(data, dict):
+        raise ValueError(f"{where}: expected a mapping with keys {sorted(allowed)}, got {type(data).__name__}")
+    unknown = sorted(str(key) for key in set(data) - allowed)
+    if unknown:
+        raise ValueError(f"{where}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+
+
 def assembly_from_dict(data: dict) -> Assembly:
-    """Build an assembly from its YAML structure; errors name the offending chain or block."""
+    """Build an assembly from its YAML structure; errors name the offending chain, block or key."""
     if not isinstance(data, dict) or "name" not in data or "chains" not in data:
         raise ValueError("an assembly needs the keys 'name' and 'chains'")
+    _check_keys("assembly", data, ASSEMBLY_KEYS)
+    if not isinstance(data["chains"], list):
+        raise ValueError("assembly: 'chains' must be a list of chains")
     chains = []
     for i, chain in enumerate(data["chains"]):
-        where = f"chain {chain.get('name', i)!r}"
+        where = f"chain {chain.get('name', i) if isinstance(chain, dict) else i!r}"
         try:
+            _check_keys(where, chain, CHAIN_KEYS)
+            if not isinstance(chain.get("blocks"), list):
+                raise ValueError("'blocks' must be a list of blocks")
+            for b, block in enumerate(chain["blocks"]):
+                _check_keys(f"block {b}", block, BLOCK_KEYS)
             blocks = tuple(
                 PlacedBlock(
                     design_id=block["id"],

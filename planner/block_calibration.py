@@ -44,6 +44,20 @@ class BlockCalibration:
             raise ValueError(f"block {serial!r} is calibrated as design {entry.design_id}, not {design_id}")
         return entry.offset
 
+    def offsets(self, assembly) -> dict[str, float]:
+        """Serial -> offset [rad] of the calibrated blocks of ``assembly`` (a ``planner.assembly.Assembly``);
+        ValueError naming the chain and block placed as another design than it is calibrated as."""
+        offsets = {}
+        for chain in assembly.chains:
+            for b, block in enumerate(chain.blocks):
+                try:
+                    offset = self.offset_for(block.serial, block.design_id)
+                except ValueError as error:
+                    raise ValueError(f"chain {chain.name!r}, block {b}: {error}") from None
+                if block.serial in self.blocks:
+                    offsets[block.serial] = offset
+        return offsets
+
 
 def parse_block_calibration(document, source: str = "block calibration") -> BlockCalibration:
     if document is None:

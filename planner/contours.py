@@ -23,6 +23,14 @@ from softblock_config import config_file
 OBJECTS_CATALOG = config_file("objects/objects.yaml")
 DEFAULT_SPECK_FRACTION = 0.01
 GREY_MODES = ("1", "L", "I", "I;16", "F")  # Pillow modes read as they are
+# Tracing costs tens of bytes per pixel: 4 megapixels stay within a few hundred MB, and 2000 pixels
+# across resolve 0.25 mm over half a metre, far finer than a finger samples its object (1 mm).
+MAX_IMAGE_PIXELS = 4_000_000
+MIN_OBJECT_PIXELS = 8  # an object must span this many pixels in height and width to have an outline
+# Pixel sizes a finger design can use: coarser than 1 cm cannot show a 15 mm block's fit (and the design
+# samples the contour every millimetre: 1e300 m per pixel asked for 1e305 samples); finer than 1 um makes
+# the object smaller than anything a 25 mm block grasps (1e-300 m per pixel underflowed the outline).
+PIXEL_SIZE_RANGE = (1e-6, 0.01)  # [m / pixel]
 
 
 def load_mask(source, threshold: float | None = None) -> np.ndarray:
@@ -30,11 +38,16 @@ def load_mask(source, threshold: float | None = None) -> np.ndarray:
 
     ``source``: path of an image Pillow reads (PNG, PGM, ...) or a 2D array. A binary image (two grey
     levels at most) needs no ``threshold``: the brighter level is the object. Any other image needs
-    ``threshold``: pixels brighter than it are the object.
+    ``threshold``: pixels brighter than it are the object. Images above MAX_IMAGE_PIXELS are refused, for a
+    file before its pixels are decoded (the size is in its header).
     """
     if isinstance(source, (str, Path)):
+        if not Path(source).is_file():  # a FIFO or a device would block or never end
+            problem = "not a regular file" if Path(source).exists() else "no such file"
+            raise ValueError(f"cannot read object image {source}: {problem}")
         try:
             with Image.open(source) as image:
+                _check_pixel_count(image.width, image.height, source)
                 # single-channel modes keep their values (16-bit PGM included); colour becomes grey
                 grey = np.asarray(image if image.mode in GREY_MODES else image.convert("L"))
         except OSError as error:
@@ -43,6 +56,7 @@ def load_mask(source, threshold: float | None = None) -> np.ndarray:
         grey = np.asarray(source)
     if grey.ndim != 2 or grey.size == 0:
         raise ValueError(f"object image must be a non-empty 2D array, got shape {grey.shape}")
+    _check_pixel_count(grey.shape[1], grey.shape[0], "object image")
     if grey.dtype == bool:
         return grey.copy()
     if threshold is not None:
@@ -55,11 +69,18 @@ def load_mask(source, threshold: float | None = None) -> np.ndarray:
     return grey == levels[-1] if levels[-1] != 0 else np.zeros(grey.shape, dtype=bool)
 
 
+def _check_pixel_count(width: int, height: int, name) -> None:
+    if width * height > MAX_IMAGE_PIXELS:
+        raise ValueError(f"{name} is {width} x {height} pixels, more than the {MAX_IMAGE_PIXELS / 1e6:g} "
+                         "megapixels accepted; downscale it (and scale the pixel size with it)")
+
+
 def clean_mask(mask, speck_fraction: float = DEFAULT_SPECK_FRACTION) -> np.ndarray:
     """The single object of ``mask`` with holes filled.
 
     Regions smaller than ``speck_fraction`` of the largest region are specks and dropped. ValueError
-    for an empty mask, for several objects, and for an object touching the image border.
+    for an empty mask, for several objects, for an object touching the image border, and for an object
+    smaller than MIN_OBJECT_PIXELS in height or width (too few pixels for an outline).
     """
     mask = np.asarray(mask, dtype=bool)
     if mask.ndim != 2:
@@ -77,6 +98,10 @@ def clean_mask(mask, speck_fraction: float = DEFAULT_SPECK_FRACTION) -> np.ndarr
             "crop it to one object"
         )
     cleaned = ndimage.binary_fill_holes(labels == objects[0])
+    height, width = (np.ptp(np.flatnonzero(cleaned.any(axis=axis))) + 1 for axis in (1, 0))
+    if min(height, width) < MIN_OBJECT_PIXELS:
+        raise ValueError(f"object is only {width} x {height} pixels; it needs at least {MIN_OBJECT_PIXELS} "
+                         "in height and width for an outline (use a finer image)")
     if cleaned[0].any() or cleaned[-1].any() or cleaned[:, 0].any() or cleaned[:, -1].any():
         raise ValueError("object touches the image border; pad the image so the whole outline is visible")
     return cleaned
@@ -120,8 +145,9 @@ def extract_contours(mask, pixel_size: float, speck_fraction: float = DEFAULT_SP
     straight side of k pixels is exactly k * pixel_size long. The top and bottom cut points are left out
     of both contours.
     """
-    if not (np.isfinite(pixel_size) and pixel_size > 0):
-        raise ValueError(f"pixel_size must be a positive number of m/pixel, got {pixel_size!r}")
+    low, high = PIXEL_SIZE_RANGE
+    if not (np.isfinite(pixel_size) and low <= pixel_size <= high):
+        raise ValueError(f"pixel_size must be a positive number of m/pixel in {low:g}..{high:g}, got {pixel_size!r}")
     cleaned = clean_mask(mask, speck_fraction)
     lines = contourpy.contour_generator(z=cleaned.astype(float), line_type="Separate").lines(0.5)
     outline_pixels = max(lines, key=len)[:-1]  # closed loop; drop the repeated first vertex

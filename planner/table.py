@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 from softblock_config import config_file
 
+from planner.atomic_file import atomic_write
 from planner.geometry import (
     AREAL_PRESTRETCH,
     DESIGN_COUNT,
@@ -157,9 +158,9 @@ class BlockTable:
         return [name for name, _ in SCALAR_COLUMNS] + [voltage_column(v) for v in self.voltages[1:]]
 
     def write_csv(self, path=DEFAULT_TABLE_PATH) -> Path:
+        """Writes the CSV atomically: a write that fails part-way leaves the old file as it was."""
         path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with path.open("w", newline="") as handle:
+        with atomic_write(path, newline="") as handle:
             writer = csv.writer(handle)
             writer.writerow(self.column_names())
             for row in range(len(self.ids)):
@@ -174,13 +175,45 @@ def _format(value) -> str:
     return "" if not math.isfinite(value) else f"{float(value):.9g}"
 
 
-def _parse(text: str, column: str, line: int) -> float:
+def _parse(text: str, path: Path, column: str, line: int) -> float:
     if text.strip() == "":
         return math.nan
     try:
         return float(text)
     except ValueError:
-        raise ValueError(f"block table line {line}: column {column!r} is not a number: {text!r}") from None
+        raise ValueError(f"block table {path}, line {line}: column {column!r} is not a number: {text[:20]!r}") from None
+
+
+def _check_row_lengths(path: Path, header: list[str], rows: list[list[str]]) -> None:
+    """ValueError naming the first row with cells missing (a cut file) or extra."""
+    for line, row in enumerate(rows, start=2):
+        if len(row) != len(header):
+            raise ValueError(f"block table {path}, line {line}: {len(row)} cells, the header has {len(header)}; "
+                             "regenerate it with `python -m planner table`")
+
+
+def _check_complete(path: Path, table: BlockTable) -> None:
+    """ValueError unless every design ID is there once, naming the row of a non-finite cell; angles may be
+    empty only beyond the design's safe voltage."""
+    ids = table.ids.tolist()
+    missing = sorted(set(range(1, DESIGN_COUNT + 1)) - set(ids))
+    if missing or len(ids) != DESIGN_COUNT:
+        shown = ", ".join(map(str, missing[:5])) + (", ..." if len(missing) > 5 else "")
+        raise ValueError(f"block table {path} has {len(ids)} rows for the {DESIGN_COUNT} design IDs"
+                         + (f", missing IDs {shown}" if missing else ", some IDs repeat or are unknown")
+                         + "; regenerate it with `python -m planner table`")
+    for name, attr in SCALAR_COLUMNS:
+        bad = np.flatnonzero(~np.isfinite(getattr(table, attr)))
+        if bad.size:
+            raise ValueError(f"block table {path}, line {bad[0] + 2} (design {table.ids[bad[0]]}): "
+                             f"{name} is empty or not finite")
+    needed = table.voltages[np.newaxis, :] <= table.safe_voltage[:, np.newaxis]
+    bad_rows, bad_columns = np.nonzero(needed & ~np.isfinite(table.theta))
+    if bad_rows.size:
+        row, column = bad_rows[0], bad_columns[0]
+        raise ValueError(f"block table {path}, line {row + 2} (design {table.ids[row]}): the angle at "
+                         f"{table.voltages[column]:.0f} V is empty or not finite, below the design's safe "
+                         f"voltage {table.safe_voltage[row]:.0f} V")
 
 
 @functools.lru_cache(maxsize=8)
@@ -200,28 +233,28 @@ def _load_cached(path: Path, mtime_ns: int) -> BlockTable:
     )
     if not voltage_columns:
         raise ValueError(f"block table {path} has no theta_<V>V_rad columns")
-    if not rows:
-        raise ValueError(f"block table {path} has no design rows")
+    _check_row_lengths(path, header, rows)
     data = {}
     for name in header:
         col = header.index(name)
-        data[name] = np.array(
-            [_parse(r[col] if col < len(r) else "", name, i + 2) for i, r in enumerate(rows)]
-        )
-    if np.any(np.isnan(data["id"])) or len(set(data["id"].tolist())) != len(rows):
-        raise ValueError(f"block table {path}: design IDs must be present and unique")
+        data[name] = np.array([_parse(r[col], path, name, i + 2) for i, r in enumerate(rows)])
+    empty_id = np.flatnonzero(~np.isfinite(data["id"]))
+    if empty_id.size:
+        raise ValueError(f"block table {path}, line {empty_id[0] + 2}: the design id is empty")
     columns = {attr: data[name] for name, attr in SCALAR_COLUMNS}
     columns["ids"] = columns["ids"].astype(int)
     theta = np.column_stack([columns["theta0"]] + [data[name] for _, name in voltage_columns])
     voltages = np.array([0.0] + [float(v) for v, _ in voltage_columns])
     table = BlockTable(**columns, voltages=voltages, theta=theta)
+    _check_complete(path, table)
     for value in vars(table).values():
         value.flags.writeable = False  # shared through the cache
     return table
 
 
 def load_table(path=DEFAULT_TABLE_PATH) -> BlockTable:
-    """Read the look-up table CSV (cached per file version); clear errors if missing or corrupt."""
+    """Read the look-up table CSV (cached per file version); ValueError naming the file and the row of a
+    table that lacks any of the 84 designs, has a cut row or a non-finite cell."""
     path = Path(path).resolve()
     if not path.is_file():
         raise FileNotFoundError(f"block table {path} not found; regenerate it with `python -m planner table`")

@@ -15,6 +15,8 @@ from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import MCAP0_MAGIC, CompressionType, Writer
 
+from planner.atomic_file import atomic_write
+
 from .message_definitions import SCHEMA_ENCODING, full_definition
 
 PROFILE = "ros2"
@@ -24,6 +26,8 @@ COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
                 "none": CompressionType.NONE}
 DEFAULT_CHUNK_SIZE = 256 * 1024
 SEQUENCE_MODULUS = 1 << 32  # MCAP's message sequence field is a uint32
+BAG_METADATA_VERSION = 9  # rosbag2_storage::BagMetadata of ROS 2 Jazzy
+NO_MESSAGE_TIME = 2**63 - 1  # rosbag2's starting_time of a bag without messages
 
 
 class RecordingWriter:
@@ -44,6 +48,8 @@ class RecordingWriter:
         self._schema_ids: dict[str, int] = {}
         self.message_counts: dict[str, int] = {}
         self._topics: dict[int, str] = {}
+        self._topic_metadata: dict[str, dict] = {}  # topic -> rosbag2 TopicMetadata
+        self._first_time, self._last_time = NO_MESSAGE_TIME, 0  # log times [ns]
 
     def add_topic(self, topic: str, type_name: str, offered_qos_profiles: str = "",
                   type_hash: str = "", definition: str | None = None) -> int:
@@ -60,6 +66,10 @@ class RecordingWriter:
                                                    self._schema_ids[type_name], metadata)
         self._topics[channel_id] = topic
         self.message_counts[topic] = 0
+        self._topic_metadata[topic] = {
+            "name": topic, "type": type_name, "serialization_format": MESSAGE_ENCODING,
+            "offered_qos_profiles": yaml.safe_load(offered_qos_profiles) or [],
+            "type_description_hash": type_hash}
         return channel_id
 
     def write(self, channel_id: int, data: bytes, log_time: int, publish_time: int, sequence: int = 0) -> None:
@@ -67,6 +77,8 @@ class RecordingWriter:
         sample counter (DDS publication sequence number; 0 = unknown), kept to 32 bits as MCAP stores it."""
         self._writer.add_message(channel_id, log_time, bytes(data), publish_time, sequence % SEQUENCE_MODULUS)
         self.message_counts[self._topics[channel_id]] += 1
+        self._first_time = min(self._first_time, log_time)
+        self._last_time = max(self._last_time, log_time)
 
     def flush(self) -> None:
         """Writes the chunk in progress to disk: what a SIGKILL afterwards cannot lose."""
@@ -76,10 +88,33 @@ class RecordingWriter:
     def closed(self) -> bool:
         return self._stream.closed
 
+    def bag_metadata(self) -> dict:
+        """rosbag2's BagMetadata of this file, as `ros2 bag record` stores it at close (v9)."""
+        count = sum(self.message_counts.values())
+        duration = {"nanoseconds": max(self._last_time - self._first_time, 0)}
+        starting_time = {"nanoseconds_since_epoch": self._first_time}
+        name = os.path.basename(self.path)
+        return {
+            "version": BAG_METADATA_VERSION, "storage_identifier": "mcap", "duration": duration,
+            "starting_time": starting_time, "message_count": count,
+            "topics_with_message_count": [
+                {"topic_metadata": metadata, "message_count": self.message_counts[topic]}
+                for topic, metadata in self._topic_metadata.items()],
+            # rosbag2's own file or message compression, not MCAP's chunk compression
+            "compression_format": "", "compression_mode": "",
+            "relative_file_paths": [name],
+            "files": [{"path": name, "starting_time": starting_time, "duration": duration,
+                       "message_count": count}],
+            "custom_data": {},
+            "ros_distro": os.environ.get("ROS_DISTRO") or "jazzy",  # PyPI wheels set no ROS_DISTRO
+        }
+
     def close(self) -> None:
-        """Writes indexes, statistics and footer; the file is complete afterwards."""
+        """Writes rosbag2's metadata record, indexes, statistics and footer: a complete file."""
         if self.closed:
             return
+        self._writer.add_metadata("rosbag2", {"serialized_metadata": yaml.safe_dump(
+            self.bag_metadata(), sort_keys=False, default_flow_style=False)})
         self._writer.finish()
         self._stream.close()
 
@@ -118,47 +153,62 @@ def _readable_records(path: str):
             yield record
 
 
+class _NotMcap(Exception):
+    """The source does not start with an MCAP header: nothing is written."""
+
+
 def recover(source: str, target: str) -> RecoveryResult:
-    """Rewrites the readable prefix of `source` (e.g. a SIGKILL'd recording) as a valid `target`."""
-    if os.path.abspath(source) == os.path.abspath(target):
-        raise ValueError("target must differ from source")
-    schema_ids: dict[int, int] = {}
-    channel_ids: dict[int, int] = {}
-    topics: dict[int, str] = {}
+    """Rewrites the readable prefix of `source` (e.g. a SIGKILL'd recording) as a valid `target`.
+
+    `target` must not be `source` under any name (a link, another path): the files are compared,
+    not the names. The output goes to a temporary file renamed to `target` at the end, so `source`
+    is read whole before anything named `target` changes.
+    """
+    if os.path.exists(target) and os.path.samefile(source, target):
+        raise ValueError(f"target {target} is the recording {source} itself; choose another output")
     counts: dict[str, int] = {}
-    writer = None
-    with open(target, "wb") as stream:
-        for record in _readable_records(source):
-            if isinstance(record, Header):
-                writer = Writer(stream, chunk_size=DEFAULT_CHUNK_SIZE)
-                writer.start(profile=record.profile, library=record.library)
-            elif writer is None:
-                break
-            elif isinstance(record, Schema) and record.id not in schema_ids:
-                schema_ids[record.id] = writer.register_schema(record.name, record.encoding,
-                                                               record.data)
-            elif isinstance(record, Channel) and record.id not in channel_ids:
-                channel_ids[record.id] = writer.register_channel(
-                    record.topic, record.message_encoding, schema_ids.get(record.schema_id, 0),
-                    record.metadata)
-                topics[record.id] = record.topic
-                counts.setdefault(record.topic, 0)
-            elif isinstance(record, Message) and record.channel_id in channel_ids:
-                writer.add_message(channel_ids[record.channel_id], record.log_time,
-                                   record.data, record.publish_time, record.sequence)
-                counts[topics[record.channel_id]] += 1
-            elif isinstance(record, Metadata):
-                writer.add_metadata(record.name, record.metadata)
-            elif isinstance(record, Attachment):
-                writer.add_attachment(record.create_time, record.log_time, record.name,
-                                      record.media_type, record.data)
-        if writer is not None:
-            writer.finish()
-    if writer is None:
-        os.remove(target)
+    try:
+        with atomic_write(target, "wb") as stream:
+            _copy_readable(source, stream, counts)
+    except _NotMcap:
         return RecoveryResult(False, f"{source} does not start with an MCAP header")
     return RecoveryResult(True, f"recovered {sum(counts.values())} messages into {target}",
                           sum(counts.values()), counts)
+
+
+def _copy_readable(source: str, stream, counts: dict[str, int]) -> None:
+    """Writes the readable records of `source` as a complete MCAP file; counts per topic."""
+    schema_ids: dict[int, int] = {}
+    channel_ids: dict[int, int] = {}
+    topics: dict[int, str] = {}
+    writer = None
+    for record in _readable_records(source):
+        if isinstance(record, Header):
+            writer = Writer(stream, chunk_size=DEFAULT_CHUNK_SIZE)
+            writer.start(profile=record.profile, library=record.library)
+        elif writer is None:
+            break
+        elif isinstance(record, Schema) and record.id not in schema_ids:
+            schema_ids[record.id] = writer.register_schema(record.name, record.encoding,
+                                                           record.data)
+        elif isinstance(record, Channel) and record.id not in channel_ids:
+            channel_ids[record.id] = writer.register_channel(
+                record.topic, record.message_encoding, schema_ids.get(record.schema_id, 0),
+                record.metadata)
+            topics[record.id] = record.topic
+            counts.setdefault(record.topic, 0)
+        elif isinstance(record, Message) and record.channel_id in channel_ids:
+            writer.add_message(channel_ids[record.channel_id], record.log_time,
+                               record.data, record.publish_time, record.sequence)
+            counts[topics[record.channel_id]] += 1
+        elif isinstance(record, Metadata):
+            writer.add_metadata(record.name, record.metadata)
+        elif isinstance(record, Attachment):
+            writer.add_attachment(record.create_time, record.log_time, record.name,
+                                  record.media_type, record.data)
+    if writer is None:
+        raise _NotMcap
+    writer.finish()
 
 
 def describe(path: str) -> dict:

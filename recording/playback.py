@@ -1,4 +1,8 @@
-"""What to replay and when: topic selection and the recorded timing. No rclpy import."""
+"""What to replay and when: topic selection and the recorded timing. No rclpy import.
+
+Command topics (recording.topics) are left out unless `include_commands` is set, so a replay next to
+a live stack never feeds its HV watchdog or moves its voltage ceiling by default.
+"""
 import re
 import threading
 import time
@@ -9,6 +13,9 @@ from mcap.reader import make_reader
 from mcap.records import Channel
 
 from .mcap_file import require_complete
+from .topics import is_command_topic
+
+_NAMESPACE = re.compile(r"^(/[A-Za-z][A-Za-z0-9_]*)+$")
 
 
 @dataclass
@@ -24,6 +31,8 @@ class PlaybackOptions:
     clock_frequency_hz: float = 0.0  # Hz of /clock (rosgraph_msgs/Clock); 0 = no /clock
     delay_s: float = 0.0         # seconds between advertising the topics and the first message,
                                  # so subscribers can discover and match the publishers first
+    include_commands: bool = False  # also play command topics (recording.topics)
+    namespace: str = ""          # prefix of every topic, e.g. /replay; "": topics as recorded
 
     def validate(self) -> None:
         if not self.rate > 0:
@@ -34,6 +43,8 @@ class PlaybackOptions:
             raise ValueError(f"clock_frequency_hz must be >= 0 Hz, not {self.clock_frequency_hz}")
         if self.delay_s < 0:
             raise ValueError(f"delay_s must be >= 0 s, not {self.delay_s}")
+        if self.namespace and not _NAMESPACE.match(self.namespace):
+            raise ValueError(f"namespace must look like /name or /a/b, not {self.namespace!r}")
         for name in ("include", "exclude"):
             try:
                 re.compile(getattr(self, name))
@@ -60,14 +71,22 @@ class Recording:
         self.end_time = summary.statistics.message_end_time
 
     def select(self, options: PlaybackOptions) -> list[Channel]:
-        """Channels whose topic passes the include/exclude regexes."""
+        """Channels whose topic passes the include/exclude regexes (command topics if asked for)."""
         include, exclude = re.compile(options.include), re.compile(options.exclude)
         return [c for c in self.channels
-                if include.search(c.topic) and not (options.exclude and exclude.search(c.topic))]
+                if include.search(c.topic) and not (options.exclude and exclude.search(c.topic))
+                and (options.include_commands or not is_command_topic(c.topic))]
 
-    def messages(self, channels: list[Channel], start_offset_s: float):
-        """(channel, message) in log-time order from `start_offset_s` seconds in."""
-        start = self.start_time + round(start_offset_s * 1e9)
+    def command_topics(self) -> list[str]:
+        """The recorded command topics (see recording.topics)."""
+        return sorted(c.topic for c in self.channels if is_command_topic(c.topic))
+
+    def start_of_playback(self, options: PlaybackOptions) -> int:
+        """Recorded time (ns) playback starts at: the first message plus the start offset."""
+        return self.start_time + round(options.start_offset_s * 1e9)
+
+    def messages(self, channels: list[Channel], start: int):
+        """(channel, message) in log-time order from recorded time `start` (ns) on."""
         topics = [c.topic for c in channels]
         for _, channel, message in self._reader.iter_messages(topics=topics, starting_at=start):
             yield channel, message
@@ -77,13 +96,17 @@ class Recording:
 
 
 class PlaybackClock:
-    """Maps wall time to recorded time at a rate factor; waits until a recorded time is due."""
+    """Maps wall time to recorded time at a rate factor; waits until a recorded time is due.
 
-    def __init__(self, rate: float, stop: threading.Event):
+    Until `restart` (e.g. during the delay before the first message) it stands at `start` (ns), the
+    recorded time playback begins at, as rosbag2's player holds /clock at the bag's start.
+    """
+
+    def __init__(self, rate: float, stop: threading.Event, start: int):
         self.rate = rate
         self.stop = stop
-        self._origin_recorded = 0
-        self._origin_wall = time.monotonic()
+        self._origin_recorded = start
+        self._origin_wall: float | None = None  # None: not running yet
 
     def restart(self, recorded_time: int) -> None:
         self._origin_recorded = recorded_time
@@ -91,6 +114,8 @@ class PlaybackClock:
 
     def now(self) -> int:
         """The recorded time (ns) being played now."""
+        if self._origin_wall is None:
+            return self._origin_recorded
         return self._origin_recorded + round((time.monotonic() - self._origin_wall)
                                              * self.rate * 1e9)
 
@@ -108,8 +133,8 @@ def play(recording: Recording, channels: list[Channel], options: PlaybackOptions
     if clock.stop.wait(options.delay_s):
         return published
     while not clock.stop.is_set():
-        clock.restart(recording.start_time + round(options.start_offset_s * 1e9))
-        for channel, message in recording.messages(channels, options.start_offset_s):
+        clock.restart(recording.start_of_playback(options))
+        for channel, message in recording.messages(channels, recording.start_of_playback(options)):
             if not clock.wait_until(message.log_time):
                 return published
             publish(channel, message)

@@ -6,11 +6,19 @@ plus optional ``description``, ``precondition``, ``timeout`` and ``on_failure``.
 
 Every problem raises `SequenceError` (a ValueError) whose message names the step and the field,
 e.g. ``step 'open_back' (steps[1]): ramp.target=3000: above the voltage ceiling 2500 V``.
+
+Sequence files come from clients by name, so reading them is bounded: a goal names a file in the
+sequence directory (no paths, no links out of it); the file's size, its nesting depth and the length
+of any value quoted in an error are limited, and YAML anchors and aliases are refused (they let a
+1 KB file expand to gigabytes or refer to itself).
 """
 from __future__ import annotations
 
 import math
+import os
 import re
+import reprlib
+import stat
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -22,10 +30,22 @@ ON_FAILURE = ("safe_stop", "estop")  # ramp every channel to 0 V (e-stop if that
 STEP_KINDS = ("move_arm", "ramp", "wait", "parallel", "pulse_train")
 COMMON_KEYS = {"name", "description", "precondition", "timeout", "on_failure"}
 _NAME = re.compile(r"^[A-Za-z0-9_\-]+$")
+MAX_FILE_SIZE = 256 * 1024  # [bytes]; the shipped sequences are below 10 KB
+MAX_DEPTH = 32              # nested lists and mappings in a file
+MAX_NAME_LENGTH = 100       # characters of a sequence name in a goal
+MAX_EXCERPT = 80            # characters of a value quoted in an error message
+_EXCERPT = reprlib.Repr()
+_EXCERPT.maxstring, _EXCERPT.maxother, _EXCERPT.maxlevel = MAX_EXCERPT, MAX_EXCERPT, 3
 
 
 class SequenceError(ValueError):
     """A sequence file that cannot be run; the message names the step and the field."""
+
+
+def excerpt(value) -> str:
+    """repr of ``value`` cut to MAX_EXCERPT characters (reprlib: never builds the repr of a huge value)."""
+    text = _EXCERPT.repr(value)
+    return text if len(text) <= MAX_EXCERPT else text[:MAX_EXCERPT - 3] + "..."
 
 
 @dataclass(frozen=True)
@@ -152,7 +172,7 @@ class _Where:
 
     def fail(self, field_name: str, value, expectation: str):
         label = f"step {self.name!r} ({self.path})" if self.name else self.path
-        shown = "(missing)" if value is _MISSING else f"{value!r}"
+        shown = "(missing)" if value is _MISSING else excerpt(value)
         raise SequenceError(f"{label}: {field_name}={shown}: {expectation}")
 
 
@@ -345,6 +365,9 @@ def parse_sequence(document, limits: Limits = Limits(), source: str = "", defaul
     defaults: site-wide step defaults (keys of DEFAULTS) under the file's own ``defaults``.
     """
     top = _Where(source or "sequence")
+    if not isinstance(document, Mapping):  # e.g. a text file: say what it is, not what it says
+        raise SequenceError(f"{top.path}: a sequence file is a mapping (name, channels, steps), "
+                            f"not a {type(document).__name__}")
     document = _mapping(top, document, "sequence", {"name", "description", "channels", "defaults", "steps"})
     name = document.get("name", _MISSING)
     if not isinstance(name, str) or not _NAME.match(name):
@@ -362,26 +385,83 @@ def parse_sequence(document, limits: Limits = Limits(), source: str = "", defaul
                     steps=parser.steps(document.get("steps", _MISSING), "steps"), source=source)
 
 
+class _BoundedLoader(yaml.SafeLoader):
+    """PyYAML's safe loader without anchors and aliases, and with a nesting limit (the composer recurses)."""
+
+    def __init__(self, stream):
+        super().__init__(stream)
+        self._depth = 0
+
+    def compose_node(self, parent, index):
+        event = self.peek_event()
+        if isinstance(event, yaml.AliasEvent) or getattr(event, "anchor", None):
+            problem = "anchors and aliases (&name, *name) are not allowed; write the value out"
+            raise yaml.MarkedYAMLError(problem=problem, problem_mark=event.start_mark)
+        if self._depth >= MAX_DEPTH:
+            raise yaml.MarkedYAMLError(problem=f"nested deeper than {MAX_DEPTH} levels",
+                                       problem_mark=event.start_mark)
+        self._depth += 1
+        try:
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+
+def _yaml_error(source: str, error: yaml.YAMLError) -> SequenceError:
+    """One line naming the place, without the document's text (PyYAML's message quotes the line)."""
+    mark = getattr(error, "problem_mark", None)
+    where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+    problem = getattr(error, "problem", None) or str(error)
+    return SequenceError(f"{source}: invalid YAML: {where}{problem[:MAX_EXCERPT]}")
+
+
+def _read_bounded(path: Path) -> bytes:
+    """The bytes of a regular file of at most MAX_FILE_SIZE; SequenceError otherwise (nothing else read)."""
+    try:
+        with open(path, "rb") as stream:
+            info = os.fstat(stream.fileno())
+            if not stat.S_ISREG(info.st_mode):
+                raise SequenceError(f"{path}: not a regular file")
+            data = stream.read(MAX_FILE_SIZE + 1)
+    except OSError as error:
+        raise SequenceError(f"{path}: cannot read: {error.strerror}") from None
+    if len(data) > MAX_FILE_SIZE:
+        raise SequenceError(f"{path}: larger than {MAX_FILE_SIZE} bytes, the limit for a sequence file")
+    return data
+
+
+def load_sequence_file(path: str | Path, limits: Limits = Limits(), defaults: Mapping | None = None) -> Sequence:
+    """Read (bounded, see the module docstring) and validate one sequence file; SequenceError otherwise."""
+    path = Path(path)
+    try:
+        document = yaml.load(_read_bounded(path), Loader=_BoundedLoader)  # a SafeLoader
+    except yaml.YAMLError as error:
+        raise _yaml_error(str(path), error) from None
+    return parse_sequence(document, limits, source=str(path), defaults=defaults)
+
+
 def resolve_sequence_path(sequence: str, sequences_dir: str | Path) -> Path:
-    """A sequence name (``finger_grasp`` -> <sequences_dir>/finger_grasp.yaml) or a path to a YAML file."""
+    """``<sequences_dir>/<sequence>.yaml`` for a sequence name; never a file outside the directory.
+
+    A name is letters, digits, '_' and '-': no paths, no '..'. A file that is a link out of the directory
+    is refused too. SequenceError otherwise (naming the sequences there when the name is unknown).
+    """
+    directory = Path(sequences_dir).resolve()
     if not isinstance(sequence, str) or not sequence.strip():
-        raise SequenceError(f"sequence={sequence!r}: give a sequence name or a path to a YAML file")
-    if _NAME.match(sequence):
-        path = Path(sequences_dir) / f"{sequence}.yaml"
-    else:
-        path = Path(sequence).expanduser()
+        raise SequenceError(f"sequence={excerpt(sequence)}: give a sequence name")
+    if len(sequence) > MAX_NAME_LENGTH or not _NAME.match(sequence):
+        raise SequenceError(f"sequence={excerpt(sequence)}: a sequence name is up to {MAX_NAME_LENGTH} letters, "
+                            f"digits, '_' or '-' (no paths); it names <name>.yaml in {sequences_dir}")
+    path = directory / f"{sequence}.yaml"
     if not path.is_file():
-        known = sorted(p.stem for p in Path(sequences_dir).glob("*.yaml")) if Path(sequences_dir).is_dir() else []
+        known = sorted(p.stem for p in directory.glob("*.yaml")) if directory.is_dir() else []
         raise SequenceError(f"sequence={sequence!r}: no such file {path} (sequences in {sequences_dir}: {known})")
+    if not path.resolve().is_relative_to(directory):
+        raise SequenceError(f"sequence={sequence!r}: {path} links outside {sequences_dir}; refused")
     return path
 
 
 def load_sequence(sequence: str, sequences_dir: str | Path, limits: Limits = Limits(),
                   defaults: Mapping | None = None) -> Sequence:
-    """Load and validate a sequence by name or path; SequenceError names the file, step and field."""
-    path = resolve_sequence_path(sequence, sequences_dir)
-    try:
-        document = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as error:
-        raise SequenceError(f"{path}: invalid YAML: {error}") from error
-    return parse_sequence(document, limits, source=str(path), defaults=defaults)
+    """Load and validate a sequence by name from ``sequences_dir``; SequenceError names the file, step and field."""
+    return load_sequence_file(resolve_sequence_path(sequence, sequences_dir), limits, defaults)

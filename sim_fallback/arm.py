@@ -168,8 +168,13 @@ class SimulatedArm:
         if angle > 0:
             rate_limits.append(self.limits.max_angular_speed_rad_per_s / angle)
             acceleration_limits.append(self.limits.max_angular_acceleration_rad_per_s2 / angle)
+        rate, acceleration = min(rate_limits), min(acceleration_limits)
+        # A target too far for the speed (or a speed too low for the distance) underflows to a rate of 0:
+        # a move that never ends and cannot be timed.
+        _require(rate > 0 and acceleration > 0, "target", target,
+                 f"a move of finite duration ({distance:.3g} m at up to {speed:.3g} m/s cannot be timed)")
         initial_rate = self.speed() / distance if distance > 0 else 0.0
-        self._segment = _Segment(self._pose, target, min(rate_limits), min(acceleration_limits), initial_rate)
+        self._segment = _Segment(self._pose, target, rate, acceleration, initial_rate)
 
     def stop(self) -> None:
         """Brake at the allowed deceleration and hold where the tool comes to rest."""

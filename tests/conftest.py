@@ -1,9 +1,14 @@
-"""Test-wide settings: DDS stays on loopback and every test module gets its own ROS domain."""
+"""Test-wide settings: DDS stays on loopback, every test module gets its own ROS domain, and every process a
+test starts ends with it."""
+import faulthandler
 import hashlib
 import itertools
 import os
+import sys
+import threading
 
 import pytest
+from processes import adopt_orphans, descendants, kill_tree, reap
 
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("MPLBACKEND", "Agg")
@@ -35,3 +40,74 @@ def ros_domain_per_module():
     """A fresh domain for each module: nodes an earlier module left in the DDS graph (a killed process
     stays listed until its lease runs out) never show up in this one's topic lists."""
     os.environ["ROS_DOMAIN_ID"] = _domain(next(_MODULES))
+
+
+adopt_orphans()  # a test process killed with its children alive leaves them in this tree, not to init
+_TIMED_OUT = pytest.StashKey[bool]()
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item, call):
+    report = yield
+    if report.failed and "from pytest-timeout" in report.longreprtext:
+        item.stash[_TIMED_OUT] = True
+    return report
+
+
+def _kill_new_processes(before: set[int]) -> None:
+    leftover = descendants(os.getpid()) - before
+    if leftover:
+        kill_tree(leftover)
+        reap(leftover)
+
+
+@pytest.fixture(autouse=True)
+def kill_processes_of_a_timed_out_test(request):
+    """What a test started is killed as soon as pytest-timeout fails it (timeout_method = signal raises in
+    the test, so this teardown runs). Processes of passing tests may outlive them: module fixtures start
+    some (the HV driver's simulated supply) in the tests."""
+    before = descendants(os.getpid())
+    yield
+    if request.node.stash.get(_TIMED_OUT, False):
+        _kill_new_processes(before)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def kill_processes_left_by_a_module():
+    """Whatever a test module's tests and fixtures started and left running is killed when it ends."""
+    before = descendants(os.getpid())
+    yield
+    _kill_new_processes(before)
+
+
+# A test stuck in C code (e.g. a wait inside rclpy) never sees pytest-timeout's signal. Then, this much
+# later, the last resort kills every process below this one and ends the worker, as pytest-timeout's
+# thread method does, so nothing outlives the run.
+LAST_RESORT_GRACE = 60.0  # [s] after the test's timeout
+_LAST_RESORT = pytest.StashKey[threading.Timer]()
+
+
+def _last_resort(item) -> None:
+    capture = item.config.pluginmanager.getplugin("capturemanager")
+    if capture is not None:
+        capture.suspend_global_capture(in_=True)  # so the message and the stacks reach the terminal
+    sys.stderr.write(f"\n{item.nodeid} did not end {LAST_RESORT_GRACE:.0f} s after its timeout; "
+                     "killing its processes and this worker\n")
+    faulthandler.dump_traceback(all_threads=True)
+    kill_tree(descendants(os.getpid()))
+    os._exit(1)
+
+
+def pytest_timeout_set_timer(item, settings):
+    if settings.timeout > 0:
+        timer = threading.Timer(settings.timeout + LAST_RESORT_GRACE, _last_resort, args=(item,))
+        timer.daemon = True
+        timer.start()
+        item.stash[_LAST_RESORT] = timer
+    # returning None lets pytest-timeout set its own (signal) timer as well
+
+
+def pytest_timeout_cancel_timer(item):
+    timer = item.stash.get(_LAST_RESORT, None)
+    if timer is not None:
+        timer.cancel()

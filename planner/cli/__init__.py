@@ -25,6 +25,6 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return int(args.handler(args) or 0)
-    except (ValueError, FileNotFoundError) as error:
+    except (ValueError, OSError) as error:  # a bad input or a file that cannot be read or written: one line
         print(f"error: {error}", file=sys.stderr)
         return 2

@@ -57,7 +57,8 @@ def _object_mask(name: str, pixel_size: float | None):
     catalog = yaml.safe_load(OBJECTS_CATALOG.read_text())
     if name in catalog:
         entry = catalog[name]
-        return load_mask(OBJECTS_CATALOG.parent / entry["file"]), pixel_size or float(entry["pixel_size_m"])
+        scale = float(entry["pixel_size_m"]) if pixel_size is None else pixel_size  # 0 is an error, not "default"
+        return load_mask(OBJECTS_CATALOG.parent / entry["file"]), scale
     if pixel_size is None:
         raise ValueError(f"--pixel-size is needed for an image file ({name!r} is not a sample object)")
     return load_mask(Path(name)), pixel_size

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from planner.atomic_file import check_writable_target
 from planner.block_model import TABLE_FIDELITY, Fidelity
 from planner.table import DEFAULT_TABLE_PATH
 
@@ -22,6 +23,7 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from planner.table_builder import build_table
 
+    check_writable_target(args.out)  # before the build, not after it
     start = time.perf_counter()
     table = build_table(fidelity=Fidelity(TABLE_FIDELITY.kind, args.strips))
     path = table.write_csv(args.out)

@@ -1,12 +1,12 @@
 """The README's main job end to end: `python -m softblock_ros.demo` on the simulated backend, then its
 recording replayed into a fresh ROS graph and recorded again, with the same analysis."""
 import json
-import subprocess
 import sys
 import threading
 
 import pytest
 import rclpy
+from processes import run
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
@@ -25,17 +25,16 @@ FINGER_GRASP_STEPS = ["above_object", "open_back", "surround_object", "close_bac
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory):
     out = tmp_path_factory.mktemp("demo")
-    run = subprocess.run([sys.executable, "-m", "softblock_ros.demo", "--out", str(out)], capture_output=True,
-                         text=True, timeout=DEMO_TIMEOUT)
-    return run, out
+    demo_run = run([sys.executable, "-m", "softblock_ros.demo", "--out", str(out)], timeout=DEMO_TIMEOUT)
+    return demo_run, out
 
 
 def test_demo_exits_zero_and_writes_its_outputs(demo):
-    run, out = demo
-    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    demo_run, out = demo
+    assert demo_run.returncode == 0, demo_run.stdout[-3000:] + demo_run.stderr[-3000:]
     for name in ("fingers.png", "recording.png", "run.mcap", "summary.json", "stack.log"):
         assert (out / name).stat().st_size > 0, name
-    assert "=== demo summary ===" in run.stdout
+    assert "=== demo summary ===" in demo_run.stdout
 
 
 def test_demo_designs_the_papers_gripper_and_runs_the_six_step_grasp(demo):

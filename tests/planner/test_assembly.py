@@ -46,6 +46,18 @@ def test_rotation_steps_are_snap_fits():
                                       "base_orientation": [0, 0, 0, 2]}]},
             "unit quaternion",
         ),
+        ({"name": "x", "chains": [{"name": "a", "hv_channel": "c", "blocks": [{"id": True}]}]},
+         "chain 'a': design_id must be a positive integer, got True"),
+        ({"name": "x", "chains": [{"name": "a", "hv_channel": "c", "blocks": [{"id": 1, "rotation_steps": True}]}]},
+         "chain 'a': rotation_steps must be an integer 0..11, got True"),
+        ({"name": "x", "chains": [{"name": "a", "hv_channel": "c",
+                                   "blocks": [{"id": 1}, {"id": 2, "rotaton_steps": 3}]}]},
+         r"chain 'a': block 1: unknown key\(s\) \['rotaton_steps'\]; allowed: \['id', 'rotation_steps', 'serial'\]"),
+        ({"name": "x", "chains": [{"name": "a", "hv_chanel": "c", "blocks": [{"id": 1}]}]},
+         r"chain 'a': unknown key\(s\) \['hv_chanel'\]"),
+        ({"name": "x", "chains": [], "colour": "red"}, r"assembly: unknown key\(s\) \['colour'\]"),
+        ({"name": "x", "chains": ["a"]}, "chain 0: expected a mapping"),
+        ({"name": "x", "chains": [{"name": "a", "hv_channel": "c", "blocks": 5}]}, "'blocks' must be a list"),
     ],
 )
 def test_bad_assemblies_name_the_problem(data, message):

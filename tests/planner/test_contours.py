@@ -102,6 +102,8 @@ def test_png_and_pgm_files_load_and_grey_images_need_a_threshold(tmp_path):
         (rectangle() | rectangle(top=2, bottom=8, left=2, right=40), "2 objects"),
         (rectangle(top=0), "touches the image border"),
         (rectangle(right=50), "touches the image border"),
+        (rectangle(top=10, bottom=11, left=10, right=11), "object is only 1 x 1 pixels; it needs at least 8"),
+        (rectangle(top=10, bottom=30, left=10, right=13), "object is only 3 x 20 pixels"),
     ],
 )
 def test_bad_images_are_named(mask, message):
@@ -112,9 +114,29 @@ def test_bad_images_are_named(mask, message):
 def test_bad_arguments_are_named(tmp_path):
     with pytest.raises(ValueError, match="pixel_size"):
         extract_contours(rectangle(), 0.0)
+    for absurd in (1e300, 1e-300):  # found by fuzzing planner/design_fingers: it never answered
+        with pytest.raises(ValueError, match=r"pixel_size must be a positive number of m/pixel in 1e-06..0.01, got"):
+            extract_contours(rectangle(), absurd)
     with pytest.raises(ValueError, match="cannot read object image"):
         load_mask(tmp_path / "missing.png")
     with pytest.raises(ValueError, match="2D"):
         load_mask(np.zeros(5))
     with pytest.raises(ValueError, match="not in"):
         load_catalog_object("teapot")
+
+
+def test_an_oversized_image_is_refused_before_its_pixels_are_decoded(tmp_path, monkeypatch):
+    path = tmp_path / "huge.png"
+    Image.new("1", (8000, 8000)).save(path)  # 64 megapixels, a few kB as a PNG
+    decoded = []
+    monkeypatch.setattr(Image.Image, "load", lambda image: decoded.append(image))
+    with pytest.raises(ValueError, match=r"huge.png is 8000 x 8000 pixels, more than the 4 megapixels accepted"):
+        load_mask(path)
+    assert decoded == []
+    with pytest.raises(ValueError, match=r"object image is 3000 x 2000 pixels"):
+        load_mask(np.zeros((2000, 3000), dtype=np.uint8))
+
+
+def test_a_path_that_is_not_a_regular_file_is_refused(tmp_path):
+    with pytest.raises(ValueError, match="cannot read object image .*: not a regular file"):
+        load_mask(tmp_path)

@@ -34,3 +34,15 @@ def test_fk_rejects_unknown_channels_and_bad_voltages(capsys):
     with pytest.raises(SystemExit):
         main(["fk", str(ASSEMBLIES / "legged.yaml"), "--voltage", "leg_front_left"])
     assert "CHANNEL=VOLTS" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("block, problem", [
+    ("{id: true}", "design_id must be a positive integer, got True"),
+    ("{id: 15, rotaton_steps: 3}", "block 0: unknown key(s) ['rotaton_steps']"),
+])
+def test_fk_refuses_a_bool_id_and_misspelt_keys_naming_them(tmp_path, capsys, block, problem):
+    path = tmp_path / "typo.yaml"
+    path.write_text(f"name: typo\nchains:\n  - {{name: arm, hv_channel: main, blocks: [{block}]}}\n")
+    assert main(["fk", str(path)]) == 2
+    error = capsys.readouterr().err
+    assert problem in error and "chain 'arm'" in error and error.count("\n") == 1

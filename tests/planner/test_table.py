@@ -4,6 +4,7 @@ import math
 import numpy as np
 import pytest
 
+import planner.table
 from planner.table import DEFAULT_TABLE_PATH, design_id, design_indices, design_parameters, load_table
 
 
@@ -98,3 +99,62 @@ def test_angle_at_matches_per_design_interpolation(table):
         values = np.append(table.theta[row, usable], table.theta_at_safe_voltage[row])
         assert ok == (v <= limit)
         assert angle == pytest.approx(np.interp(min(v, limit), grid, values), abs=1e-12)
+
+
+def cut_copy(tmp_path, lines: int, cut_last_line_at: int | None = None):
+    """The shipped table cut after ``lines`` lines (header included), optionally through the last line."""
+    text = DEFAULT_TABLE_PATH.read_text().splitlines(keepends=True)[:lines]
+    if cut_last_line_at is not None:
+        text[-1] = text[-1][:cut_last_line_at]
+    path = tmp_path / "cut.csv"
+    path.write_text("".join(text))
+    return path
+
+
+def test_a_table_cut_between_rows_is_refused_naming_the_missing_ids(tmp_path):
+    with pytest.raises(ValueError, match=r"cut.csv has 39 rows for the 84 design IDs, missing IDs 40, 41, 42"):
+        load_table(cut_copy(tmp_path, 40))
+
+
+def test_a_table_cut_inside_a_row_is_refused_naming_the_line(tmp_path):
+    with pytest.raises(ValueError, match=r"cut.csv, line 40: 5 cells, the header has 21"):
+        load_table(cut_copy(tmp_path, 40, cut_last_line_at=len("39,0.02,0.00031,1.5,1.")))
+
+
+@pytest.mark.parametrize("column, value, message", [
+    ("theta0_rad", "", r"line 11 \(design 10\): theta0_rad is empty or not finite"),
+    ("stiffness_Nm_per_rad", "inf", r"line 11 \(design 10\): stiffness_Nm_per_rad is empty or not finite"),
+    ("theta_1200V_rad", "nan", r"line 11 \(design 10\): the angle at 1200 V is empty or not finite"),
+])
+def test_a_non_finite_cell_is_refused_naming_the_file_and_row(tmp_path, column, value, message):
+    lines = DEFAULT_TABLE_PATH.read_text().splitlines()
+    header = lines[0].split(",")
+    row = lines[10].split(",")
+    row[header.index(column)] = value
+    lines[10] = ",".join(row)
+    path = tmp_path / "damaged.csv"
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(ValueError, match=rf"damaged.csv, {message}"):
+        load_table(path)
+
+
+def test_angles_beyond_the_safe_voltage_may_stay_empty(table):
+    assert np.isnan(table.theta).any()  # the shipped table has them, and loads
+
+
+def test_a_write_that_fails_part_way_leaves_the_old_table(table, tmp_path, monkeypatch):
+    path = table.write_csv(tmp_path / "t.csv")
+    before = path.read_bytes()
+    calls = iter(range(1000))
+
+    def failing_format(value):
+        if next(calls) == 500:  # the disk fills up in the middle of the rows
+            raise OSError(28, "No space left on device")
+        return original_format(value)
+
+    original_format = planner.table._format
+    monkeypatch.setattr(planner.table, "_format", failing_format)
+    with pytest.raises(OSError, match="No space left"):
+        table.write_csv(path)
+    assert path.read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["t.csv"]  # no temporary file left behind

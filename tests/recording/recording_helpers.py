@@ -24,13 +24,14 @@ def wait_for(predicate, what: str, timeout: float = TIMEOUT):
 
 
 class Spinner:
-    """Spins nodes in a background thread until closed; an exception there is kept and raised by close()."""
+    """Spins nodes in a background thread until closed; an exception there is raised by close()."""
 
     def __init__(self, context, *nodes):
         self.executor = SingleThreadedExecutor(context=context)
         for node in nodes:
             self.executor.add_node(node)
         self.error: BaseException | None = None
+        self._closing = False
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
 
@@ -38,11 +39,16 @@ class Spinner:
         try:
             self.executor.spin()
         except BaseException as error:  # raised again by close(), not lost with the thread
+            if self._closing:
+                # rclpy's Executor.shutdown destroys its guard conditions without waiting for
+                # spin to leave its wait, which may then raise: the stop close() asked for.
+                return
             self.error = error
             raise
 
     def close(self):
         """Stops spinning; raises if spinning had ended with an exception (naming it)."""
+        self._closing = True
         self.executor.shutdown()
         self._thread.join()
         if self.error is not None:

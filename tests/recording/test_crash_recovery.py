@@ -16,8 +16,9 @@ from recording_helpers import hv_state, read_decoded, stamp, wait_for, write_rec
 from rosbags.highlevel import AnyReader
 from softblock_interfaces.msg import HvState
 
-from softblock_ros.recording.cli import main
+from recording import mcap_file
 from recording.mcap_file import describe, recover
+from softblock_ros.recording.cli import main
 
 
 def start_recorder(path: Path) -> subprocess.Popen:
@@ -132,3 +133,44 @@ def test_recover_refuses_a_file_that_is_not_mcap(tmp_path):
     result = recover(str(junk), str(tmp_path / "out.mcap"))
     assert not result.success and "MCAP header" in result.message
     assert not (tmp_path / "out.mcap").exists()
+
+
+@pytest.fixture
+def crashed(tmp_path):
+    """A recording cut as a SIGKILL leaves it: no summary, no footer."""
+    finished = write_recording(str(tmp_path / "whole.mcap"), [
+        ("/hv/state", hv_state({"front": float(i)}), i) for i in range(1, 4)])
+    path = tmp_path / "crashed.mcap"
+    path.write_bytes(Path(finished).read_bytes()[:-200])
+    return path
+
+
+@pytest.mark.parametrize("alias", ["symlink", "hardlink", "dotted path"])
+def test_recover_onto_another_name_of_the_source_refuses_and_keeps_it(crashed, alias, capsys):
+    before = crashed.read_bytes()
+    target = crashed.parent / "target.mcap"
+    if alias == "symlink":
+        target.symlink_to(crashed)
+    elif alias == "hardlink":
+        target.hardlink_to(crashed)
+    else:
+        target = crashed.parent / "." / crashed.name
+    assert main(["recover", str(crashed), "-o", str(target)]) == 1
+    assert "is the recording" in capsys.readouterr().err
+    assert crashed.read_bytes() == before
+
+
+def test_recover_replaces_an_existing_target_only_when_done(crashed, tmp_path, monkeypatch):
+    target = tmp_path / "out.mcap"
+    target.write_bytes(b"previous output")
+    readable_records = mcap_file._readable_records
+
+    def failing_records(path):  # the disk fills up after a few records
+        yield from list(readable_records(path))[:3]
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(mcap_file, "_readable_records", failing_records)
+    with pytest.raises(OSError, match="No space left"):
+        recover(str(crashed), str(target))
+    assert target.read_bytes() == b"previous output"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["crashed.mcap", "out.mcap", "whole.mcap"]

@@ -1,20 +1,26 @@
 """Player: recorded timing order, recorded QoS (latched stays latched), filters, offset, loop,
-/clock, and a clear error for message types that cannot be imported."""
+/clock, command topics left out unless asked for, and a clear error for message types that cannot
+be imported."""
 import subprocess
 import sys
 
 import pytest
 import rclpy
+from rclpy.lifecycle import TransitionCallbackReturn
+from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
 from rclpy.serialization import serialize_message
 from recording_helpers import (LATCHED, Spinner, assembly, hv_state, sequence_event, stamp,
                                wait_for, write_recording)
 from rosgraph_msgs.msg import Clock
-from softblock_interfaces.msg import Assembly, HvState
+from softblock_interfaces.msg import Assembly, HvHeartbeat, HvState
+from std_msgs.msg import Float64
 
+from softblock_ros.hv_driver_node import HvDriverNode
 from softblock_ros.recording.message_types import UnknownMessageTypeError
 from recording.mcap_file import RecordingWriter
 from recording.playback import PlaybackOptions
+from recording.topics import is_command_topic
 from softblock_ros.recording.player_node import PlayerNode
 from softblock_ros.recording.qos_metadata import (offered_qos_yaml, parse_offered_qos,
                                                   playback_qos)
@@ -98,7 +104,9 @@ def test_loop_replays_until_stopped_and_clock_follows_recorded_time(ros_context,
     restarts = [later for earlier, later in zip(voltages, voltages[1:]) if later < earlier]
     assert restarts and set(voltages) <= {100.0 * i for i in range(SAMPLES)}
     clock_ns = clock[0].clock.sec * 1_000_000_000 + clock[0].clock.nanosec
-    assert START <= clock_ns <= START + SAMPLES * STEP * 2
+    # recorded time (2023), not wall time; at rate 20 a stall of the playback thread between two passes
+    # on a loaded machine moves it past one pass (200 ms), so the bound is a minute of recorded time
+    assert START <= clock_ns <= START + 60 * 1_000_000_000
 
 
 @pytest.fixture
@@ -152,7 +160,129 @@ def test_recorded_qos_round_trips_to_playback_qos():
 
 @pytest.mark.parametrize("field, value", [("rate", 0.0), ("start_offset_s", -1.0),
                                           ("clock_frequency_hz", -5.0), ("delay_s", -1.0),
-                                          ("include", "(")])
+                                          ("include", "("), ("namespace", "replay/")])
 def test_bad_playback_options_name_the_parameter(field, value):
     with pytest.raises(ValueError, match=field):
         PlaybackOptions(**{field: value}).validate()
+
+
+@pytest.fixture
+def recording_with_commands(tmp_path):
+    """A stack's recording: hv/state, and what a live driver obeys (heartbeat, safe voltage)."""
+    entries = [("/assembly/safe_voltage", Float64(data=2901.0), START)]
+    entries += [("/hv/heartbeat", HvHeartbeat(token="recorded session"), START + i * STEP)
+                for i in range(SAMPLES)]
+    entries += [("/hv/state", stamp(START + i * STEP, hv_state({"front": float(i)})),
+                 START + i * STEP) for i in range(SAMPLES)]
+    return write_recording(str(tmp_path / "stack.mcap"), sorted(entries, key=lambda e: e[2]),
+                           {"/assembly/safe_voltage": LATCHED})
+
+
+class DriverLike:
+    """Subscribes as the HV driver does: the heartbeat (volatile) and the safe voltage (latched)."""
+
+    def __init__(self, ros_context, namespace="/"):
+        self.node = rclpy.create_node("driver_like", namespace=namespace, context=ros_context)
+        self.heartbeats = collect(self.node, HvHeartbeat, "hv/heartbeat", QoSProfile(depth=10))
+        self.safe_voltages = collect(self.node, Float64, "assembly/safe_voltage", LATCHED)
+        self.states = collect(self.node, HvState, "hv/state", QoSProfile(depth=100))
+
+    def got_the_last_state(self) -> bool:
+        """The last replayed hv/state arrived (it stays in the publisher's history until
+        delivered; earlier ones may be overwritten on a loaded machine)."""
+        return any(s.channels[0].measured_voltage == SAMPLES - 1 for s in self.states)
+
+
+def test_command_topics_are_not_replayed_to_a_live_driver_by_default(ros_context,
+                                                                      recording_with_commands):
+    driver = DriverLike(ros_context)
+    player = PlayerNode(recording_with_commands, PlaybackOptions(), context=ros_context)
+    spinner = Spinner(ros_context, player, driver.node)
+    try:
+        assert sorted(p.topic_name for p in player.publishers_by_channel.values()) == ["/hv/state"]
+        state = next(iter(player.publishers_by_channel.values()))
+        wait_for(lambda: state.get_subscription_count() >= 1, "the driver-like node to match")
+        player.start()
+        wait_for(player.finished.is_set, "end of playback")
+        wait_for(driver.got_the_last_state, "the last hv/state sample")
+        assert driver.node.count_publishers("/hv/heartbeat") == 0
+        assert driver.node.count_publishers("/assembly/safe_voltage") == 0
+    finally:
+        spinner.close()
+        player.destroy_node()
+    assert (driver.heartbeats, driver.safe_voltages) == ([], [])
+    assert player.published == SAMPLES
+
+
+def test_include_commands_plays_them_and_a_namespace_keeps_them_away(ros_context,
+                                                                      recording_with_commands):
+    live, replay = DriverLike(ros_context), DriverLike(ros_context, namespace="/replay")
+    options = PlaybackOptions(include_commands=True, namespace="/replay")
+    player = PlayerNode(recording_with_commands, options, context=ros_context)
+    spinner = Spinner(ros_context, player, live.node, replay.node)
+    try:
+        assert sorted(p.topic_name for p in player.publishers_by_channel.values()) == [
+            "/replay/assembly/safe_voltage", "/replay/hv/heartbeat", "/replay/hv/state"]
+        publishers = player.publishers_by_channel.values()
+        wait_for(lambda: all(p.get_subscription_count() >= 1 for p in publishers),
+                 "the replay namespace's node to match every topic")
+        player.start()
+        wait_for(player.finished.is_set, "end of playback")
+        wait_for(lambda: replay.got_the_last_state() and replay.heartbeats and replay.safe_voltages,
+                 "the replayed heartbeat, safe voltage and last hv/state")
+    finally:
+        spinner.close()
+        player.destroy_node()
+    assert replay.safe_voltages[0].data == 2901.0
+    assert (live.heartbeats, live.safe_voltages, live.states) == ([], [], [])
+
+
+COMMAND_TOPICS = "['/assembly/safe_voltage', '/hv/heartbeat']"
+
+
+@pytest.mark.parametrize("flag, logged", [
+    ([], f"not playing command topics {COMMAND_TOPICS} (--include-commands plays them)"),
+    (["--include-commands"], f"playing command topics {COMMAND_TOPICS}: a live node")])
+def test_cli_says_which_command_topics_it_leaves_out_or_plays(recording_with_commands, flag,
+                                                              logged):
+    result = subprocess.run([sys.executable, "-m", "softblock_ros.recording", "play", "--rate",
+                             "10", recording_with_commands, *flag], capture_output=True,
+                            text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert logged in result.stderr
+
+
+def test_the_hv_drivers_inputs_are_all_command_topics(ros_context):
+    """Whatever topics the real HV driver subscribes to are left out of a default replay: the
+    token-carrying heartbeat and the safe voltage. Its other inputs (claim and release of control, the
+    ramp action) are services, which a player cannot call."""
+    driver = HvDriverNode(context=ros_context,
+                          parameter_overrides=[Parameter("autostart", value=False)])
+    try:
+        assert driver.trigger_configure() == TransitionCallbackReturn.SUCCESS
+        topics = dict(driver.get_subscriber_names_and_types_by_node("hv_driver", "/"))
+        services = {name for name, _ in driver.get_service_names_and_types_by_node("hv_driver", "/")}
+    finally:
+        driver.trigger_shutdown()
+        driver.destroy_node()
+    assert topics and all(is_command_topic(topic) for topic in topics), topics
+    assert topics["/hv/heartbeat"] == ["softblock_interfaces/msg/HvHeartbeat"]
+    assert {"/hv/claim_control", "/hv/release_control", "/hv/ramp/_action/send_goal"} <= services
+
+
+def test_clock_during_the_delay_stands_at_the_recordings_start(ros_context, grasp_recording):
+    options = PlaybackOptions(delay_s=1.0, clock_frequency_hz=50.0, include="hv")
+    player = PlayerNode(grasp_recording, options, context=ros_context)
+    listener = rclpy.create_node("clock_listener", context=ros_context)
+    clock = collect(listener, Clock, "/clock", QoSProfile(depth=100))
+    spinner = Spinner(ros_context, player, listener)
+    try:
+        player.start()
+        wait_for(lambda: len(clock) >= 5, "/clock during the delay")
+        during_delay = list(clock)
+        player.stop()
+    finally:
+        spinner.close()
+        player.destroy_node()
+    assert player.published == 0  # all of it was still the delay
+    assert {c.clock.sec * 1_000_000_000 + c.clock.nanosec for c in during_delay} == {START}

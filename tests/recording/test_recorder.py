@@ -139,3 +139,32 @@ def test_topic_list_records_only_the_listed_topics(ros_context, tmp_path):
         recorder.close_recording()
     assert recorder.recorded_topics == ["/assembly/safe_voltage"]
     assert list(read_decoded(path)) == ["/assembly/safe_voltage"]
+
+
+def test_file_carries_rosbag2_metadata_as_ros2_bag_record_writes_it(recording):
+    with open(recording, "rb") as stream:
+        records = [m for m in make_reader(stream).iter_metadata() if m.name == "rosbag2"]
+    assert len(records) == 1 and set(records[0].metadata) == {"serialized_metadata"}
+    bag = yaml.safe_load(records[0].metadata["serialized_metadata"])
+    assert list(bag) == ["version", "storage_identifier", "duration", "starting_time",
+                         "message_count", "topics_with_message_count", "compression_format",
+                         "compression_mode", "relative_file_paths", "files", "custom_data",
+                         "ros_distro"]
+    total = COUNT * len(STREAMED) + len(LATCHED_TOPICS)
+    assert (bag["version"], bag["storage_identifier"], bag["message_count"]) == (9, "mcap", total)
+    assert bag["relative_file_paths"] == ["stack.mcap"] and bag["ros_distro"] == "jazzy"
+    with open(recording, "rb") as stream:
+        statistics = make_reader(stream).get_summary().statistics
+    assert bag["starting_time"] == {"nanoseconds_since_epoch": statistics.message_start_time}
+    span = statistics.message_end_time - statistics.message_start_time
+    assert bag["duration"] == {"nanoseconds": span}
+    assert bag["files"] == [{"path": "stack.mcap", "starting_time": bag["starting_time"],
+                             "duration": bag["duration"], "message_count": total}]
+    topics = {t["topic_metadata"]["name"]: t for t in bag["topics_with_message_count"]}
+    assert {name: t["message_count"] for name, t in topics.items()} == {
+        **{t: COUNT for t in STREAMED}, **{t: 1 for t in LATCHED_TOPICS}}
+    hv = topics["/hv/state"]["topic_metadata"]
+    assert (hv["type"], hv["serialization_format"]) == ("softblock_interfaces/msg/HvState", "cdr")
+    assert hv["type_description_hash"].startswith("RIHS01_")
+    latched = topics["/assembly/current"]["topic_metadata"]["offered_qos_profiles"]
+    assert latched[0]["durability"] == "transient_local"

@@ -9,7 +9,7 @@ SCALED_KEYS = ("speed", "slew_rate", "cycles")
 
 def scaled(name: str, directory: Path, speed: float, slew_rate: float = 100_000.0, cycles: int = 2) -> str:
     """Write config/sequences/<name>.yaml into ``directory`` with every speed, slew rate and cycle count
-    (defaults and steps) replaced; returns the new file's path."""
+    (defaults and steps) replaced; returns the name, for a sequencer whose ``sequences_dir`` is ``directory``."""
     values = {"speed": speed, "slew_rate": slew_rate, "cycles": cycles}
 
     def rewrite(node):
@@ -19,6 +19,5 @@ def scaled(name: str, directory: Path, speed: float, slew_rate: float = 100_000.
 
     document = rewrite(yaml.safe_load((SEQUENCES / f"{name}.yaml").read_text()))
     document["defaults"] = {**document.get("defaults", {}), "speed": speed, "slew_rate": slew_rate}
-    path = directory / f"{name}.yaml"
-    path.write_text(yaml.safe_dump(document))
-    return str(path)
+    (directory / f"{name}.yaml").write_text(yaml.safe_dump(document))
+    return name

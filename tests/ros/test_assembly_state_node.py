@@ -131,15 +131,23 @@ def test_set_assembly_replaces_and_relatches_it(ros_context, spin, client, table
     (lambda m: setattr(m.chains[0].blocks[0], "rotation", 0.1), "not a multiple of 30 degrees"),
     (lambda m: setattr(m.chains[0], "blocks", []), "chain 'trunk' has no blocks"),
     (lambda m: setattr(m, "chains", []), "has no chains"),
+    (lambda m: setattr(m.chains[0].blocks[0], "calibration_offset", math.nan),
+     "chain 'trunk', block 0: calibration_offset=nan rad: must be finite and within +-0.175 rad"),
+    (lambda m: setattr(m.chains[0].blocks[0], "calibration_offset", -math.inf), "calibration_offset=-inf rad"),
+    (lambda m: setattr(m.chains[0].blocks[0], "calibration_offset", 1.0), "calibration_offset=1.0 rad: must be"),
+    (lambda m: setattr(m.chains[0].blocks[1], "calibration_offset", 0.05),
+     "chain 'trunk', block 1: calibration_offset=0.05 rad: needs the block's serial"),
 ])
 def test_set_assembly_refuses_an_invalid_one_and_keeps_the_old(ros_context, spin, client, table, edit, problem):
-    message = assembly_msg(trunk(PlacedBlock(15), PlacedBlock(15)), table)
+    message = assembly_msg(trunk(PlacedBlock(15, 0, "B-1"), PlacedBlock(15)), table)
     edit(message)
     reply = set_assembly(client, message)
     assert not reply.success
     assert problem in reply.message
     current = late_joiner_inbox(ros_context, spin, Assembly, "assembly/current").wait()
     assert current.name == "gripper"
+    states = Inbox(client, AssemblyState, "assembly/state")
+    assert states.wait().assembly_name == "gripper"  # still predicting, from the old assembly
 
 
 def test_negative_readback_noise_counts_as_rest_and_the_node_carries_on(client, table):
@@ -158,3 +166,66 @@ def test_negative_readback_noise_counts_as_rest_and_the_node_carries_on(client, 
     at_rest = state_at(-3.0, 0.0)
     np.testing.assert_allclose(at_rest.chains[0].block_angles, [table.design(i).theta0 for i in (57, 57, 1, 11)])
     state_at(700.0, 700.0)  # still running
+
+
+@pytest.fixture
+def calibrated(tmp_path):
+    """An assembly with serial-numbered blocks and a calibration file for two of them."""
+    assembly = tmp_path / "trunk.yaml"
+    assembly.write_text("name: calibrated\nchains:\n  - {name: trunk, hv_channel: front, blocks: "
+                        "[{id: 15, serial: S-1}, {id: 15, serial: S-2}, {id: 15}]}\n")
+    calibration = tmp_path / "calibration.yaml"
+    calibration.write_text("blocks:\n  S-1: {design_id: 15, offset_rad: 0.03}\n"
+                           "  S-2: {design_id: 15, offset_rad: -0.02}\n")
+    return assembly, calibration
+
+
+def start_node(ros_context, spin, namespace, **parameters):
+    node = AssemblyStateNode(context=ros_context, namespace=namespace, parameter_overrides=[
+        Parameter(name, value=value) for name, value in {"publish_rate_hz": 50.0, **parameters}.items()])
+    spin(node)
+    return node
+
+
+def test_the_block_calibration_file_offsets_the_predicted_angles(ros_context, spin, client, table, calibrated):
+    assembly, calibration = calibrated
+    start_node(ros_context, spin, "/calibrated", assembly_file=str(assembly), block_calibration=str(calibration))
+    state = Inbox(client, AssemblyState, "/calibrated/assembly/state").wait()
+    theta0 = table.design(15).theta0
+    assert state.chains[0].block_angles == pytest.approx([theta0 + 0.03, theta0 - 0.02, theta0])
+    current = late_joiner_inbox(ros_context, spin, Assembly, "/calibrated/assembly/current").wait()
+    assert [b.calibration_offset for b in current.chains[0].blocks] == [0.03, -0.02, 0.0]
+    # a request's own offset wins for its block; the file still holds for the other
+    message = assembly_msg(trunk(PlacedBlock(15, 0, "S-1"), PlacedBlock(15, 0, "S-2")), table, {"S-1": 0.01})
+    assert call(client.create_client(SetAssembly, "/calibrated/assembly/set"),
+                SetAssembly.Request(assembly=message)).success
+    states = Inbox(client, AssemblyState, "/calibrated/assembly/state")
+    state = states.wait(lambda s: s.assembly_name == "trunk")
+    assert state.chains[0].block_angles == pytest.approx([theta0 + 0.01, theta0 - 0.02])
+
+
+def test_a_block_placed_as_another_design_than_calibrated_is_refused(ros_context, spin, client, table, calibrated):
+    _, calibration = calibrated
+    start_node(ros_context, spin, "/mismatch", block_calibration=str(calibration))
+    message = assembly_msg(trunk(PlacedBlock(16, 0, "S-1")), table)
+    reply = call(client.create_client(SetAssembly, "/mismatch/assembly/set"), SetAssembly.Request(assembly=message))
+    assert not reply.success
+    assert "chain 'trunk', block 0: block 'S-1' is calibrated as design 15, not 16" in reply.message
+
+
+def test_block_calibration_defaults_to_the_config_file_and_a_missing_file_stops_the_start(ros_context, tmp_path):
+    node = AssemblyStateNode(context=ros_context, namespace="/default_calibration")
+    try:
+        assert node.get_parameter("block_calibration").value == "block_calibration.yaml"
+    finally:
+        node.destroy_node()
+    with pytest.raises(ValueError, match=r"block_calibration file .*none.yaml not found \(empty = no calibration\)"):
+        AssemblyStateNode(context=ros_context, namespace="/missing_calibration", parameter_overrides=[
+            Parameter("block_calibration", value=str(tmp_path / "none.yaml"))])
+
+
+def test_an_empty_block_calibration_means_none(ros_context, spin, client, table, calibrated):
+    assembly, _ = calibrated
+    start_node(ros_context, spin, "/uncalibrated", assembly_file=str(assembly), block_calibration="")
+    state = Inbox(client, AssemblyState, "/uncalibrated/assembly/state").wait()
+    assert state.chains[0].block_angles == pytest.approx([table.design(15).theta0] * 3)

@@ -140,7 +140,10 @@ def test_a_replayed_recording_cannot_feed_the_watchdog(ready, tmp_path):
     live = call(ready.claim, ClaimControl.Request(client="sequencer"))  # the client restarted, then dies
     assert live.success and live.token != recorded
     assert ready.ramp_result("front", 1500.0, live.token).success
-    player = PlayerNode(recording, PlaybackOptions(include="^/hv/heartbeat$", loop=True), context=ready.node.context)
+    # The player leaves command topics out by default; this replay plays the heartbeat on purpose, to show
+    # that the driver itself ignores a recorded token.
+    options = PlaybackOptions(include="^/hv/heartbeat$", loop=True, include_commands=True)
+    player = PlayerNode(recording, options, context=ready.node.context)
     player_spinner = Spinner(ready.node.context, num_threads=2)
     player_spinner.add(player)
     ready.heartbeats.messages.clear()

@@ -1,9 +1,10 @@
-"""Stack launcher: nodes as processes reachable over ROS, prefixed output, clean stop on SIGTERM,
-non-zero exit when a node dies, SIGKILL for a node that ignores SIGINT."""
+"""Stack launcher: nodes as processes reachable over ROS, prefixed output, clean stop on SIGTERM (wherever
+the signal lands), non-zero exit when a node dies, SIGKILL for a node that ignores SIGINT."""
 import io
 import signal
 import subprocess
 import sys
+import textwrap
 
 import pytest
 import rclpy
@@ -31,7 +32,7 @@ def test_stack_runs_nodes_with_the_params_file_and_stops_them_cleanly(ros_contex
         spin(client)
         assert inbox.wait().header.frame_id == "launcher_test_frame"
         assert stack.dead() == {}
-    assert stack.stop() == {"assembly_state": 0}
+    assert stack.stop() == {"assembly_state": 0}, output.getvalue()[-3000:]
     lines = output.getvalue().splitlines()
     assert lines and all(line.startswith("[assembly_state] ") for line in lines)
     assert any("publishing at" in line for line in lines)
@@ -108,3 +109,46 @@ def test_the_planner_runs_at_lower_priority_than_the_hv_driver(params):
         niceness = {name: os.getpriority(os.PRIO_PROCESS, p.pid) for name, p in stack.processes.items()}
     base = os.getpriority(os.PRIO_PROCESS, 0)
     assert niceness == {"assembly_state": base, "planner": min(base + 10, 19)}
+
+
+SIGNAL_AT_EVERY_LINE = textwrap.dedent("""
+    import os, signal, sys
+    from softblock_ros import launcher
+
+    class TracedStack(launcher.Stack):
+        # No nodes; SIGTERM is sent at the target-th line the interpreter runs inside wait(), including
+        # the lines of whatever wait() calls (threading's Event and Condition included).
+        def wait(self, poll_interval=0.2):
+            lines = 0
+            def tracer(frame, event, arg):
+                nonlocal lines
+                if event == "line":
+                    lines += 1
+                    if lines == target:
+                        os.kill(os.getpid(), signal.SIGTERM)
+                return tracer
+            sys.settrace(tracer)
+            try:
+                return super().wait(poll_interval=0.001)
+            finally:
+                sys.settrace(None)
+
+    launcher.Stack = TracedStack
+    for target in range(1, int(sys.argv[1]) + 1):
+        print(target, flush=True)
+        assert launcher.main(["--nodes", ""]) == 0
+    print("done", flush=True)
+""")
+
+
+def test_sigterm_stops_the_launcher_wherever_it_lands_in_wait():
+    """The launcher's own signal handler, with SIGTERM landing at each line of wait() in turn: a handler that
+    takes a lock deadlocks at the line where wait() holds it. Killed after the timeout if it hangs."""
+    lines = 150  # more than one poll cycle of wait()
+    try:
+        probe = subprocess.run([sys.executable, "-c", SIGNAL_AT_EVERY_LINE, str(lines)], capture_output=True,
+                               text=True, timeout=60)
+    except subprocess.TimeoutExpired as timeout:
+        last = (timeout.stdout or b"").decode().split()[-1:]
+        pytest.fail(f"the launcher hung with SIGTERM landing at line {last} of wait()")
+    assert probe.stdout.split()[-1] == "done", probe.stderr[-2000:]

@@ -119,6 +119,8 @@ def two_objects():
     (dict(image=image_msg(touching_border())), "object touches the image border"),
     (dict(image=image_msg(two_objects())), "object image holds 2 objects"),
     (dict(pixel_size=0.0), "pixel_size must be a positive number"),
+    (dict(pixel_size=1e300), "pixel_size must be a positive number of m/pixel in 1e-06..0.01, got 1e+300"),
+    (dict(pixel_size=1e-300), "pixel_size must be a positive number of m/pixel in 1e-06..0.01, got 1e-300"),
     (dict(num_blocks=0), f"num_blocks must be 1..{MAX_BLOCKS}, got 0"),
     (dict(num_blocks=MAX_BLOCKS + 1), f"num_blocks must be 1..{MAX_BLOCKS}, got {MAX_BLOCKS + 1}"),
     (dict(method="simplex"), "method must be one of exact, pso, got 'simplex'"),
@@ -133,6 +135,20 @@ def test_bad_finger_requests_are_refused_and_the_node_carries_on(client, fields,
     assert not reply.success
     assert problem in reply.message
     assert reply.message.startswith("request refused: ")
+
+
+def test_a_failure_inside_the_design_code_is_answered_too(client, monkeypatch):
+    def broken(*args, **kwargs):
+        raise TypeError("`pad_width` must be of integral type.")
+
+    monkeypatch.setattr(planner.design, "design_path", broken)
+    request = DesignPath.Request(path=[Point(x=0.0, y=0.0, z=0.01 * i) for i in range(5)], num_blocks=2,
+                                 time_budget=5.0)
+    reply = design_path(client, request)
+    assert not reply.success
+    assert reply.message == "request failed: TypeError: `pad_width` must be of integral type."
+    monkeypatch.undo()
+    assert design_path(client, request).success  # and the node still serves
 
 
 def test_wrong_image_encoding_is_refused(client):

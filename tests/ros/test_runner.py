@@ -1,10 +1,15 @@
 """Node processes stop on Ctrl-C / SIGTERM by rclpy shutting their context down, never by an exception
-raised at an arbitrary line (which could strand a callback worker thread and hang the exit)."""
+raised at an arbitrary line (which could strand a callback worker thread and hang the exit); a callback
+that raises is logged and the node keeps running."""
 import subprocess
 import sys
 import textwrap
 
 import pytest
+import rclpy
+from processes import start, stop
+from ros_testing import Inbox
+from std_msgs.msg import Int32
 
 PROBE = textwrap.dedent("""
     import os, signal, sys, time
@@ -35,3 +40,42 @@ def test_without_init_the_same_probe_sees_keyboard_interrupt():
     plain = PROBE.replace("from softblock_ros.runner import init\ninit()", "rclpy.init()")
     probe = subprocess.run([sys.executable, "-c", plain, "SIGINT"], capture_output=True, text=True, timeout=60)
     assert (probe.returncode, probe.stdout.strip()) == (3, "KeyboardInterrupt"), probe.stderr
+
+
+FAILING_TIMER = textwrap.dedent("""
+    from rclpy.node import Node
+    from std_msgs.msg import Int32
+    from softblock_ros.runner import run_node
+
+    class EveryOtherTickFails(Node):
+        def __init__(self):
+            super().__init__("every_other_tick_fails")
+            self.ticks = 0
+            self.publisher = self.create_publisher(Int32, "ticks", 10)
+            self.create_timer(0.02, self.tick)
+
+        def tick(self):
+            self.ticks += 1
+            if self.ticks % 2:
+                raise ValueError("theta must be finite")
+            self.publisher.publish(Int32(data=self.ticks))
+
+    raise SystemExit(run_node(EveryOtherTickFails, "every_other_tick_fails"))
+""")
+
+
+def test_a_failing_timer_callback_is_logged_and_the_node_keeps_running(ros_context, spin):
+    client = rclpy.create_node("failing_timer_client", context=ros_context)
+    ticks = Inbox(client, Int32, "ticks", 100)
+    spin(client)
+    node = start([sys.executable, "-c", FAILING_TIMER], stderr=subprocess.PIPE, text=True)
+    try:
+        ticks.wait(lambda msg: msg.data >= 20)  # ten failures later, still ticking
+        assert node.poll() is None
+    finally:
+        code = stop(node, timeout=30.0)
+    errors = node.stderr.read()
+    assert code == 0, errors
+    assert "a callback raised ValueError: theta must be finite (at <string>:16 in tick); the node keeps " \
+           "running" in errors
+    assert "Traceback" not in errors

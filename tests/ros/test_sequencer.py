@@ -11,7 +11,7 @@ from geometry_msgs.msg import PoseStamped
 from fake_hv import FakeHv
 from rclpy.parameter import Parameter
 from ros_testing import Inbox, wait_for
-from sequence_files import SEQUENCES, scaled
+from sequence_files import scaled
 from softblock_interfaces.action import RunSequence
 from softblock_interfaces.msg import SequenceEvent
 
@@ -28,7 +28,7 @@ RUN_TIMEOUT = 40.0
 def stack(ros_context, spin, tmp_path_factory):
     directory = tmp_path_factory.mktemp("sequences")
     sequencer = SequencerNode(context=ros_context, parameter_overrides=[
-        Parameter("sequences_dir", value=str(SEQUENCES)), Parameter("settle_time_s", value=2.0),
+        Parameter("sequences_dir", value=str(directory)), Parameter("settle_time_s", value=2.0),
         Parameter("safe_stop_timeout_s", value=5.0)])
     arm = SimArmNode(context=ros_context, parameter_overrides=[
         Parameter("max_speed_m_per_s", value=2.0), Parameter("max_acceleration_m_per_s2", value=20.0),
@@ -144,11 +144,22 @@ def test_bad_sequences_are_refused_with_a_clear_message(stack, hv, sequence, mes
     broken.write_text("name: broken\nsteps: [\n")
     too_high.write_text(yaml.safe_dump({"name": "too_high", "channels": ["back"], "steps": [
         {"name": "open", "ramp": {"channel": "back", "target": 9000}}]}))
-    sequence = {"BROKEN": str(broken), "TOO_HIGH": str(too_high)}.get(sequence, sequence)
+    sequence = {"BROKEN": "broken", "TOO_HIGH": "too_high"}.get(sequence, sequence)
     status, result = Run(stack["action"], sequence).result()
     assert status == GoalStatus.STATUS_ABORTED and not result.success
     assert message in result.message
     assert hv.ramps == []
+
+
+@pytest.mark.parametrize("goal", ["/etc/passwd", "../sequences/finger_grasp", "passwd"])
+def test_goals_name_sequences_and_never_read_other_files(stack, hv, goal):
+    link = stack["dir"] / "passwd.yaml"
+    if not link.is_symlink():
+        link.symlink_to("/etc/passwd")
+    status, result = Run(stack["action"], goal).result()
+    assert status == GoalStatus.STATUS_ABORTED and not result.success
+    assert "no paths" in result.message or "links outside" in result.message
+    assert "root:" not in result.message and "/bin/" not in result.message
 
 
 def test_a_sequence_is_refused_while_another_client_holds_hv_control(stack, hv):
@@ -181,8 +192,8 @@ def test_legged_gait_pulses_the_legs(stack, hv):
 
 
 def test_command_line_client_prints_steps_and_result(stack, hv, capsys):
-    path = scaled("trunk_flower", stack["dir"], speed=2.0)
-    assert run_sequence.main(["run_sequence", path, "--timeout", str(RUN_TIMEOUT)]) == 0
+    name = scaled("trunk_flower", stack["dir"], speed=2.0)
+    assert run_sequence.main(["run_sequence", name, "--timeout", str(RUN_TIMEOUT)]) == 0
     output = capsys.readouterr().out
     assert "[2/8] open_trunk: running  (ii) actuate the trunk to open)" in output
     assert "sequence 'trunk_flower': all 8 steps succeeded" in output
@@ -191,8 +202,8 @@ def test_command_line_client_prints_steps_and_result(stack, hv, capsys):
 
 
 def test_command_line_client_timeout_cancels_into_the_safe_state(stack, hv, capsys):
-    path = scaled("finger_grasp", stack["dir"], speed=0.05)
-    assert run_sequence.main(["run_sequence", path, "--timeout", "1.5"]) == 2
+    name = scaled("finger_grasp", stack["dir"], speed=0.05)
+    assert run_sequence.main(["run_sequence", name, "--timeout", "1.5"]) == 2
     output = capsys.readouterr().out
     assert "timed out, canceling ..." in output and "canceled during step" in output
     assert channels_off(hv)

@@ -23,10 +23,12 @@ RUN_TIMEOUT = 40.0
 
 @pytest.fixture(scope="module")
 def stack(ros_context, spin, tmp_path_factory):
+    directory = tmp_path_factory.mktemp("sequences")
     driver = HvDriverNode(context=ros_context, parameter_overrides=[
         Parameter("autostart", value=False), Parameter("slew_rate_v_per_s", value=15_000.0),
         Parameter("heartbeat_timeout_s", value=0.5)])
-    sequencer = SequencerNode(context=ros_context, parameter_overrides=[Parameter("settle_time_s", value=2.0)])
+    sequencer = SequencerNode(context=ros_context, parameter_overrides=[
+        Parameter("settle_time_s", value=2.0), Parameter("sequences_dir", value=str(directory))])
     arm = SimArmNode(context=ros_context, parameter_overrides=[
         Parameter("max_speed_m_per_s", value=2.0), Parameter("max_acceleration_m_per_s2", value=20.0)])
     client = rclpy.create_node("sequencer_hv_test_client", context=ros_context)
@@ -34,7 +36,7 @@ def stack(ros_context, spin, tmp_path_factory):
     assert driver.trigger_configure() == TransitionCallbackReturn.SUCCESS
     assert driver.trigger_activate() == TransitionCallbackReturn.SUCCESS
     stack = {
-        "dir": tmp_path_factory.mktemp("sequences"),
+        "dir": directory,
         "action": ActionClient(client, RunSequence, "sequencer/run"),
         "reset": client.create_client(Trigger, "hv/reset_faults"),
         "inject": client.create_client(InjectFault, "hv/inject_fault"),

@@ -1,12 +1,17 @@
-"""Sequence files: the shipped strategies load; every kind of mistake is rejected naming step and field."""
+"""Sequence files: the shipped strategies load; every kind of mistake is rejected naming step and field;
+reading is bounded (names only, size, depth, no aliases, short excerpts)."""
+import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 import yaml
+from crafted_yaml import BILLION_LAUGHS, SELF_REFERENCE
 
 from sequencing.schema import (
     Limits, MoveArmStep, ParallelStep, PulseTrainStep, RampStep, SequenceError, WaitStep, load_sequence,
-    parse_sequence)
+    load_sequence_file, parse_sequence)
 
 SEQUENCES = Path(__file__).resolve().parents[2] / "config" / "sequences"
 
@@ -123,12 +128,86 @@ def test_unknown_name_lists_the_known_sequences(tmp_path):
         load_sequence("", SEQUENCES)
 
 
-def test_invalid_yaml_and_paths(tmp_path):
+def test_invalid_yaml_names_line_and_column_without_quoting_the_file(tmp_path):
     broken = tmp_path / "broken.yaml"
     broken.write_text("name: x\nsteps: [\n  - {name: a\n")
-    with pytest.raises(SequenceError, match=r"broken.yaml: invalid YAML"):
-        load_sequence(str(broken), tmp_path)
+    with pytest.raises(SequenceError, match=r"broken.yaml: invalid YAML: line 3, column 3: expected the node") as error:
+        load_sequence("broken", tmp_path)
+    assert "name: a" not in str(error.value)
     valid = tmp_path / "custom.yaml"
     valid.write_text(yaml.safe_dump(sequence_with(ramp())))
-    assert load_sequence(str(valid), SEQUENCES).source == str(valid)
     assert load_sequence("custom", tmp_path).name == "test"
+    assert load_sequence_file(valid).source == str(valid)
+
+
+LOAD_WITH_MEMORY_LIMIT = """
+import resource, sys
+from sequencing.schema import SequenceError, load_sequence
+resource.setrlimit(resource.RLIMIT_AS, (2 << 30, 2 << 30))  # a loader that expands the document fails fast
+try:
+    load_sequence("crafted", sys.argv[1])
+except SequenceError as error:
+    print(error)
+"""
+
+
+@pytest.mark.parametrize("text", [BILLION_LAUGHS, SELF_REFERENCE], ids=["billion_laughs", "self_reference"])
+def test_anchors_and_aliases_are_refused_in_one_short_line(tmp_path, text):
+    """In a child process with bounded memory and time: expanding a billion laughs would take gigabytes."""
+    (tmp_path / "crafted.yaml").write_text(text)
+    run = subprocess.run([sys.executable, "-c", LOAD_WITH_MEMORY_LIMIT, str(tmp_path)], capture_output=True,
+                         text=True, timeout=60)
+    assert run.returncode == 0, run.stderr[-1000:]
+    assert re.fullmatch(r".*crafted.yaml: invalid YAML: line 1, column \d+: anchors and aliases \(&name, \*name\) "
+                        r"are not allowed; write the value out\n", run.stdout)
+    assert len(run.stdout) < 300
+
+
+def test_deep_nesting_and_large_files_are_refused_before_parsing(tmp_path):
+    (tmp_path / "deep.yaml").write_text("[" * 5000 + "]" * 5000)
+    with pytest.raises(SequenceError, match=r"deep.yaml: invalid YAML: line 1, column 33: nested deeper than 32"):
+        load_sequence("deep", tmp_path)
+    (tmp_path / "large.yaml").write_text("# padding\n" * 100_000)
+    with pytest.raises(SequenceError, match=r"large.yaml: larger than 262144 bytes"):
+        load_sequence("large", tmp_path)
+
+
+def test_values_quoted_in_errors_are_cut_short():
+    document = sequence_with(ramp(channel="x" * 100_000))
+    with pytest.raises(SequenceError, match=r"ramp.channel='x+\.\.\.x+': a channel declared") as error:
+        parse_sequence(document)
+    assert len(str(error.value)) < 300
+    looped: list = []
+    looped.append(looped)
+    with pytest.raises(SequenceError, match=r"steps\[0\]: step=\[\[\[.*: a mapping"):
+        parse_sequence(sequence_with(looped))
+
+
+@pytest.mark.parametrize("goal", ["/etc/passwd", "../sequences/finger_grasp", "finger_grasp.yaml", "~/x", "a/b",
+                                  "x" * 101, "finger grasp", "\0"])
+def test_goals_are_names_never_paths(goal):
+    with pytest.raises(SequenceError, match=r"a sequence name is up to 100 letters, digits, '_' or '-' \(no paths\)"):
+        load_sequence(goal, SEQUENCES)
+
+
+def test_a_link_out_of_the_sequence_directory_is_refused(tmp_path):
+    outside = tmp_path / "outside.yaml"
+    outside.write_text(yaml.safe_dump(sequence_with(ramp())))
+    directory = tmp_path / "sequences"
+    directory.mkdir()
+    (directory / "escape.yaml").symlink_to(outside)
+    (directory / "passwd.yaml").symlink_to("/etc/passwd")
+    for name in ("escape", "passwd"):
+        with pytest.raises(SequenceError, match=rf"sequence='{name}': .*{name}.yaml links outside .*; refused$"):
+            load_sequence(name, directory)
+    (directory / "inside.yaml").symlink_to(directory / "escape.yaml")
+    with pytest.raises(SequenceError, match="links outside"):
+        load_sequence("inside", directory)
+
+
+def test_a_file_that_is_not_a_sequence_is_refused_without_its_contents(tmp_path):
+    (tmp_path / "notes.yaml").write_text("root:x:0:0:root:/root:/bin/bash\n" * 50)
+    with pytest.raises(SequenceError, match=r"notes.yaml: a sequence file is a mapping \(name, channels, steps\), "
+                                            r"not a str$") as error:
+        load_sequence("notes", tmp_path)
+    assert "/bin/bash" not in str(error.value)

@@ -129,6 +129,15 @@ def test_invalid_limits_and_arguments_name_the_parameter():
         arm.step(-0.1)
 
 
+@pytest.mark.parametrize("position, max_speed", [((0.0, 0.0, 1e30), 1e-300), ((1e308, 1e308, 0.0), 0.0)])
+def test_a_move_too_long_to_time_is_refused(position, max_speed):
+    """Distance / speed underflows to a rate of 0 (found by fuzzing arm/move): refused, not a ZeroDivisionError."""
+    arm = SimulatedArm()
+    with pytest.raises(ValueError, match=r"target=.*: a move of finite duration .* cannot be timed"):
+        arm.move_to(Pose(position), max_speed_m_per_s=max_speed)
+    assert not arm.moving
+
+
 @settings(max_examples=30, deadline=None)
 @given(
     target=st.tuples(*[st.floats(-0.5, 0.5)] * 3),

@@ -4,6 +4,8 @@ Latched (transient_local): the assembly on ``assembly/current`` and the lowest s
 blocks on ``assembly/safe_voltage`` (the HV driver's ceiling). At ``publish_rate_hz``: the predicted per-block angles
 and centerlines at the channel voltages measured on ``hv/state`` (``assembly/state``) and RViz markers
 (``assembly/markers``). ``assembly/set`` replaces the assembly; an invalid one is refused, the old kept.
+Block calibration offsets (``block_calibration`` file, by serial) are added to the predicted angles; an
+offset a request gives (not 0) wins over the file's for that block.
 """
 from __future__ import annotations
 
@@ -17,6 +19,7 @@ from std_msgs.msg import Float64, Header
 from visualization_msgs.msg import MarkerArray
 
 from planner.assembly import load_assembly
+from planner.block_calibration import BlockCalibration, load_block_calibration
 from planner.kinematics import assembly_centerlines
 from planner.table import load_table
 
@@ -34,6 +37,8 @@ PARAMETERS = (
     Param("table_path", "", "look-up table file; empty = the planner's default table", kind=str),
     Param("publish_rate_hz", 10.0, "publishing rate of assembly/state and assembly/markers", "Hz", 0.1, 100.0),
     Param("frame_id", "gripper_base", "frame of the assembly, centerlines and markers", kind=str),
+    Param("block_calibration", "block_calibration.yaml", "per-block angle offsets by serial (relative and not "
+          "found from the working directory: a shipped file of config/); empty = none", kind=str),
 )
 
 
@@ -42,8 +47,9 @@ class AssemblyStateNode(Node):
         super().__init__("assembly_state", **kwargs)
         value = declare(self, PARAMETERS)
         assembly_file, table_path, rate = value["assembly_file"], value["table_path"], value["publish_rate_hz"]
-        self._frame_id = value["frame_id"]
+        self._frame_id, calibration_file = value["frame_id"], value["block_calibration"]
         self._table = load_table(resolve_path(table_path)) if table_path else load_table()
+        self._block_calibration = self._load_block_calibration(calibration_file)
 
         self._current_pub = self.create_publisher(Assembly, "assembly/current", LATCHED)
         self._safe_voltage_pub = self.create_publisher(Float64, "assembly/safe_voltage", LATCHED)
@@ -53,13 +59,23 @@ class AssemblyStateNode(Node):
         self._prediction = None  # (voltages, state, markers) of the last computation
         assembly = load_assembly(resolve_path(assembly_file))
         check_assembly(assembly, self._table)
-        self._use(assembly, calibration={})
+        self._use(assembly, self._block_calibration.offsets(assembly))
 
         # hv/state is read best effort: it matches a reliable or a best-effort publisher.
         self.create_subscription(HvState, "hv/state", self._on_hv_state, qos_profile_sensor_data)
         self.create_service(SetAssembly, "assembly/set", self._on_set)
         self.create_timer(1.0 / rate, self._publish_state)
         self.get_logger().info(f"assembly {assembly.name!r} from {assembly_file}, publishing at {rate} Hz")
+
+    def _load_block_calibration(self, path: str) -> BlockCalibration:
+        if not path:
+            self.get_logger().warning("block_calibration is empty: predictions use the design angles, no offsets")
+            return BlockCalibration(blocks={})
+        if not resolve_path(path).is_file():
+            raise ValueError(f"block_calibration file {path} not found (empty = no calibration)")
+        calibration = load_block_calibration(resolve_path(path))
+        self.get_logger().info(f"block calibration: {len(calibration.blocks)} blocks from {path}")
+        return calibration
 
     def _header(self) -> Header:
         return Header(stamp=self.get_clock().now().to_msg(), frame_id=self._frame_id)
@@ -73,7 +89,9 @@ class AssemblyStateNode(Node):
 
     def _on_set(self, request, response):
         try:
-            assembly, calibration = assembly_from_msg(request.assembly, self._table)
+            assembly, requested = assembly_from_msg(request.assembly, self._table)
+            calibration = {**self._block_calibration.offsets(assembly),
+                           **{serial: offset for serial, offset in requested.items() if offset}}
         except ValueError as error:
             response.success, response.message = False, f"assembly refused: {error}"
             self.get_logger().warning(response.message)

@@ -14,6 +14,7 @@ from sensor_msgs.msg import Image
 from softblock_interfaces import msg
 
 from planner.assembly import Assembly, Chain, PlacedBlock
+from planner.block_calibration import MAX_OFFSET
 
 BLOCK_DESIGN_FIELDS = (
     "rod_length", "rod_diameter", "prestretch_axial", "prestretch_tangential",
@@ -84,6 +85,16 @@ def check_assembly(assembly: Assembly, table) -> None:
                 )
 
 
+def check_calibration_offset(block: msg.PlacedBlock) -> None:
+    """ValueError unless the block's calibration offset is finite, within the plausible range and, when not
+    zero, belongs to a block with a serial (offsets are measured per physical block)."""
+    offset = block.calibration_offset
+    if not abs(offset) <= MAX_OFFSET:  # also catches NaN
+        raise ValueError(f"calibration_offset={offset!r} rad: must be finite and within +-{MAX_OFFSET:.3f} rad")
+    if offset and not block.serial:
+        raise ValueError(f"calibration_offset={offset!r} rad: needs the block's serial")
+
+
 def chain_from_msg(chain: msg.Chain) -> Chain:
     """The planner's chain of a message (design IDs, rotations, serials, base pose); ValueError if malformed."""
     blocks = tuple(PlacedBlock(int(block.design.id), PlacedBlock.steps_from_rotation(block.rotation), block.serial)
@@ -97,6 +108,11 @@ def assembly_from_msg(message: msg.Assembly, table) -> tuple[Assembly, dict[str,
     chains, calibration = [], {}
     for c, chain in enumerate(message.chains):
         where = f"chain {chain.name or c!r}"
+        for b, block in enumerate(chain.blocks):
+            try:
+                check_calibration_offset(block)
+            except ValueError as error:
+                raise ValueError(f"{where}, block {b}: {error}") from None
         try:
             chains.append(chain_from_msg(chain))
         except ValueError as error:

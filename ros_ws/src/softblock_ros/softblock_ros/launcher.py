@@ -18,6 +18,7 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import TextIO
@@ -56,7 +57,7 @@ class Stack:
         self.output = output or sys.stdout
         self.stop_timeout = stop_timeout
         self.processes: dict[str, subprocess.Popen] = {}
-        self._stopping = threading.Event()
+        self._stop_requested = False  # a plain flag: request_stop() runs in signal handlers
         self._output_lock = threading.Lock()
         self._pumps: list[threading.Thread] = []
 
@@ -94,19 +95,28 @@ class Stack:
         return {name: p.returncode for name, p in self.processes.items() if p.poll() is not None}
 
     def request_stop(self) -> None:
-        """Make ``wait()`` return (safe in a signal handler); ``stop()`` then stops the nodes."""
-        self._stopping.set()
+        """Make ``wait()`` return; ``stop()`` then stops the nodes.
+
+        Safe in a signal handler because it only sets a flag. Anything that takes a lock (``Event.set``)
+        deadlocks when the signal lands while the main thread holds that lock, e.g. inside ``Event.wait``.
+        """
+        self._stop_requested = True
 
     def wait(self, poll_interval: float = 0.2) -> None:
         """Block until ``request_stop()`` or ``stop()``; NodeDied if a node ends first."""
-        while not self._stopping.wait(poll_interval):
+        while not self._stop_requested:
             dead = self.dead()
             if dead:
                 raise NodeDied(", ".join(f"node {n} exited with code {c}" for n, c in dead.items()))
+            time.sleep(poll_interval)
 
     def stop(self) -> dict[str, int]:
-        """Stop the nodes in reverse start order (SIGINT, then SIGKILL after the timeout); their exit codes."""
-        self._stopping.set()
+        """Stop the nodes in reverse start order (SIGINT, then SIGKILL after the timeout); their exit codes.
+
+        The SIGKILL goes to the node's whole process group, so what the node started (e.g. the simulated HV
+        supply of ``hv_driver``) ends with it.
+        """
+        self._stop_requested = True
         for name in reversed(list(self.processes)):
             process = self.processes[name]
             if process.poll() is None:
@@ -115,7 +125,7 @@ class Stack:
                     process.wait(self.stop_timeout)
                 except subprocess.TimeoutExpired:
                     self._say(name, f"did not stop within {self.stop_timeout} s, killing it")
-                    process.kill()
+                    os.killpg(process.pid, signal.SIGKILL)  # not yet reaped: the group id is still its own
                     process.wait()
         for pump in self._pumps:
             pump.join(timeout=PUMP_DRAIN_TIMEOUT)

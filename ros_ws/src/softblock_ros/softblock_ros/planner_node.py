@@ -22,7 +22,7 @@ from planner.table import load_table
 from .conversions import designed_chain_msg, inventory_from_lists, mask_from_image, path_from_points
 from .parameters import Param, declare
 from .paths import resolve_path
-from .runner import run_node
+from .runner import run_node, where
 
 DEFAULT_METHOD = "exact"
 # Finger base frames in the object frame (x right, z up): the finger grows downward (+z -> -z) and
@@ -55,12 +55,17 @@ class PlannerNode(Node):
         return super().destroy_node()
 
     def _serve(self, solve, request, response):
-        """Run ``solve``; a rejected request (ValueError) becomes success=false with the reason."""
+        """Run ``solve``; a rejected request (ValueError) becomes success=false with the reason, and so does a
+        failure of the design code (logged as an error), so that every request is answered."""
         try:
             solve(request, response)
         except ValueError as error:
             response.success, response.message = False, f"request refused: {error}"
             self.get_logger().warning(response.message)
+        except Exception as error:  # a bug below, but the client still gets its answer
+            reason = (str(error).splitlines() or [""])[0][:200]
+            response.success, response.message = False, f"request failed: {type(error).__name__}: {reason}"
+            self.get_logger().error(f"{response.message} (at {where(error)})")
         return response
 
     def _options(self, request) -> dict:

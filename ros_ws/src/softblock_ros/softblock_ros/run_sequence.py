@@ -1,6 +1,6 @@
 """Command-line client of `sequencer/run` (stands in for `ros2 action send_goal`).
 
-    python -m softblock_ros.run_sequence finger_grasp        # or a path to a sequence YAML file
+    python -m softblock_ros.run_sequence finger_grasp        # a name in the sequencer's sequences_dir
     python -m softblock_ros.run_sequence legged_gait --ros-args -r __ns:=/robot1
 
 Prints each step transition, then the result with the per-step durations. Ctrl-C (or --timeout)
@@ -82,7 +82,7 @@ def send(client: ActionClient, sequence: str, server_timeout: float, timeout: fl
 def main(argv=None) -> int:
     argv = sys.argv if argv is None else argv
     parser = argparse.ArgumentParser(prog="python -m softblock_ros.run_sequence", description=__doc__.split("\n")[0])
-    parser.add_argument("sequence", help="sequence name (config/sequences/<name>.yaml) or path to a YAML file")
+    parser.add_argument("sequence", help="sequence name: <name>.yaml in the sequencer's sequences_dir (no paths)")
     parser.add_argument("--server-timeout", type=float, default=10.0, help="wait for the sequencer [s]")
     parser.add_argument("--timeout", type=float, default=0.0, help="cancel the sequence after this long [s]; 0 = never")
     args = parser.parse_args(rclpy.utilities.remove_ros_args(argv)[1:])

@@ -1,7 +1,13 @@
-"""The main() of every node: init, spin until Ctrl-C / SIGTERM / external shutdown, clean up."""
+"""The main() of every node: init, spin until Ctrl-C / SIGTERM / external shutdown, clean up.
+
+A callback that raises (a timer, a subscription, a service) is logged and the node keeps running: one
+bad message or one failing computation must not end the node, and with it (under the launcher) the stack.
+"""
 from __future__ import annotations
 
+import os
 import signal
+import traceback
 from collections.abc import Callable
 
 import rclpy
@@ -26,6 +32,29 @@ def init(args=None) -> None:
     rclpy.init(args=args)
 
 
+def where(error: BaseException) -> str:
+    """``file:line in function`` of the innermost frame of an exception's traceback."""
+    frames = traceback.extract_tb(error.__traceback__)
+    return f"{os.path.basename(frames[-1].filename)}:{frames[-1].lineno} in {frames[-1].name}" if frames else "?"
+
+
+def spin_logging_errors(executor: Executor, logger) -> None:
+    """``executor.spin()``, except that an exception raised by a callback is logged in one line (at most once
+    a second) and spinning goes on. Returns when the context is shut down (Ctrl-C, SIGTERM)."""
+    while executor.context.ok():
+        try:
+            executor.spin_once()
+        except (KeyboardInterrupt, ExternalShutdownException):
+            raise
+        except Exception as error:  # any callback error: the node must keep serving
+            if not executor.context.ok():
+                # Ctrl-C / SIGTERM shut the context down while the executor was taking a message; rclpy then
+                # raises from the half-destroyed handle. That is the stop that was asked for, not a failure.
+                return
+            logger.error(f"a callback raised {type(error).__name__}: {str(error)[:200]} (at {where(error)}); "
+                         "the node keeps running", throttle_duration_sec=1.0)
+
+
 def run_node(make_node: Callable[[], Node], name: str, executor: Callable[[], Executor] = SingleThreadedExecutor,
              args=None) -> int:
     """Spin the node built by ``make_node``; exit status 1 when it cannot start (bad configuration or file)."""
@@ -35,14 +64,9 @@ def run_node(make_node: Callable[[], Node], name: str, executor: Callable[[], Ex
         node = make_node()
         spinner = executor()
         spinner.add_node(node)
-        spinner.spin()
+        spin_logging_errors(spinner, node.get_logger())
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except RuntimeError:
-        # Ctrl-C / SIGTERM shut the context down while the executor was taking a message; rclpy then
-        # raises from the half-destroyed handle. That is the stop that was asked for, not a failure.
-        if rclpy.ok():
-            raise
     except (ValueError, OSError) as error:
         if node is not None:
             raise

@@ -1,8 +1,8 @@
 """Sequencer node: action `sequencer/run` executes a YAML manipulation sequence step by step.
 
-Loads <sequences_dir>/<name>.yaml (or a path), runs it with the sequencing engine against the arm
-(`arm/move`) and the HV driver (`hv/ramp`, `hv/state`, `hv/estop`), publishes feedback and a
-`sequencer/events` message per step transition. It holds control of the HV driver while a sequence runs
+Loads <sequences_dir>/<name>.yaml (a goal names a sequence, never a path), runs it with the sequencing
+engine against the arm (`arm/move`) and the HV driver (`hv/ramp`, `hv/state`, `hv/estop`), publishes
+feedback and a `sequencer/events` message per step transition. It holds control of the HV driver while a sequence runs
 (`hv/claim_control`, then `hv/heartbeat` at `heartbeat_rate_hz`, `hv/release_control` at the end).
 One goal at a time: a second goal is rejected while one runs. See docs/sequences.md.
 """
@@ -28,8 +28,8 @@ FEEDBACK_PHASES = {"precondition", "running", "succeeded"}
 EVENT_PHASES = {"running": "started", "succeeded": "succeeded", "failed": "failed", "canceled": "canceled"}
 
 PARAMETERS = (
-    Param("sequences_dir", "sequences", "directory of <name>.yaml files (relative and not found from the working "
-          "directory: the shipped config/sequences)", kind=str),
+    Param("sequences_dir", "sequences", "directory of <name>.yaml files, the only ones a goal can name (relative "
+          "and not found from the working directory: the shipped config/sequences)", kind=str),
     Param("heartbeat_rate_hz", 10.0, "hv/heartbeat rate while a sequence runs", "Hz", 1.0, 100.0),
     Param.of(Limits, "voltage_ceiling_v", "highest voltage a sequence may command", "V", 0.0, 10000.0),
     Param.of(Limits, "max_pulse_frequency_hz", "highest pulse-train frequency", "Hz", 0.1, 50.0),

@@ -50,6 +50,12 @@ def _parser() -> argparse.ArgumentParser:
                       help="play the other topics when a message type cannot be imported")
     play.add_argument("--keep-alive", action="store_true",
                       help="stay up after the end so latched topics remain available")
+    play.add_argument("--include-commands", action="store_true",
+                      help="also play command topics (hv/heartbeat, assembly/safe_voltage, action "
+                      "internals), which a live HV driver obeys; left out by default")
+    play.add_argument("--namespace", default="",
+                      help="publish every topic under this namespace (e.g. /replay), away from "
+                      "a live stack")
 
     add_file_commands(commands)
     return parser
@@ -70,7 +76,8 @@ def _play(args, ros_args) -> int:
     options = PlaybackOptions(rate=args.rate, loop=args.loop, include=args.include,
                               exclude=args.exclude, start_offset_s=args.start_offset,
                               skip_unknown=args.skip_unknown, clock_frequency_hz=args.clock,
-                              delay_s=args.delay)
+                              delay_s=args.delay, include_commands=args.include_commands,
+                              namespace=args.namespace)
     return run(args.recording, options, args.keep_alive, ["--ros-args", *ros_args])
 
 

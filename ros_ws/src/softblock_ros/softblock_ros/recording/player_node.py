@@ -3,7 +3,8 @@
 Each topic is published with the Python class of its recorded type (`pkg.msg.Type`) and the
 recorded bytes as they are. A type that cannot be imported stops the player before anything is
 published (UnknownMessageTypeError names type and topic), unless `skip_unknown` is set: then
-that topic is left out with a warning and the rest plays.
+that topic is left out with a warning and the rest plays. Command topics (HV heartbeat, safe
+voltage, action internals) are played only with `include_commands`, and that is logged.
 """
 import sys
 import threading
@@ -30,16 +31,28 @@ class PlayerNode(Node):
         self.recording = Recording(path)
         self.publishers_by_channel = {}
         self.skipped: dict[str, str] = {}
+        self._announce_command_topics()
         for channel in self.recording.select(self.options):
             self._advertise(channel)
         self.stop_event = threading.Event()
         self.finished = threading.Event()
         self.published = 0
-        self.clock = PlaybackClock(self.options.rate, self.stop_event)
+        self.clock = PlaybackClock(self.options.rate, self.stop_event,
+                                   self.recording.start_of_playback(self.options))
         if self.options.clock_frequency_hz > 0:
             self._clock_publisher = self.create_publisher(Clock, "/clock", QoSProfile(depth=1))
             self.create_timer(1.0 / self.options.clock_frequency_hz, self._publish_clock)
         self._thread = threading.Thread(target=self._play, name="playback", daemon=True)
+
+    def _announce_command_topics(self) -> None:
+        commands = self.recording.command_topics()
+        if commands and self.options.include_commands:
+            self.get_logger().warning(
+                f"playing command topics {commands}: a live node listening on them obeys them "
+                "(an HV driver takes the heartbeat and the safe voltage)")
+        elif commands:
+            self.get_logger().info(
+                f"not playing command topics {commands} (--include-commands plays them)")
 
     def _advertise(self, channel) -> None:
         type_name = self.recording.type_names.get(channel.id, "")
@@ -53,7 +66,8 @@ class PlayerNode(Node):
             self.get_logger().warning(f"not playing {channel.topic}: {error}")
             return
         qos = playback_qos(parse_offered_qos(channel.metadata.get("offered_qos_profiles", "")))
-        self.publishers_by_channel[channel.id] = self.create_publisher(msg_type, channel.topic, qos)
+        topic = self.options.namespace + channel.topic
+        self.publishers_by_channel[channel.id] = self.create_publisher(msg_type, topic, qos)
 
     def start(self) -> None:
         """Starts playback in a background thread; `finished` is set at the end."""

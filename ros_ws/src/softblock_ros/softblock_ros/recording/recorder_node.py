@@ -11,6 +11,7 @@ from rclpy.parameter import Parameter
 
 from recording.mcap_file import COMPRESSIONS, RecordingWriter
 from recording.message_definitions import DefinitionNotFoundError
+from recording.topics import is_hidden
 
 from ..parameters import Param, ParameterError, declare, with_defaults
 from ..runner import run_node
@@ -28,11 +29,6 @@ PARAMETERS = (
     Param("flush_period_s", 1.0, "time between flushes: the most a SIGKILL can lose", "s", 0.01, 60.0),
     Param("discovery_period_s", 1.0, "time between topic discoveries", "s", 0.05, 60.0),
 )
-
-
-def is_hidden(topic: str) -> bool:
-    """Hidden topics (a name part starting with '_', e.g. action internals) as in `ros2 bag`."""
-    return any(part.startswith("_") for part in topic.split("/"))
 
 
 class RecorderNode(Node):
