@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Every benchmark of the README, one after the other (`make bench`). Each writes JSON + PNG into
-# docs/figures/. Run inside the project environment (scripts/with_env.sh). Takes about 35-45 minutes (two_hosts.py: about 20, root only).
+# docs/figures/. Run inside the project environment (scripts/with_env.sh). Takes about 60-70 minutes
+# (two_hosts.py: about 20, root only).
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 benchmarks=(
@@ -8,6 +9,7 @@ benchmarks=(
     block_table_overview.py
     ogden_fit.py
     kinematics_throughput.py
+    image_estimation.py
     finger_optimizers.py
     path_optimizers.py
     hv_loop.py

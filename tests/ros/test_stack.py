@@ -29,7 +29,8 @@ def console_scripts() -> dict[str, str]:
 
 def test_the_shipped_stack_names_real_modules_executables_and_parameter_files():
     stack = load_stack()
-    assert stack.names == ("hv_driver", "assembly_state", "planner", "sim_arm", "sequencer", "recorder")
+    assert stack.names == ("hv_driver", "assembly_state", "planner", "sim_arm", "sim_camera", "estimator", "sequencer",
+                           "recorder")
     scripts = console_scripts()
     for spec in stack.nodes:
         assert spec.executable in scripts, spec
