@@ -1,4 +1,5 @@
-"""Grasp review from a recording, without ROS running: voltages, steps, predicted and estimated shape, faults.
+"""Grasp review from a recording, without ROS running: voltages, steps, predicted and estimated shape, faults,
+and the samples each topic lost on the way to the recorder (recording.gaps).
 
 Reads with `mcap` + `mcap-ros2-support` (the schemas inside the file), never imports rclpy.
 Topics are found by message type, so namespaced stacks are analysed the same way. Times are in
@@ -16,6 +17,7 @@ from dataclasses import dataclass, field
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
+from .gaps import checkable, find_gaps
 from .mcap_file import require_complete
 
 HV_STATE = "softblock_interfaces/msg/HvState"
@@ -38,6 +40,7 @@ class RecordingData:
     faults: list = field(default_factory=list)
     message_counts: dict = field(default_factory=dict)
     fault_names: dict = field(default_factory=dict)
+    lost_samples: dict = field(default_factory=dict)
     duration: float = 0.0
 
 
@@ -68,10 +71,14 @@ def load(path: str) -> RecordingData:
         for schema, channel, message, decoded in reader.iter_decoded_messages(topics=wanted):
             rows.append((_stamp_ns(decoded, message.log_time), schema.name, decoded, channel.topic))
             data.message_counts[channel.topic] = data.message_counts.get(channel.topic, 0) + 1
+        numbered = defaultdict(list)
+        for _, channel, message in reader.iter_messages():  # in receive order
+            numbered[channel.topic].append((message.sequence, message.publish_time))
     if not rows:
         return data
     rows.sort(key=lambda row: row[0])
     origin = rows[0][0]
+    data.lost_samples = _lost_samples(summary.channels.values(), numbered, origin)
     data.duration = (rows[-1][0] - origin) / 1e9
     latched_faults: dict[str, int] = {}
     for stamp, type_name, message, topic in rows:
@@ -89,6 +96,23 @@ def load(path: str) -> RecordingData:
                 series[chain.name]["time"].append(t)
                 series[chain.name]["angles"].append(list(chain.block_angles))
     return data
+
+
+def _lost_samples(channels, numbered: dict, origin: int) -> dict:
+    """Per topic: the gaps in its publication sequence numbers (times in s from ``origin``), or why not checked."""
+    report = {}
+    for channel in sorted(channels, key=lambda c: c.topic):
+        reason = checkable(channel.metadata.get("offered_qos_profiles", ""))
+        if reason:
+            report[channel.topic] = {"checked": False, "reason": reason}
+            continue
+        found = find_gaps(numbered.get(channel.topic, []))
+        gaps = [{"after": g["after"], "before": g["before"], "lost": g["lost"],
+                 "from": (g["after_time_ns"] - origin) / 1e9, "to": (g["before_time_ns"] - origin) / 1e9}
+                for g in found["gaps"]]
+        report[channel.topic] = {"checked": True, "received": found["received"], "lost": found["lost"],
+                                 "gaps": gaps}
+    return report
 
 
 def _add_hv_state(data: RecordingData, t: float, message, latched_faults: dict) -> None:
@@ -149,7 +173,9 @@ def summarize(data: RecordingData) -> dict:
                  for name, series in sorted(data.estimated.items())}
     return {"duration": data.duration, "message_counts": dict(sorted(data.message_counts.items())),
             "channels": channels, "steps": step_durations(data.events), "faults": data.faults,
-            "chains": chains, "estimated_chains": estimated}
+            "chains": chains, "estimated_chains": estimated,
+            "lost_samples": {topic: report for topic, report in data.lost_samples.items()
+                             if report["checked"] and report["lost"]}}
 
 
 def estimate_minus_prediction(predicted: dict | None, estimated: dict) -> list[float] | None:
@@ -196,4 +222,7 @@ def format_summary(summary: dict) -> str:
         versus = "" if difference is None else (
             "; estimated - predicted, median: [" + ", ".join(f"{math.degrees(a):+.2f}" for a in difference) + "] deg")
         lines.append(f"chain {name}: estimated from {chain['samples']} images, final [{degrees}] deg{versus}")
+    for topic, report in summary["lost_samples"].items():
+        spans = ", ".join(f"{g['lost']} between {g['from']:.3f} and {g['to']:.3f} s" for g in report["gaps"])
+        lines.append(f"{topic}: {report['lost']} samples lost on the way to the recorder ({spans})")
     return "\n".join(lines)

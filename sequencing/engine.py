@@ -290,11 +290,12 @@ class SequenceEngine:
         return f"{reason}; e-stop " + ("sent" if result.success else f"FAILED: {result.message}")
 
     def _safe_stop(self, sequence: Sequence) -> str:
-        """Arm stops; every channel still on ramps to 0 V; e-stop if a ramp-down fails."""
+        """Arm stops; every channel still on, or whose state is unknown, ramps to 0 V; e-stop if a ramp-down
+        fails."""
         self.robot.stop_arm()
         states = self.robot.channel_states()
         live = [channel for channel in sequence.channels
-                if channel not in states or states[channel].output_enabled
+                if channel not in states or states[channel].stale or states[channel].output_enabled
                 or abs(states[channel].voltage) > self.options.off_voltage_v]
         problems, motions = [], {}
         for channel in live:

@@ -25,6 +25,7 @@ class ChannelReading:
     faults: int = 0            # latched fault bits (0 = none)
     fault_text: str = ""
     output_enabled: bool = False
+    stale: bool = False        # the backend has not heard from the driver in time: the output's true state is unknown
 
 
 class Motion(Protocol):

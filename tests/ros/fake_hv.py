@@ -34,6 +34,7 @@ class FakeHv(Node):
         self.ramps: list[tuple[str, float]] = []
         self.pulses: list[tuple[tuple[str, ...], int]] = []  # (channels, cycles) of each train run
         self.fault_during_ramp: tuple[str, float, str] | None = None
+        self.silent = False  # hv/state stops (a driver lost to its clients) while its services keep answering
         group = ReentrantCallbackGroup()
         self.state_pub = self.create_publisher(HvState, "hv/state", 10)
         self.create_timer(0.02, self.publish_state, callback_group=group)
@@ -50,6 +51,7 @@ class FakeHv(Node):
         with self.lock:
             self.estop, self.ramps, self.fault_during_ramp, self.token = False, [], None, ""
             self.pulses = []
+            self.silent = False
             for channel in self.channels.values():
                 channel.faults, channel.fault_text, channel.measured_voltage = 0, "", 0.0
                 channel.setpoint = channel.target = 0.0
@@ -78,6 +80,8 @@ class FakeHv(Node):
 
     def publish_state(self) -> None:
         with self.lock:
+            if self.silent:
+                return
             msg = HvState(device_id="fake", backend="sim", estop=self.estop, channels=list(self.channels.values()))
             msg.header.stamp = self.get_clock().now().to_msg()
             self.state_pub.publish(msg)

@@ -14,6 +14,7 @@ from sequencing.schema import load_sequence, parse_sequence
 SEQUENCES = Path(__file__).resolve().parents[2] / "config" / "sequences"
 FAST = RunOptions(poll_period_s=0.002, settle_time_s=0.02, safe_stop_timeout_s=0.5)
 FINGER_GRASP = load_sequence("finger_grasp", SEQUENCES)
+LINK = 4  # a fault bit; the engine knows none by name
 
 
 def run(sequence, robot, cancel=None, options=FAST):
@@ -78,6 +79,21 @@ def test_fault_during_a_ramp_cancels_it_and_reaches_the_safe_state():
     assert ("estop",) not in robot.calls  # the faulted channel is already off, the other ramped down
     assert robot.ramps()[-1][1:3] == ("back", 0.0) or robot.states["back"].voltage == 0.0
     assert "safe state" in events[-1].message
+
+
+def test_a_safe_stop_ramps_down_every_channel_whose_state_is_unknown():
+    # The driver's state stops arriving while its last word (front off) is out of date: front was just raised.
+    def driver_lost_after_front_ramp(robot, call):
+        if call[:3] == ("ramp", "front", 2400.0):
+            robot.states = {channel: ChannelReading(0.0, LINK, "HV driver lost: no hv/state for 0.5 s", False,
+                                                    stale=True) for channel in robot.states}
+            return FakeMotion(Outcome(True, "", 2400.0))
+
+    robot = FakeRobot(FINGER_GRASP.channels, driver_lost_after_front_ramp)
+    result, _ = run(FINGER_GRASP, robot)
+    assert not result.success and "HV driver lost" in result.message, result.message
+    assert result.failed_step == "grip_front"
+    assert robot.ramps("front")[-1][2] == 0.0, robot.calls  # the safe stop ramped the unknown front down
 
 
 def test_timeout_cancels_the_motion():

@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import threading
 import time
@@ -229,6 +230,7 @@ def run(out: Path, object_name: str) -> int:
     with open(out / "stack.log", "w") as log:
         say(f"starting the stack on the simulated backend (node output: {out / 'stack.log'})")
         stack = Stack(params=params, output=log).start()
+        os.environ.update(stack.network.variables(os.environ))  # the demo's client joins the nodes' network
         rclpy.init()
         client = DemoClient()
         try:

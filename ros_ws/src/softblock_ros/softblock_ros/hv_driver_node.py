@@ -8,12 +8,14 @@ else in the driver's loop) and feed the heartbeat watchdog; hv/estop is open to 
 """
 from __future__ import annotations
 
+import math
+
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
-from rclpy.qos import DurabilityPolicy, QoSProfile
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from softblock_interfaces.action import PulseChannels, RampChannel
 from softblock_interfaces.msg import HvHeartbeat, HvState
 from softblock_interfaces.srv import ClaimControl, InjectFault, ReleaseControl
@@ -32,6 +34,13 @@ from .parameters import ParameterError, declare
 from .runner import run_node
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# A heartbeat is a sign of life: the newest counts. Taken reliably, one lost on a lossy link would hold up
+# the ones behind it until it is repaired (over a second measured on a 5 % lossy link, up to the writer's 3 s
+# heartbeat period), which the watchdog would take for a silent client.
+HEARTBEAT_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
+# Fast DDS repairs a sample a reader missed at the writer's next periodic heartbeat (every 3 s by default):
+# 8 s of hv/state let a reliable reader across a lossy link (a recorder) repair a loss and a lost repair.
+STATE_HISTORY_S = 8.0  # [s]
 SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
 SIM_ERRORS = (RuntimeError, ValueError, OSError)  # the simulated supply's process: not started, unknown fault
 SIM_CHANNELS = 4  # a simulated multi-channel supply models a 4-channel module; configured indices must exist on it
@@ -79,7 +88,8 @@ class HvDriverNode(LifecycleNode):
             return FAILURE
         self._index = {c.name: (c.index, c.device) for c in channels}
         self._published, self._diag_time = None, 0
-        self._state_pub = self.create_publisher(HvState, "hv/state", 10)
+        self._state_pub = self.create_publisher(
+            HvState, "hv/state", math.ceil(STATE_HISTORY_S * self._param("publish_rate_hz")))
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         g = self._group
         self._entities = [
@@ -92,7 +102,8 @@ class HvDriverNode(LifecycleNode):
             self.create_service(InjectFault, "hv/inject_fault", self._on_inject, callback_group=g),
             self.create_service(ClaimControl, "hv/claim_control", self._on_claim, callback_group=g),
             self.create_service(ReleaseControl, "hv/release_control", self._on_release, callback_group=g),
-            self.create_subscription(HvHeartbeat, "hv/heartbeat", self._on_heartbeat, 10, callback_group=g),
+            self.create_subscription(HvHeartbeat, "hv/heartbeat", self._on_heartbeat, HEARTBEAT_QOS,
+                                     callback_group=g),
             self.create_subscription(Float64, "assembly/safe_voltage", self._on_safe_voltage, LATCHED, callback_group=g),
             ActionServer(self, RampChannel, "hv/ramp", self._execute_ramp, callback_group=g,
                          cancel_callback=lambda _: CancelResponse.ACCEPT),
