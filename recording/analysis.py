@@ -1,23 +1,30 @@
-"""Grasp review from a recording, without ROS running: voltages, steps, predicted shape, faults.
+"""Grasp review from a recording, without ROS running: voltages, steps, predicted and estimated shape, faults,
+and the samples each topic lost on the way to the recorder (recording.gaps).
 
 Reads with `mcap` + `mcap-ros2-support` (the schemas inside the file), never imports rclpy.
 Topics are found by message type, so namespaced stacks are analysed the same way. Times are in
 seconds from the first analysed message, taken from header stamps (log time when a stamp is 0).
+AssemblyState on a topic ending in ``assembly/estimated`` is the estimate from camera images, any other the
+prediction.
 """
+import bisect
 import math
 import re
+import statistics
 from collections import defaultdict
 from dataclasses import dataclass, field
 
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
+from .gaps import checkable, find_gaps
 from .mcap_file import require_complete
 
 HV_STATE = "softblock_interfaces/msg/HvState"
 SEQUENCE_EVENT = "softblock_interfaces/msg/SequenceEvent"
 ASSEMBLY_STATE = "softblock_interfaces/msg/AssemblyState"
 ANALYSED_TYPES = (HV_STATE, SEQUENCE_EVENT, ASSEMBLY_STATE)
+ESTIMATED_TOPIC = "assembly/estimated"
 TERMINAL_PHASES = ("succeeded", "failed", "canceled")
 _FAULT_CONSTANT = re.compile(r"^\s*uint32\s+FAULT_([A-Z0-9_]+)\s*=\s*(\d+)", re.MULTILINE)
 
@@ -28,10 +35,12 @@ class RecordingData:
 
     hv: dict = field(default_factory=lambda: defaultdict(lambda: defaultdict(list)))
     events: list = field(default_factory=list)
-    angles: dict = field(default_factory=lambda: defaultdict(lambda: defaultdict(list)))
+    angles: dict = field(default_factory=lambda: defaultdict(lambda: defaultdict(list)))  # predicted
+    estimated: dict = field(default_factory=lambda: defaultdict(lambda: defaultdict(list)))  # from images
     faults: list = field(default_factory=list)
     message_counts: dict = field(default_factory=dict)
     fault_names: dict = field(default_factory=dict)
+    lost_samples: dict = field(default_factory=dict)
     duration: float = 0.0
 
 
@@ -60,15 +69,19 @@ def load(path: str) -> RecordingData:
         wanted = [c.topic for c in summary.channels.values() if c.schema_id in summary.schemas
                   and summary.schemas[c.schema_id].name in ANALYSED_TYPES]
         for schema, channel, message, decoded in reader.iter_decoded_messages(topics=wanted):
-            rows.append((_stamp_ns(decoded, message.log_time), schema.name, decoded))
+            rows.append((_stamp_ns(decoded, message.log_time), schema.name, decoded, channel.topic))
             data.message_counts[channel.topic] = data.message_counts.get(channel.topic, 0) + 1
+        numbered = defaultdict(list)
+        for _, channel, message in reader.iter_messages():  # in receive order
+            numbered[channel.topic].append((message.sequence, message.publish_time))
     if not rows:
         return data
     rows.sort(key=lambda row: row[0])
     origin = rows[0][0]
+    data.lost_samples = _lost_samples(summary.channels.values(), numbered, origin)
     data.duration = (rows[-1][0] - origin) / 1e9
     latched_faults: dict[str, int] = {}
-    for stamp, type_name, message in rows:
+    for stamp, type_name, message, topic in rows:
         t = (stamp - origin) / 1e9
         if type_name == HV_STATE:
             _add_hv_state(data, t, message, latched_faults)
@@ -78,10 +91,28 @@ def load(path: str) -> RecordingData:
                                 "step_name": message.step_name, "phase": message.phase,
                                 "message": message.message})
         else:
+            series = data.estimated if topic.endswith(ESTIMATED_TOPIC) else data.angles
             for chain in message.chains:
-                data.angles[chain.name]["time"].append(t)
-                data.angles[chain.name]["angles"].append(list(chain.block_angles))
+                series[chain.name]["time"].append(t)
+                series[chain.name]["angles"].append(list(chain.block_angles))
     return data
+
+
+def _lost_samples(channels, numbered: dict, origin: int) -> dict:
+    """Per topic: the gaps in its publication sequence numbers (times in s from ``origin``), or why not checked."""
+    report = {}
+    for channel in sorted(channels, key=lambda c: c.topic):
+        reason = checkable(channel.metadata.get("offered_qos_profiles", ""))
+        if reason:
+            report[channel.topic] = {"checked": False, "reason": reason}
+            continue
+        found = find_gaps(numbered.get(channel.topic, []))
+        gaps = [{"after": g["after"], "before": g["before"], "lost": g["lost"],
+                 "from": (g["after_time_ns"] - origin) / 1e9, "to": (g["before_time_ns"] - origin) / 1e9}
+                for g in found["gaps"]]
+        report[channel.topic] = {"checked": True, "received": found["received"], "lost": found["lost"],
+                                 "gaps": gaps}
+    return report
 
 
 def _add_hv_state(data: RecordingData, t: float, message, latched_faults: dict) -> None:
@@ -137,9 +168,27 @@ def summarize(data: RecordingData) -> dict:
                         "min_angles": [min(column) for column in zip(*same_shape)],
                         "max_angles": [max(column) for column in zip(*same_shape)],
                         "samples": len(series["time"])}
+    estimated = {name: {"final_angles": series["angles"][-1], "samples": len(series["time"]),
+                        "median_minus_predicted": estimate_minus_prediction(data.angles.get(name), series)}
+                 for name, series in sorted(data.estimated.items())}
     return {"duration": data.duration, "message_counts": dict(sorted(data.message_counts.items())),
             "channels": channels, "steps": step_durations(data.events), "faults": data.faults,
-            "chains": chains}
+            "chains": chains, "estimated_chains": estimated,
+            "lost_samples": {topic: report for topic, report in data.lost_samples.items()
+                             if report["checked"] and report["lost"]}}
+
+
+def estimate_minus_prediction(predicted: dict | None, estimated: dict) -> list[float] | None:
+    """Per block, the median of estimated minus predicted angle [rad], each estimate paired with the last
+    prediction at or before it (of the same block count); None without such pairs."""
+    if not predicted:
+        return None
+    differences = []
+    for t, angles in zip(estimated["time"], estimated["angles"]):
+        index = bisect.bisect_right(predicted["time"], t) - 1
+        if index >= 0 and len(predicted["angles"][index]) == len(angles):
+            differences.append([e - p for e, p in zip(angles, predicted["angles"][index])])
+    return [statistics.median(column) for column in zip(*differences)] if differences else None
 
 
 def analyze(recording: str) -> dict:
@@ -167,4 +216,13 @@ def format_summary(summary: dict) -> str:
     for name, chain in summary["chains"].items():
         degrees = ", ".join(f"{math.degrees(a):.1f}" for a in chain["final_angles"])
         lines.append(f"chain {name}: final block angles [{degrees}] deg")
+    for name, chain in summary["estimated_chains"].items():
+        degrees = ", ".join(f"{math.degrees(a):.1f}" for a in chain["final_angles"])
+        difference = chain["median_minus_predicted"]
+        versus = "" if difference is None else (
+            "; estimated - predicted, median: [" + ", ".join(f"{math.degrees(a):+.2f}" for a in difference) + "] deg")
+        lines.append(f"chain {name}: estimated from {chain['samples']} images, final [{degrees}] deg{versus}")
+    for topic, report in summary["lost_samples"].items():
+        spans = ", ".join(f"{g['lost']} between {g['from']:.3f} and {g['to']:.3f} s" for g in report["gaps"])
+        lines.append(f"{topic}: {report['lost']} samples lost on the way to the recorder ({spans})")
     return "\n".join(lines)

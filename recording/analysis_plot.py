@@ -1,4 +1,5 @@
-"""One PNG per recording: voltage, current, step timeline and predicted block angles."""
+"""One PNG per recording: voltage, current, step timeline and predicted (lines) against estimated (dots) block
+angles."""
 import math
 
 import matplotlib
@@ -28,13 +29,11 @@ def plot(data: RecordingData, png_path: str, title: str = "") -> None:
     _plot_steps(steps, step_durations(data.events), data.duration)
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for number, (name, series) in enumerate(sorted(data.angles.items())):
-        width = max(len(a) for a in series["angles"])
-        for block in range(width):
-            angles.plot(series["time"],
-                        [math.degrees(a[block]) if block < len(a) else math.nan
-                         for a in series["angles"]], color=colours[number % len(colours)],
-                        label=f"{name} ({width} blocks)" if block == 0 else None)
-    angles.set_ylabel("predicted block angle [deg]")
+        colour = colours[number % len(colours)]
+        _plot_blocks(angles, series, "-", colour, f"{name} ({_width(series)} blocks)")
+        if name in data.estimated:
+            _plot_blocks(angles, data.estimated[name], ".", colour, f"{name} estimated")
+    angles.set_ylabel("block angle [deg]\npredicted (lines), estimated (dots)")
     angles.set_xlabel("time [s]")
     for axis in (voltage, current, angles):
         if axis.get_legend_handles_labels()[0]:
@@ -44,6 +43,17 @@ def plot(data: RecordingData, png_path: str, title: str = "") -> None:
     figure.tight_layout()
     figure.savefig(png_path, dpi=110)
     plt.close(figure)
+
+
+def _width(series: dict) -> int:
+    return max(len(a) for a in series["angles"])
+
+
+def _plot_blocks(axis, series: dict, style: str, colour: str, label: str) -> None:
+    """One line (or dot series) per block position of a chain's angle series, in degrees."""
+    for block in range(_width(series)):
+        axis.plot(series["time"], [math.degrees(a[block]) if block < len(a) else math.nan for a in series["angles"]],
+                  style, color=colour, markersize=4, label=label if block == 0 else None)
 
 
 def _mark_faults(axes, faults: list[dict]) -> None:

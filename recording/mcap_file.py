@@ -25,6 +25,7 @@ LIBRARY = "softblock-recorder"
 COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
                 "none": CompressionType.NONE}
 DEFAULT_CHUNK_SIZE = 256 * 1024
+SEQUENCE_MODULUS = 1 << 32  # MCAP's message sequence field is a uint32
 BAG_METADATA_VERSION = 9  # rosbag2_storage::BagMetadata of ROS 2 Jazzy
 NO_MESSAGE_TIME = 2**63 - 1  # rosbag2's starting_time of a bag without messages
 
@@ -71,9 +72,10 @@ class RecordingWriter:
             "type_description_hash": type_hash}
         return channel_id
 
-    def write(self, channel_id: int, data: bytes, log_time: int, publish_time: int) -> None:
-        """Adds one serialized (CDR) message; times in nanoseconds."""
-        self._writer.add_message(channel_id, log_time, bytes(data), publish_time)
+    def write(self, channel_id: int, data: bytes, log_time: int, publish_time: int, sequence: int = 0) -> None:
+        """Adds one serialized (CDR) message; times in nanoseconds; ``sequence`` is the publisher's own
+        sample counter (DDS publication sequence number; 0 = unknown), kept to 32 bits as MCAP stores it."""
+        self._writer.add_message(channel_id, log_time, bytes(data), publish_time, sequence % SEQUENCE_MODULUS)
         self.message_counts[self._topics[channel_id]] += 1
         self._first_time = min(self._first_time, log_time)
         self._last_time = max(self._last_time, log_time)

@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Runs a command inside the project's environment: venv, built ros_ws, DDS on loopback.
+# Runs a command inside the project's environment: venv, built ros_ws, DDS on loopback unless the caller chose
+# otherwise (ROS_AUTOMATIC_DISCOVERY_RANGE, ROS_STATIC_PEERS and ROS_DOMAIN_ID are kept when set).
 set -euo pipefail
 repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 venv="${SOFTBLOCK_VENV:-$repo/.venv}"
@@ -8,7 +9,7 @@ export AMENT_PREFIX_PATH="$venv${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}"
 set +u
 source "$repo/ros_ws/install/setup.bash"
 set -u
-export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
+export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
 export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-$(( $$ % 100 + 1 ))}"
 export PYTHONUNBUFFERED=1
 exec "$@"

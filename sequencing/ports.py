@@ -3,7 +3,7 @@ and how it runs (`RunOptions`). A backend (the ROS adapter, a test fake) impleme
 """
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -25,10 +25,11 @@ class ChannelReading:
     faults: int = 0            # latched fault bits (0 = none)
     fault_text: str = ""
     output_enabled: bool = False
+    stale: bool = False        # the backend has not heard from the driver in time: the output's true state is unknown
 
 
 class Motion(Protocol):
-    """A running arm move or channel ramp."""
+    """A running arm move, channel ramp or pulse train."""
 
     def wait(self, timeout: float) -> bool:
         """Block up to ``timeout`` seconds; True once the motion has finished."""
@@ -46,6 +47,11 @@ class Robot(Protocol):
     def move_arm(self, position, orientation, frame_id: str, speed: float) -> Motion: ...
 
     def ramp(self, channel: str, target: float, slew_rate: float) -> Motion: ...
+
+    def pulse(self, channels: Sequence[str], voltage: float, frequency: float, duty: float, phase: float,
+              cycles: int, edge: str, slew_rate: float) -> Motion:
+        """A periodic train on ``channels`` run by the HV driver (``edge`` "smooth" or "square"); its outcome
+        says how it ran."""
 
     def channel_states(self) -> Mapping[str, ChannelReading]: ...
 

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("config", "planner", "hv_driver", "sim_fallback", "sequencing", "recording")
+PACKAGES = ("config", "planner", "hv_driver", "sim_fallback", "sequencing", "recording", "estimation", "netlab")
 
 
 def run(command, cwd, timeout=300):
@@ -35,8 +35,8 @@ def test_pip_install_then_planner_commands_run_from_the_installed_copy(tmp_path)
         tmp_path)
     work = tmp_path / "elsewhere"
     work.mkdir()
-    located = run([python, "-c", "import planner, softblock_config, sequencing, recording, hv_driver, sim_fallback;"
-                   "print(planner.__file__); print(softblock_config.config_file())"], work).split()
+    located = run([python, "-c", "import planner, softblock_config, sequencing, recording, hv_driver, sim_fallback,"
+                   " estimation, netlab; print(planner.__file__); print(softblock_config.config_file())"], work).split()
     assert all(Path(path).is_relative_to(purelib) for path in located), located
     gripper = Path(located[1]) / "assemblies" / "gripper.yaml"
     shape = run([python, "-m", "planner", "fk", gripper, "--voltage", "front=2400"], work)
@@ -44,3 +44,6 @@ def test_pip_install_then_planner_commands_run_from_the_installed_copy(tmp_path)
     out = work / "table.csv"
     assert "wrote" in run([python, "-m", "planner", "table", "--out", out], work)
     assert out.read_text().splitlines()[0] == (ROOT / "config" / "block_table.csv").read_text().splitlines()[0]
+    arc = Path(located[1]) / "assemblies" / "figure2_arc.yaml"
+    assert "wrote" in run([python, "-m", "estimation", "render", "--assembly", arc, "--pixel-size", "1e-3",
+                           "--out", work / "arc.png"], work)

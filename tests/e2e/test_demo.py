@@ -1,17 +1,21 @@
 """The README's main job end to end: `python -m softblock_ros.demo` on the simulated backend, then its
 recording replayed into a fresh ROS graph and recorded again, with the same analysis."""
 import json
+import math
 import sys
 import threading
 
 import pytest
 import rclpy
+import yaml
 from processes import run
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
+from softblock_config import config_file
 
 from softblock_ros.client import wait_until
 from recording.analysis import analyze
+from recording.mcap_file import describe
 from recording.playback import PlaybackOptions
 from softblock_ros.recording.player_node import PlayerNode
 from softblock_ros.recording.recorder_node import RecorderNode
@@ -92,3 +96,16 @@ def test_demo_recording_replayed_and_recorded_again_gives_the_same_analysis(demo
         recorder.destroy_node()
         rclpy.try_shutdown(context=context)
     assert analyze(replayed) == analyze(original)
+
+
+def test_demo_camera_images_and_estimates_are_recorded_and_show_the_fingers_perturbation(demo):
+    _, out = demo
+    summary = json.loads((out / "summary.json").read_text())
+    topics = describe(str(out / "run.mcap"))["topics"]
+    assert topics["/camera/silhouette"]["type"] == "sensor_msgs/msg/Image" and topics["/camera/silhouette"]["count"] > 0
+    assert topics["/assembly/estimated"]["count"] > 0 and topics["/diagnostics"]["count"] > 0
+    camera = yaml.safe_load(config_file("camera.yaml").read_text())["sim_camera"]["ros__parameters"]
+    seen = summary["recording"]["estimated_chains"][camera["chain"]]
+    assert seen["samples"] >= 3
+    # The estimate differs from the prediction by the simulated blocks' offsets (4 blocks in the front fingers).
+    assert seen["median_minus_predicted"] == pytest.approx(camera["block_offsets_rad"][:4], abs=math.radians(0.5))

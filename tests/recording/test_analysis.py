@@ -12,7 +12,8 @@ from recording_helpers import (Spinner, assembly_state, hv_state, sequence_event
                                write_recording)
 from softblock_interfaces.msg import HvChannelState
 
-from recording.analysis import analyze, fault_names
+from recording.analysis import analyze, fault_names, format_summary, load, summarize
+from recording.analysis_plot import plot
 from recording.playback import PlaybackOptions
 from softblock_ros.recording.player_node import PlayerNode
 from softblock_ros.recording.recorder_node import RecorderNode
@@ -126,3 +127,22 @@ def test_replay_recorded_again_gives_the_same_summary(grasp, ros_context, tmp_pa
         player.destroy_node()
         recorder.destroy_node()
     assert analyze(str(tmp_path / "replayed.mcap")) == analyze(grasp)
+
+
+def test_estimated_angles_are_kept_apart_from_the_prediction_compared_and_plotted(tmp_path):
+    entries = []
+    for i in range(6):
+        entries.append(("/assembly/state", stamp(at(2 * i), assembly_state({"front": [0.1 * i, 0.2]})), at(2 * i)))
+        entries.append(("/robot/assembly/estimated",
+                        stamp(at(2 * i + 1), assembly_state({"front": [0.1 * i + 0.03, 0.2 - 0.01 * i]})),
+                        at(2 * i + 1)))
+    path = write_recording(str(tmp_path / "estimated.mcap"), entries)
+    data = load(path)
+    assert data.angles["front"]["angles"][-1] == pytest.approx([0.5, 0.2])
+    assert data.estimated["front"]["angles"][-1] == pytest.approx([0.53, 0.15])
+    chain = summarize(data)["estimated_chains"]["front"]
+    assert chain["samples"] == 6
+    assert chain["median_minus_predicted"] == pytest.approx([0.03, -0.025])
+    assert "estimated - predicted, median: [+1.72, -1.43] deg" in format_summary(summarize(data))
+    plot(data, str(tmp_path / "recording.png"))
+    assert (tmp_path / "recording.png").stat().st_size > 10_000

@@ -34,7 +34,9 @@ def test_stack_runs_nodes_with_the_params_file_and_stops_them_cleanly(ros_contex
         assert stack.dead() == {}
     assert stack.stop() == {"assembly_state": 0}, output.getvalue()[-3000:]
     lines = output.getvalue().splitlines()
-    assert lines and all(line.startswith("[assembly_state] ") for line in lines)
+    # The launcher's own lines (first: where DDS traffic goes, loopback unless chosen) and the node's, prefixed.
+    assert lines[0].startswith("[launcher] network: DDS discovery LOCALHOST, static peers none, domain ")
+    assert all(line.startswith("[assembly_state] ") for line in lines[1:])
     assert any("publishing at" in line for line in lines)
 
 

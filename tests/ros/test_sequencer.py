@@ -106,6 +106,18 @@ def test_hv_fault_mid_sequence_stops_in_the_safe_state(stack, hv):
     assert failed.step_name == "open_back"
 
 
+def test_a_silent_driver_fails_the_step_naming_the_lost_driver(stack, hv):
+    run = Run(stack["action"], scaled("finger_grasp", stack["dir"], speed=2.0))
+    stack["events"].wait(lambda msg: msg.step_name == "surround_object" and msg.phase == "started")
+    hv.silent = True  # hv/state stops, as when the network to the driver fails
+    status, result = run.result()
+    assert status == GoalStatus.STATUS_ABORTED and not result.success
+    assert result.failed_step not in ("", "above_object", "open_back")  # a step after the driver fell silent
+    assert "HV driver lost: no hv/state for" in result.message, result.message
+    assert "safe state" in result.message  # its ramp service still answered: the back fingers ramped down
+    assert hv.ramps[-1] == ("back", 0.0) and channels_off(hv)
+
+
 def test_cancel_mid_sequence_ramps_down_and_reports_canceled(stack, hv):
     run = Run(stack["action"], scaled("finger_grasp", stack["dir"], speed=0.05))
     stack["events"].wait(lambda msg: msg.step_name == "surround_object" and msg.phase == "started")
@@ -173,9 +185,11 @@ def test_legged_gait_pulses_the_legs(stack, hv):
                                                  cycles=2)).result()
     assert status == GoalStatus.STATUS_SUCCEEDED, result.message
     assert result.step_names == ["walk_forward", "turn_left", "turn_right"]
-    legs = {name: [target for channel, target in hv.ramps if channel == name] for name in CHANNELS[3:]}
-    # walk: every leg 2 pulses; turn_left adds 2 on the right legs, turn_right 2 on the left legs.
-    assert all(targets == [600.0, 0.0] * 4 for targets in legs.values())
+    assert hv.ramps == []  # one periodic command per train, never one action per edge
+    assert sorted(hv.pulses) == sorted([(("leg_front_left", "leg_rear_right"), 2),
+                                        (("leg_front_right", "leg_rear_left"), 2),
+                                        (("leg_front_right", "leg_rear_right"), 2),
+                                        (("leg_front_left", "leg_rear_left"), 2)])
     assert channels_off(hv)
 
 

@@ -29,7 +29,8 @@ def console_scripts() -> dict[str, str]:
 
 def test_the_shipped_stack_names_real_modules_executables_and_parameter_files():
     stack = load_stack()
-    assert stack.names == ("hv_driver", "assembly_state", "planner", "sim_arm", "sequencer", "recorder")
+    assert stack.names == ("hv_driver", "assembly_state", "planner", "sim_arm", "sim_camera", "estimator", "sequencer",
+                           "recorder")
     scripts = console_scripts()
     for spec in stack.nodes:
         assert spec.executable in scripts, spec
@@ -92,6 +93,10 @@ class Recorded:
         self.args, self.kwargs = args, kwargs
 
 
+class SetEnvironment(Recorded):
+    """Stand-in for launch.actions.SetEnvironmentVariable."""
+
+
 @pytest.fixture
 def launch_stand_ins(monkeypatch, tmp_path):
     """launch / launch_ros stand-ins and an ament share folder holding the installed config files."""
@@ -99,7 +104,7 @@ def launch_stand_ins(monkeypatch, tmp_path):
     shutil.copytree(config_file(), share / "config", ignore=shutil.ignore_patterns("*.py", "__pycache__"))
     modules = {
         "launch": {"LaunchDescription": lambda actions: list(actions)},
-        "launch.actions": {"DeclareLaunchArgument": Recorded},
+        "launch.actions": {"DeclareLaunchArgument": Recorded, "SetEnvironmentVariable": SetEnvironment},
         "launch.substitutions": {"LaunchConfiguration": Recorded},
         "launch_ros.actions": {"Node": Recorded},
     }
@@ -111,9 +116,13 @@ def launch_stand_ins(monkeypatch, tmp_path):
     return share
 
 
-def test_the_launch_file_starts_every_node_of_the_stack_as_described(launch_stand_ins):
+def test_the_launch_file_starts_every_node_of_the_stack_as_described(launch_stand_ins, monkeypatch):
+    monkeypatch.delenv("ROS_AUTOMATIC_DISCOVERY_RANGE", raising=False)
     launch_file = runpy.run_path(str(PACKAGE / "launch" / "softblock.launch.py"))
-    argument, *nodes = launch_file["generate_launch_description"]()
+    argument, *actions = launch_file["generate_launch_description"]()
+    network = {action.args[0]: action.args[1] for action in actions if isinstance(action, SetEnvironment)}
+    assert network["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"  # nothing chose a range: this machine only
+    nodes = [action for action in actions if not isinstance(action, SetEnvironment)]
     assert argument.args == ("namespace",) and argument.kwargs["default_value"] == ""
     stack = load_stack()
     assert [n.kwargs["executable"] for n in nodes] == [spec.executable for spec in stack.nodes]

@@ -26,6 +26,7 @@ setup(
     entry_points={
         "console_scripts": [
             "assembly_state = softblock_ros.assembly_state_node:main",
+            "estimator = softblock_ros.estimator_node:main",
             "hv_driver = softblock_ros.hv_driver_node:main",
             "planner = softblock_ros.planner_node:main",
             "launcher = softblock_ros.launcher:main",
@@ -34,6 +35,7 @@ setup(
             "analyze_recording = recording.cli:analyze_main",
             "sequencer = softblock_ros.sequencer_node:main",
             "sim_arm = softblock_ros.sim_arm_node:main",
+            "sim_camera = softblock_ros.sim_camera_node:main",
         ],
     },
 )

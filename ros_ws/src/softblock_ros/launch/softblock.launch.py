@@ -3,13 +3,14 @@
     ros2 launch softblock_ros softblock.launch.py [namespace:=/robot1]
 
 Each node of the description runs as ``ros2 run softblock_ros <executable>`` with its parameter files from
-this package's share/softblock_ros/config and its niceness as a ``nice`` prefix.
+this package's share/softblock_ros/config and its niceness as a ``nice`` prefix, in the DDS network of the
+description's `network` section (over the environment's; LOCALHOST when neither chooses a range).
 """
 import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
+from launch.actions import DeclareLaunchArgument, SetEnvironmentVariable
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
@@ -23,6 +24,7 @@ def generate_launch_description() -> LaunchDescription:
                   parameters=[str(path) for path in spec.parameters], output="screen",
                   prefix=f"nice -n {spec.niceness}" if spec.niceness else None)
              for spec in stack.nodes]
+    network = [SetEnvironmentVariable(name, value) for name, value in stack.network.variables(os.environ).items()]
     return LaunchDescription([
         DeclareLaunchArgument("namespace", default_value=stack.namespace, description="namespace of every node"),
-        *nodes])
+        *network, *nodes])

@@ -2,20 +2,25 @@
 
     python -m softblock_ros.demo --out out/demo          (what `make demo` runs)
 
-1. starts hv_driver (sim backend), assembly_state, planner, sim_arm, sequencer and the MCAP recorder;
+1. starts hv_driver (sim backend), assembly_state, planner, sim_arm, sim_camera (a side view of the front left
+   finger, its blocks slightly off their design), estimator (angles and mistakes from that view), sequencer
+   and the MCAP recorder (config/stack.yaml);
 2. asks the planner for the paper's gripper fingers for the asymmetric sample object: front fingers of
    4 blocks with the top 2 stiff, back fingers of 5 blocks with the top 3 stiff (Figure 5);
 3. loads them into the gripper assembly (assembly/set);
 4. runs the six-step finger grasp (sequencer/run, config/sequences/finger_grasp.yaml);
 5. injects an over-current fault into a live channel and checks that the outputs go off with a named
    fault, then resets it;
-6. stops the stack, analyses the recording and writes plots and a summary.
+6. stops the stack, analyses the recording (predicted against estimated angles too) and writes plots and a
+   summary.
 Exit status 0 when every stage did what it should.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import math
+import os
 import sys
 import threading
 import time
@@ -225,6 +230,7 @@ def run(out: Path, object_name: str) -> int:
     with open(out / "stack.log", "w") as log:
         say(f"starting the stack on the simulated backend (node output: {out / 'stack.log'})")
         stack = Stack(params=params, output=log).start()
+        os.environ.update(stack.network.variables(os.environ))  # the demo's client joins the nodes' network
         rclpy.init()
         client = DemoClient()
         try:
@@ -269,6 +275,11 @@ def print_summary(report: dict, out: Path) -> None:
     if drill:
         print(f"fault drill: {drill['fault']} on {drill['channel']} -> '{drill['fault_text']}', output off "
               f"{1e3 * drill['seen_off_after_s']:.0f} ms after injection (as seen on hv/state)")
+    for name, chain in report["recording"]["estimated_chains"].items():
+        difference = chain["median_minus_predicted"]
+        versus = "" if difference is None else ", estimated - predicted (median) [" + ", ".join(
+            f"{math.degrees(a):+.2f}" for a in difference) + "] deg"
+        print(f"chain {name} seen by the camera: {chain['samples']} estimates{versus}")
     faults = report["recording"]["faults"]
     print(f"fault events in the recording: {len(faults)}")
     print(f"recording: {out / 'run.mcap'} ({sum(report['recording']['message_counts'].values())} messages)")

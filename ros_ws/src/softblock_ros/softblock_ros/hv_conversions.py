@@ -24,6 +24,9 @@ def hv_state_msg(snapshot: SupplySnapshot, backend: str, stamp: Time) -> HvState
                   for c in snapshot.channels])
 
 
+CONTROL_STATUS = ": control"  # suffix of the control status's name, after the node name
+
+
 def control_status(snapshot: SupplySnapshot, node_name: str) -> DiagnosticStatus:
     """Who holds control and how fresh its heartbeat is; WARN when the heartbeat watchdog is off."""
     timeout = snapshot.heartbeat_timeout_s
@@ -37,9 +40,16 @@ def control_status(snapshot: SupplySnapshot, node_name: str) -> DiagnosticStatus
     values = {"controller": snapshot.controller,
               "heartbeat_age_s": "" if snapshot.heartbeat_age_s is None else f"{snapshot.heartbeat_age_s:.3f}",
               "heartbeat_timeout_s": timeout}
-    return DiagnosticStatus(level=level, name=f"{node_name}: control", message=message,
+    return DiagnosticStatus(level=level, name=f"{node_name}{CONTROL_STATUS}", message=message,
                             hardware_id=snapshot.device_id,
                             values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+
+
+def control_values(array: DiagnosticArray) -> dict | None:
+    """The control status's values (controller, heartbeat_age_s, heartbeat_timeout_s: text, as published) from
+    a /diagnostics message; None when it carries no control status."""
+    status = next((s for s in array.status if s.name.endswith(CONTROL_STATUS)), None)
+    return None if status is None else {kv.key: kv.value for kv in status.values}
 
 
 def diagnostics_msg(snapshot: SupplySnapshot, node_name: str, backend: str, stamp: Time) -> DiagnosticArray:
@@ -53,7 +63,7 @@ def diagnostics_msg(snapshot: SupplySnapshot, node_name: str, backend: str, stam
             level, message = DiagnosticStatus.WARN, f"link: {snapshot.link_error}"
         else:
             level, message = DiagnosticStatus.OK, "output on" if c.output_enabled else "output off"
-        values = {"port": snapshot.port, "backend": backend, "channel_index": c.index,
+        values = {"port": c.port, "backend": backend, "channel_index": c.index,
                   "setpoint_v": c.setpoint, "measured_voltage_v": c.measured_voltage,
                   "measured_current_a": c.measured_current, "ceiling_v": c.ceiling,
                   "output_enabled": c.output_enabled, "faults": int(c.faults), "estop": snapshot.estop,

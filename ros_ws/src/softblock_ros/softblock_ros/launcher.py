@@ -1,12 +1,14 @@
 """Start the stack's nodes as processes, prefix their output, stop them cleanly (ros2 launch stand-in).
 
     python -m softblock_ros.launcher --nodes assembly_state,planner --params my_params.yaml
+    python -m softblock_ros.launcher --nodes hv_driver --discovery-range subnet --domain-id 7   # the rig PC
 
-The nodes, their parameter files, niceness and namespace come from the stack description
-(config/stack.yaml, softblock_ros.stack). Each node runs as ``python -m <module> --ros-args --params-file
-<its files> [--params-file <params>] [-r __ns:=<namespace>]`` in its own process group, so a terminal's Ctrl-C reaches only the launcher, which then stops the nodes in reverse
-start order: SIGINT, then SIGKILL after ``stop_timeout``. The launcher exits non-zero when a node dies on its own.
-As a library: ``with Stack(nodes=["planner"]) as stack: ...``.
+The nodes, their parameter files, niceness, namespace and network settings come from the stack description
+(config/stack.yaml, softblock_ros.stack); the network options override the file's (softblock_ros.network).
+Each node runs as ``python -m <module> --ros-args --params-file <its files> [--params-file <params>]
+[-r __ns:=<namespace>]`` in its own process group, so a terminal's Ctrl-C reaches only the launcher, which
+then stops the nodes in reverse start order: SIGINT, then SIGKILL after ``stop_timeout``. The launcher exits
+non-zero when a node dies on its own. As a library: ``with Stack(nodes=["planner"]) as stack: ...``.
 """
 from __future__ import annotations
 
@@ -21,6 +23,7 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import TextIO
 
+from .network import NetworkSettings, describe, parse_discovery_range, parse_domain_id, parse_static_peers
 from .stack import StackDescription, load_stack
 
 DEFAULT_STOP_TIMEOUT = 10.0  # [s] per node, before SIGKILL
@@ -37,7 +40,7 @@ class Stack:
     def __init__(self, nodes: Iterable[str] | None = None, params: str | Path | None = None,
                  env: Mapping[str, str] | None = None, output: TextIO | None = None,
                  stop_timeout: float = DEFAULT_STOP_TIMEOUT, namespace: str | None = None,
-                 description: StackDescription | None = None):
+                 description: StackDescription | None = None, network: NetworkSettings = NetworkSettings()):
         self.description = description or load_stack()
         self.nodes = list(self.description.names if nodes is None else nodes)
         unknown = [name for name in self.nodes if name not in self.description.names]
@@ -48,7 +51,9 @@ class Stack:
         self.params = params
         # e.g. "/robot1": every node's relative names move under it
         self.namespace = self.description.namespace if namespace is None else namespace
-        self.env = {**os.environ, **(env or {}), "PYTHONUNBUFFERED": "1"}
+        # DDS discovery: the options' network settings over the stack file's over the environment's
+        self.network = network.over(self.description.network)
+        self.env = self.network.environment({**os.environ, **(env or {}), "PYTHONUNBUFFERED": "1"})
         self.output = output or sys.stdout
         self.stop_timeout = stop_timeout
         self.processes: dict[str, subprocess.Popen] = {}
@@ -65,6 +70,7 @@ class Stack:
         return [sys.executable, "-m", spec.module, *spec.arguments, *(["--ros-args", *ros_args] if ros_args else [])]
 
     def start(self) -> Stack:
+        self._say("network", describe(self.env))
         for name in self.nodes:
             process = subprocess.Popen(self.command(name), env=self.env, stdin=subprocess.DEVNULL,
                                        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
@@ -137,6 +143,16 @@ class Stack:
         self.stop()
 
 
+def _option(parse):
+    """An argparse type from a network field's parser (its error message becomes argparse's)."""
+    def convert(text: str):
+        try:
+            return parse(text)
+        except ValueError as error:
+            raise argparse.ArgumentTypeError(str(error)) from None
+    return convert
+
+
 def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="python -m softblock_ros.launcher", description=__doc__.split("\n")[0])
     parser.add_argument("--nodes", help="comma-separated nodes to start, in order (default: every node of the stack)")
@@ -145,6 +161,13 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--stack", type=Path, help="stack description (default: config/stack.yaml)")
     parser.add_argument("--stop-timeout", type=float, default=DEFAULT_STOP_TIMEOUT,
                         help="seconds each node gets to stop after SIGINT before SIGKILL")
+    network = parser.add_argument_group("network (default: the stack file's network section, else the environment)")
+    network.add_argument("--discovery-range", type=_option(parse_discovery_range),
+                         help="ROS_AUTOMATIC_DISCOVERY_RANGE of the nodes: localhost, subnet, system_default or off")
+    network.add_argument("--static-peers", type=_option(parse_static_peers),
+                         help="ROS_STATIC_PEERS of the nodes: addresses or host names, separated by ; or ,")
+    network.add_argument("--domain-id", type=_option(parse_domain_id),
+                         help="ROS_DOMAIN_ID of the nodes, the same on every machine of the stack")
     return parser.parse_args(argv)
 
 
@@ -153,8 +176,9 @@ def main(argv=None) -> int:
     try:
         nodes = None if args.nodes is None else [n for n in args.nodes.split(",") if n]
         description = load_stack(args.stack) if args.stack else None
+        network = NetworkSettings(args.discovery_range, args.static_peers, args.domain_id)
         stack = Stack(nodes, args.params, stop_timeout=args.stop_timeout, namespace=args.namespace,
-                      description=description)
+                      description=description, network=network)
     except (ValueError, OSError) as error:
         print(f"launcher: {error}", file=sys.stderr)
         return 2

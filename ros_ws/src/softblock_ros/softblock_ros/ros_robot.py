@@ -1,4 +1,4 @@
-"""The sequencing engine's `Robot` on ROS: `arm/move` and `hv/ramp` action clients, `hv/state`, `hv/estop`,
+"""The sequencing engine's `Robot` on ROS: `arm/move`, `hv/ramp` and `hv/pulse` action clients, `hv/state`, `hv/estop`,
 and control of the HV driver (`HvControl`: claimed for a sequence, heartbeats while held).
 
 Nothing here blocks on the executor: goals are sent with futures whose callbacks set a
@@ -12,7 +12,8 @@ import time
 from action_msgs.msg import GoalStatus
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
-from softblock_interfaces.action import MoveArm, RampChannel
+from rclpy.qos import qos_profile_sensor_data
+from softblock_interfaces.action import MoveArm, PulseChannels, RampChannel
 from softblock_interfaces.msg import HvChannelState, HvState
 from std_srvs.srv import Trigger
 
@@ -70,6 +71,15 @@ def _ramp_outcome(status: int, result: RampChannel.Result) -> Outcome:
     return Outcome(status == GoalStatus.STATUS_SUCCEEDED and result.success, result.message, result.final_voltage)
 
 
+def _pulse_outcome(status: int, result: PulseChannels.Result) -> Outcome:
+    success = status == GoalStatus.STATUS_SUCCEEDED and result.success
+    how = f"{result.cycles_done} cycles at {result.frequency:g} Hz, switched by the {result.generated_by}"
+    return Outcome(success, how if success else result.message)
+
+
+PULSE_EDGES = {"smooth": PulseChannels.Goal.EDGE_SMOOTH, "square": PulseChannels.Goal.EDGE_SQUARE}
+
+
 def _move_outcome(status: int, result: MoveArm.Result) -> Outcome:
     return Outcome(status == GoalStatus.STATUS_SUCCEEDED and result.success, result.message)
 
@@ -82,17 +92,27 @@ class RosRobot:
         self._server_timeout, self._state_timeout = server_timeout, state_timeout
         self._control = HvControl(node, node.get_name(), heartbeat_rate_hz, callback_group, server_timeout)
         self._ramp = ActionClient(node, RampChannel, "hv/ramp", callback_group=callback_group)
+        self._pulse = ActionClient(node, PulseChannels, "hv/pulse", callback_group=callback_group)
         self._move = ActionClient(node, MoveArm, "arm/move", callback_group=callback_group)
         self._estop = node.create_client(Trigger, "hv/estop", callback_group=callback_group)
         self._lock = threading.Lock()
         self._state: HvState | None = None
         self._state_time = 0.0
         self._arm_motion: ActionMotion | None = None
-        node.create_subscription(HvState, "hv/state", self._on_state, 10, callback_group=callback_group)
+        self._logger = node.get_logger()
+        self._lost_reported = False  # the driver's silence is logged once, when first seen
+        # Best effort: the engine wants the newest state. A reliable subscription holds newer samples back behind
+        # one a lossy link dropped until the driver repairs it (seconds: its next periodic heartbeat), and the
+        # state would look stale.
+        node.create_subscription(HvState, "hv/state", self._on_state, qos_profile_sensor_data,
+                                 callback_group=callback_group)
 
     def _on_state(self, msg: HvState) -> None:
         with self._lock:
             self._state, self._state_time = msg, time.monotonic()
+            returned, self._lost_reported = self._lost_reported, False
+        if returned:
+            self._logger.info("HV driver back: hv/state received again")
 
     def take_control(self) -> None:
         """Claim control of the HV driver (heartbeats while held); RobotError naming the holder if refused."""
@@ -126,21 +146,35 @@ class RosRobot:
                                 token=self._control.token)
         return ActionMotion(self._ramp, goal, _ramp_outcome)
 
+    def pulse(self, channels, voltage: float, frequency: float, duty: float, phase: float, cycles: int, edge: str,
+              slew_rate: float) -> ActionMotion:
+        self._ready(self._pulse, "hv/pulse")
+        goal = PulseChannels.Goal(channels=list(channels), amplitude=float(voltage), frequency=float(frequency),
+                                  duty=float(duty), phase=float(phase), cycles=int(cycles), edge=PULSE_EDGES[edge],
+                                  slew_rate=float(slew_rate), token=self._control.token)
+        return ActionMotion(self._pulse, goal, _pulse_outcome)
+
     def channel_states(self) -> dict[str, ChannelReading]:
-        """Latest hv/state; a silent driver shows as a link fault on every channel it reported."""
+        """Latest hv/state; a driver silent for longer than the state timeout (stopped, or the network to it
+        down) shows as a link fault on every channel it reported."""
         with self._lock:
             state, age = self._state, time.monotonic() - self._state_time
+            silent = state is not None and age > self._state_timeout
+            newly_lost, self._lost_reported = silent and not self._lost_reported, self._lost_reported or silent
         if state is None:
             return {}
-        silent = age > self._state_timeout
+        if newly_lost:
+            self._logger.error(f"HV driver lost: no hv/state for {age:.1f} s "
+                               f"(state timeout {self._state_timeout:g} s)")
         readings = {}
         for channel in state.channels:
             faults, text = channel.faults, channel.fault_text
             if state.estop:
                 faults, text = faults | HvChannelState.FAULT_ESTOP, text or "ESTOP"
             if silent:
-                faults, text = faults | HvChannelState.FAULT_LINK, f"hv/state silent for {age:.1f} s"
-            readings[channel.name] = ChannelReading(channel.measured_voltage, faults, text, channel.output_enabled)
+                faults, text = faults | HvChannelState.FAULT_LINK, f"HV driver lost: no hv/state for {age:.1f} s"
+            readings[channel.name] = ChannelReading(channel.measured_voltage, faults, text, channel.output_enabled,
+                                                    stale=silent)
         return readings
 
     def stop_arm(self) -> None:

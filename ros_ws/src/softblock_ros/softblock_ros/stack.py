@@ -1,5 +1,6 @@
 """The stack description (config/stack.yaml): which nodes run, how each starts, with which parameter files,
-at which niceness and in which namespace. The launcher, the demo and the ros2 launch file all read it."""
+at which niceness, in which namespace and which machines their DDS traffic reaches (softblock_ros.network).
+The launcher, the demo and the ros2 launch file all read it."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -7,6 +8,8 @@ from pathlib import Path
 
 import yaml
 from softblock_config import config_file
+
+from .network import NetworkSettings, parse_network
 
 DEFAULT_STACK_FILE = config_file("stack.yaml")
 MAX_FILE_SIZE = 64 * 1024  # [bytes] a stack description is a page of YAML
@@ -27,6 +30,7 @@ class NodeSpec:
 class StackDescription:
     namespace: str
     nodes: tuple[NodeSpec, ...]
+    network: NetworkSettings = NetworkSettings()
 
     def node(self, name: str) -> NodeSpec:
         for spec in self.nodes:
@@ -76,9 +80,9 @@ def load_stack(path: str | Path = DEFAULT_STACK_FILE) -> StackDescription:
     if path.stat().st_size > MAX_FILE_SIZE:
         raise ValueError(f"{path}: larger than {MAX_FILE_SIZE} bytes; not a stack description")
     document = yaml.safe_load(path.read_text())
-    if not isinstance(document, dict) or set(document) - {"namespace", "nodes"}:
+    if not isinstance(document, dict) or set(document) - {"namespace", "nodes", "network"}:
         _fail(path, "top level", document if not isinstance(document, dict) else sorted(document),
-              "a mapping with the keys namespace and nodes")
+              "a mapping with the keys namespace, nodes and network")
     namespace = document.get("namespace", "")
     if not isinstance(namespace, str):
         _fail(path, "namespace", namespace, "a string, e.g. \"\" or /robot1")
@@ -89,4 +93,4 @@ def load_stack(path: str | Path = DEFAULT_STACK_FILE) -> StackDescription:
     names = [spec.name for spec in nodes]
     if len(set(names)) != len(names):
         _fail(path, "nodes", names, "node names must be unique")
-    return StackDescription(namespace, nodes)
+    return StackDescription(namespace, nodes, parse_network(path, document.get("network")))

@@ -87,7 +87,8 @@ class RecorderNode(Node):
         qos = recording_qos(offered)
         self._recorded[topic] = self.create_subscription(
             msg_type, topic, lambda data, info: self.writer.write(
-                channel, data, info["received_timestamp"], info["source_timestamp"]),
+                channel, data, info["received_timestamp"], info["source_timestamp"],
+                info.get("publication_sequence_number") or 0),
             qos, raw=True)
         self.get_logger().info(f"recording {topic} ({type_name}, {qos.durability.short_key})")
 

@@ -1,0 +1,197 @@
+"""The user-space link emulator on datagram socket pairs (one frame per read, as a TAP device): delay and
+jitter measured on the frames it delivers, the loss rate, partition and heal, both directions, bad settings.
+No root needed. Timing assertions are one-sided where load could only make a frame later: a frame is never
+delivered before its delay; how much later it comes is reported, bounded only loosely."""
+import math
+import socket
+import statistics
+import struct
+import threading
+import time
+
+import pytest
+
+from netlab.link import Conditions, Link, conditions_from
+
+FRAME = struct.Struct("!Id")  # index, send time (monotonic)
+LATE_BOUND_S = 1.0  # [s] a median this late means a broken emulator, not a loaded machine
+
+
+class Bench:
+    """Two applications, A and B, joined by a Link served in a background thread."""
+
+    def __init__(self, conditions: Conditions, seed: int = 0):
+        self.a, a_link = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self.b, b_link = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self._link_ends = (a_link, b_link)
+        self.link = Link(a_link.fileno(), b_link.fileno(), conditions, rng=seed)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self.link.serve, args=(self._stop, 0.01), daemon=True)
+        self._thread.start()
+
+    def send(self, sender: socket.socket, count: int, period_s: float = 0.002) -> None:
+        for index in range(count):
+            sender.send(FRAME.pack(index, time.monotonic()))
+            time.sleep(period_s)
+
+    def receive(self, receiver: socket.socket, quiet_s: float = 0.5) -> list[tuple[int, float]]:
+        """(index, delay [s]) of every frame that arrives until none came for ``quiet_s``."""
+        received = []
+        receiver.settimeout(quiet_s)
+        while True:
+            try:
+                data = receiver.recv(64)
+            except TimeoutError:
+                return received
+            index, sent = FRAME.unpack(data)
+            received.append((index, time.monotonic() - sent))
+
+    def settle(self) -> None:
+        """Wait until nothing is in flight (liveness only: bounded generously)."""
+        deadline = time.monotonic() + 30.0
+        while any(d["in_flight"] for d in self.link.stats().values()) and time.monotonic() < deadline:
+            time.sleep(0.01)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=10.0)
+        self.link.close()
+        for sock in (self.a, self.b, *self._link_ends):
+            sock.close()
+
+
+@pytest.fixture
+def bench(request):
+    benches = []
+
+    def make(conditions: Conditions, seed: int = 0) -> Bench:
+        benches.append(Bench(conditions, seed))
+        return benches[-1]
+
+    yield make
+    for made in benches:
+        made.close()
+
+
+def test_delay_jitter_and_loss_statistics_of_delivered_frames(bench):
+    delay, jitter, loss, count = 0.05, 0.01, 0.05, 600
+    lab = bench(Conditions(delay, jitter, loss), seed=7)
+    receiver = threading.Thread(target=lambda: received.extend(lab.receive(lab.b)))
+    received: list = []
+    receiver.start()
+    lab.send(lab.a, count)
+    receiver.join()
+    stats = lab.link.stats()["a_to_b"]
+    assert stats["received"] == count
+    assert stats["delivered"] + stats["lost"] == count and stats["in_flight"] == 0
+    assert len(received) == stats["delivered"]
+    # Binomial(600, 0.05): mean 30, sd 5.3; 5 sd either way
+    assert 30 - 27 <= stats["lost"] <= 30 + 27, stats
+    delays = [d for _, d in received]
+    print(f"delay median {1e3 * statistics.median(delays):.1f} ms, min {1e3 * min(delays):.1f} ms, "
+          f"max {1e3 * max(delays):.1f} ms, lost {stats['lost']} of {count}")
+    assert min(delays) >= delay - jitter  # never early, however loaded the machine
+    assert statistics.median(delays) <= delay + LATE_BOUND_S
+    quartiles = statistics.quantiles(delays, n=4)
+    assert quartiles[2] - quartiles[0] >= jitter / 2  # uniform +-10 ms: interquartile range 10 ms
+    # independent draws per frame: a jitter larger than the gap between frames reorders some, as netem does
+    indices = [i for i, _ in received]
+    assert indices != sorted(indices)
+
+
+def test_without_jitter_the_order_is_kept_and_every_frame_is_delayed(bench):
+    lab = bench(Conditions(delay_s=0.03))
+    receiver = threading.Thread(target=lambda: received.extend(lab.receive(lab.b)))
+    received: list = []
+    receiver.start()
+    lab.send(lab.a, 100)
+    receiver.join()
+    assert [i for i, _ in received] == list(range(100))
+    assert min(d for _, d in received) >= 0.03
+
+
+def test_loss_draws_are_reproducible_from_the_seed(bench):
+    def lost(seed: int) -> int:
+        lab = bench(Conditions(loss=0.3), seed=seed)
+        lab.send(lab.a, 200, period_s=0.0)
+        lab.settle()
+        return lab.link.stats()["a_to_b"]["lost"]
+
+    assert lost(3) == lost(3)
+    assert lost(3) != lost(4) or lost(5) != lost(3)
+
+
+@pytest.mark.parametrize("loss, delivered", [(0.0, 50), (1.0, 0)])
+def test_no_loss_delivers_everything_and_full_loss_nothing(bench, loss, delivered):
+    lab = bench(Conditions(loss=loss))
+    lab.send(lab.a, 50, period_s=0.0)
+    assert len(lab.receive(lab.b, quiet_s=0.3)) == delivered
+
+
+def test_a_partition_drops_frames_in_flight_and_everything_until_healed(bench):
+    lab = bench(Conditions(delay_s=0.2))
+    lab.send(lab.a, 20, period_s=0.0)  # in flight for 0.2 s
+    lab.link.partition()
+    lab.send(lab.a, 10, period_s=0.0)
+    lab.send(lab.b, 10, period_s=0.0)
+    assert lab.receive(lab.b, quiet_s=0.5) == [] and lab.receive(lab.a, quiet_s=0.1) == []
+    stats = lab.link.stats()
+    assert stats["a_to_b"]["partitioned"] == 30 and stats["b_to_a"]["partitioned"] == 10
+    lab.link.heal()
+    lab.send(lab.b, 5, period_s=0.0)
+    assert [i for i, _ in lab.receive(lab.a)] == list(range(5))
+
+
+def test_both_directions_are_carried_and_counted_independently(bench):
+    lab = bench(Conditions(delay_s=0.01))
+    lab.send(lab.a, 30, period_s=0.0)
+    lab.send(lab.b, 20, period_s=0.0)
+    assert len(lab.receive(lab.b)) == 30 and len(lab.receive(lab.a)) == 20
+    stats = lab.link.stats()
+    assert (stats["a_to_b"]["delivered"], stats["b_to_a"]["delivered"]) == (30, 20)
+
+
+def test_conditions_change_while_running(bench):
+    lab = bench(Conditions())
+    lab.send(lab.a, 5, period_s=0.0)
+    assert max(d for _, d in lab.receive(lab.b)) < 0.15 + LATE_BOUND_S
+    lab.link.conditions = conditions_from("delay_s=0.15", lab.link.conditions)
+    lab.send(lab.a, 5, period_s=0.0)
+    assert min(d for _, d in lab.receive(lab.b)) >= 0.15
+
+
+def test_a_far_end_that_refuses_frames_is_counted_not_fatal(bench):
+    lab = bench(Conditions())
+    lab.b.close()  # B's application is gone: writes toward it fail
+    lab.send(lab.a, 5, period_s=0.0)
+    lab.settle()
+    assert lab.link.stats()["a_to_b"]["send_errors"] == 5
+    lab.send(lab.a, 1, period_s=0.0)  # the link still runs
+    lab.settle()
+    assert lab.link.stats()["a_to_b"]["received"] == 6
+
+
+@pytest.mark.parametrize("fields, message", [
+    ({"delay_s": -0.01}, r"delay_s=-0.01: a number 0..60"),
+    ({"jitter_s": math.nan}, r"jitter_s=nan: a number 0..60"),
+    ({"loss": 1.5}, r"loss=1.5: a number 0..1"),
+    ({"loss": True}, r"loss=True"),
+])
+def test_bad_conditions_are_refused_naming_the_field(fields, message):
+    with pytest.raises(ValueError, match=message):
+        Conditions(**fields)
+
+
+@pytest.mark.parametrize("text, message", [
+    ("delay=0.1", r"unknown setting 'delay'; known: delay_s, jitter_s, loss"),
+    ("loss=lots", r"loss='lots': a number"),
+    ("delay_s=inf", r"delay_s='inf': a finite number"),
+    ("loss=2", r"loss=2.0: a number 0..1"),
+])
+def test_a_bad_set_command_is_refused_naming_the_setting(text, message):
+    with pytest.raises(ValueError, match=message):
+        conditions_from(text, Conditions())
+
+
+def test_a_set_command_changes_only_what_it_names():
+    assert conditions_from("loss=0.05", Conditions(0.05, 0.01, 0.0)) == Conditions(0.05, 0.01, 0.05)
