@@ -1,15 +1,24 @@
-"""Finger design: cost versus wall time of the prefix branch and bound ("exact") and the paper's PSO, and
-the spread of PSO over 20 seeds. Writes docs/figures/finger_optimizers.{json,png}.
+"""Finger design: time to the certified optimum of the exact search, per object and block count, against
+brute force (2 blocks; 3-block brute force agreement is a test, tests/planner/test_finger_search.py) and the
+paper's PSO over seeds (cost ratio to the optimum, collision rate), and the search's block-placement kernel
+against a plain numpy implementation of the same work.
+Writes docs/figures/finger_optimizers.{json,png}.
 
-    scripts/with_env.sh python benchmarks/finger_optimizers.py          # ~3 min: 3 objects x 4, 5 blocks
-    scripts/with_env.sh python benchmarks/finger_optimizers.py --full   # 4, 5, 6 blocks, 20 seeds everywhere
-    scripts/with_env.sh python benchmarks/finger_optimizers.py --certify  # + certified optima, 4 blocks (~10 min)
+    scripts/with_env.sh python benchmarks/finger_optimizers.py          # ~20 min on the 2-core machine
+    scripts/with_env.sh python benchmarks/finger_optimizers.py --quick  # 2 and 4 blocks, 5 PSO seeds
+    scripts/with_env.sh python benchmarks/finger_optimizers.py --blocks 2,4,5 --seeds 10
+
+Objects: the three samples and three generated asymmetric ones (planner.generated_objects, seeds 11-13).
+Fingers as in the paper's front fingers: the top two blocks stiff (both, with 2 blocks).
 """
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
+import os
 import sys
+import time
 from pathlib import Path
 
 import matplotlib
@@ -20,107 +29,197 @@ import numpy as np  # noqa: E402
 import yaml  # noqa: E402
 
 from planner import design  # noqa: E402
-from planner.contours import OBJECTS_CATALOG, load_mask  # noqa: E402
+from planner.contours import OBJECTS_CATALOG, extract_contours, load_mask  # noqa: E402
+from planner.generated_objects import PIXEL_SIZE, lumpy_object  # noqa: E402
+from planner.kinematics import CAP_LENGTH  # noqa: E402
+from planner.optimize import design_costs, design_space  # noqa: E402
+from planner.optimize import finger_search  # noqa: E402
+from planner.optimize.lookahead import block_shapes  # noqa: E402
 from planner.table import load_table  # noqa: E402
 
 FIGURES = Path(__file__).resolve().parent.parent / "docs" / "figures"
-OBJECTS = ("asymmetric", "strawberry", "gingerbread")
-FAILURE_MARGIN = 0.05  # a run ending more than 5 % above the best known cost failed
+SAMPLES = ("asymmetric", "strawberry", "gingerbread")
+GENERATED_SEEDS = (11, 12, 13)
+BUDGET = 30.0  # [s] per finger pair for the exact search
+REPEATS = 3  # exact runs per case (median time) when a run takes under 5 s
 
 
-def run(mask, pixel, blocks, method, seed, table, options=None, time_budget=None):
-    trace = []
+def objects():
+    catalog = yaml.safe_load(OBJECTS_CATALOG.read_text())
+    for name in SAMPLES:
+        yield name, load_mask(OBJECTS_CATALOG.parent / catalog[name]["file"]), float(catalog[name]["pixel_size_m"])
+    for seed in GENERATED_SEEDS:
+        yield f"generated {seed}", lumpy_object(seed), PIXEL_SIZE
 
-    def record(progress):
-        trace.append((progress.elapsed, progress.best_cost, progress.fraction))
 
-    result = design.design_fingers(mask, pixel, blocks, num_stiff_top=2, method=method, seed=seed, table=table,
-                                   callback=record, options=options, time_budget=time_budget)
+def exact_runs(mask, pixel, blocks, table):
+    runs = []
+    for _ in range(REPEATS):
+        result = design.design_fingers(mask, pixel, blocks, num_stiff_top=min(2, blocks), table=table,
+                                       time_budget=BUDGET)
+        runs.append(result)
+        if result.solve_time > 5.0:
+            break
+    best = runs[-1]
     return {
-        "method": method, "seed": seed, "blocks": blocks, "solve_time": result.solve_time,
-        "cost": result.left.cost + result.right.cost, "left": list(result.left.design_ids),
-        "right": list(result.right.design_ids), "collision": result.left.collision or result.right.collision,
-        "optimal": result.optimal, "left_trace": [(t, c) for t, c, f in trace if f < 0.5],
-        "lower_bound": result.left.result.lower_bound + result.right.result.lower_bound,
+        "times": [r.solve_time for r in runs], "time": float(np.median([r.solve_time for r in runs])),
+        "certified": best.optimal, "cost": best.left.cost + best.right.cost,
+        "lower_bound": best.left.lower_bound_m + best.right.lower_bound_m,
+        "left": list(best.left.design_ids), "right": list(best.right.design_ids),
+        "min_clearance": min(best.left.min_clearance_m, best.right.min_clearance_m),
+        "placements": best.left.result.nfev + best.right.result.nfev,
     }
+
+
+def brute_force(mask, pixel, blocks, table):
+    """Every (base, blocks) design of both fingers, evaluated with the same objective."""
+    problems = design.finger_problems(extract_contours(mask, pixel))
+    space = design_space(table, blocks, stiff_positions=range(min(2, blocks)))
+    combos = np.array(list(itertools.product(*space.choices)))
+    total, started = 0.0, time.perf_counter()
+    for side in ("left", "right"):
+        target = problems[side][0]
+        shapes = np.repeat(combos, len(target.bases), axis=0)
+        bases = np.tile(np.arange(len(target.bases)), len(combos))
+        total += float(design_costs(target, space, shapes, np.zeros_like(shapes), bases).min())
+    return {"cost": total, "time": time.perf_counter() - started, "designs": 2 * len(combos) * len(problems["left"][0].bases)}
+
+
+def pso_runs(mask, pixel, blocks, table, seeds):
+    runs = [design.design_fingers(mask, pixel, blocks, num_stiff_top=min(2, blocks), method="pso", seed=seed,
+                                  table=table) for seed in seeds]
+    return {"costs": [r.left.cost + r.right.cost for r in runs],
+            "collisions": [bool(r.left.collision or r.right.collision) for r in runs],
+            "median_time": float(np.median([r.solve_time for r in runs]))}
+
+
+def kernel_throughput(table, repeats: int = 7):
+    """Block placements evaluated per second: the search's compiled expansion (contour distances, bounds of
+    every next block) against numpy doing the exact contour-distance update and objective sum per
+    placement, on the same nodes (asymmetric object, left finger, 4 blocks, after 2 blocks)."""
+    catalog = yaml.safe_load(OBJECTS_CATALOG.read_text())["asymmetric"]
+    contours = extract_contours(load_mask(OBJECTS_CATALOG.parent / catalog["file"]), float(catalog["pixel_size_m"]))
+    target = design.finger_problems(contours)["left"][0]
+    space = design_space(table, 4, stiff_positions=range(2))
+    shapes = block_shapes(space, CAP_LENGTH)
+    rng = np.random.default_rng(0)
+    nodes = []
+    contour = target.points[:, [0, 2]]
+    for _ in range(64):
+        pose = np.array([-rng.uniform(0, 0.012), 0.0, 0.0])
+        alpha = np.hypot(contour[:, 0] - pose[0], contour[:, 1])
+        for s in rng.choice(space.choices[0], 2):
+            cos, sin = np.cos(pose[2]), np.sin(pose[2])
+            world = pose[:2] + shapes.samples[s] @ np.array([[cos, -sin], [sin, cos]])
+            alpha = np.minimum(alpha, np.linalg.norm(contour[:, None] - world[None], axis=-1).min(axis=1))
+            end = pose[:2] + shapes.ends[s, :2] @ np.array([[cos, -sin], [sin, cos]])
+            pose = np.array([end[0], end[1], pose[2] + shapes.ends[s, 2]])
+        nodes.append((pose, alpha))
+    options = space.choices[2]
+
+    def numpy_pass():
+        for pose, alpha in nodes:
+            cos, sin = np.cos(pose[2]), np.sin(pose[2])
+            rotation = np.array([[cos, -sin], [sin, cos]])
+            world = pose[:2] + shapes.samples[options] @ rotation  # (C, M, 2)
+            distance = np.linalg.norm(contour[None, :, None] - world[:, None], axis=-1).min(axis=2)
+            np.abs(np.minimum(alpha, distance) - target.offset).sum(axis=1)
+
+    problem = finger_search.search_problem(target, space)
+    width = len(options)
+    buffers = (np.zeros(width), np.zeros(width, np.int64), np.zeros(width, np.int64), np.zeros((width, 3)))
+    path, counts = np.full(5, -1, np.int64), np.zeros(len(space.theta), np.int64)
+    acc, scratch, limits = np.zeros(width), np.zeros(len(contour)), np.array([np.inf, np.inf])
+
+    def compiled_pass():
+        for pose, alpha in nodes:
+            finger_search._expand(problem, 2, pose, alpha, np.inf, limits, *buffers, 0, 0, path, counts, acc, scratch)
+
+    compiled_pass()
+    result = {}
+    for name, run in (("numpy", numpy_pass), ("compiled search", compiled_pass)):
+        times = []
+        for _ in range(repeats):
+            started = time.perf_counter()
+            run()
+            times.append(time.perf_counter() - started)
+        result[name] = len(nodes) * width / float(np.median(times))
+    return result
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--full", action="store_true", help="4, 5, 6 blocks and 20 PSO seeds for every case")
-    parser.add_argument("--certify", action="store_true", help="also prove the 4-block optima (max_width None)")
+    parser.add_argument("--quick", action="store_true", help="2 and 4 blocks, 5 PSO seeds")
+    parser.add_argument("--blocks", type=lambda text: tuple(int(b) for b in text.split(",")),
+                        help="block counts, e.g. 2,4,5 (default 2,3,4,5)")
+    parser.add_argument("--seeds", type=int, help="PSO seeds per case (default 20)")
     args = parser.parse_args()
     table = load_table()
-    catalog = yaml.safe_load(OBJECTS_CATALOG.read_text())
-    block_counts = (4, 5, 6) if args.full else (4, 5)
+    block_counts = args.blocks or ((2, 4) if args.quick else (2, 3, 4, 5))
+    seeds = range(args.seeds or (5 if args.quick else 20))
+    design.prepare_finger_search(tuple((blocks, min(2, blocks)) for blocks in block_counts), table)
     cases = []
-    for name in OBJECTS:
-        mask = load_mask(OBJECTS_CATALOG.parent / catalog[name]["file"])
-        pixel = float(catalog[name]["pixel_size_m"])
+    load = os.getloadavg()[0]
+    for name, mask, pixel in objects():
         for blocks in block_counts:
-            seeds = range(20) if (args.full or (name == "asymmetric" and blocks == 4)) else range(3)
-            runs = [run(mask, pixel, blocks, "exact", 0, table)]
-            for seed in seeds:
-                runs.append(run(mask, pixel, blocks, "pso", seed, table))
-                print(f"\r{name} {blocks} blocks: PSO seed {seed}", end="", file=sys.stderr, flush=True)
-            certified = None
-            if args.certify and blocks == 4:
-                certified = run(mask, pixel, blocks, "exact", 0, table, options={"max_width": None}, time_budget=600)
-                print(f"\r{name} {blocks} blocks: certified run {certified['cost']:.4f} m in "
-                      f"{certified['solve_time']:.0f} s, optimal {certified['optimal']}", file=sys.stderr)
-            best = min(r["cost"] for r in runs + ([certified] if certified else []))
-            pso = [r for r in runs if r["method"] == "pso"]
-            exact = runs[0]
-            case = {
-                "object": name, "blocks": blocks, "best_known": best,
-                "exact": {k: exact[k] for k in ("cost", "solve_time", "left", "right", "optimal", "lower_bound")},
-                "pso_costs": [r["cost"] for r in pso],
-                "pso_median_time": float(np.median([r["solve_time"] for r in pso])),
-                "pso_failure_rate": float(np.mean([r["cost"] > (1 + FAILURE_MARGIN) * best for r in pso])),
-                "pso_collision_rate": float(np.mean([r["collision"] for r in pso])),
-                "traces": {"exact": exact["left_trace"], "pso": pso[0]["left_trace"]},
-            }
-            if certified:
-                case["certified"] = {k: certified[k] for k in ("cost", "solve_time", "optimal", "lower_bound", "left",
-                                                               "right")}
+            exact = exact_runs(mask, pixel, blocks, table)
+            reference = brute_force(mask, pixel, blocks, table) if blocks == 2 else None
+            pso = pso_runs(mask, pixel, blocks, table, seeds)
+            best = min([exact["cost"]] + pso["costs"])
+            case = {"object": name, "blocks": blocks, "exact": exact, "brute_force": reference, "pso": pso,
+                    "best_known": best,
+                    "pso_cost_ratio": [c / best for c in pso["costs"]],
+                    "pso_collision_rate": float(np.mean(pso["collisions"])),
+                    "pso_worse_than_exact": int(sum(c < exact["cost"] - 1e-9 for c in pso["costs"]))}
             cases.append(case)
-            print(f"\r{name} {blocks} blocks: exact {exact['cost']:.4f} m in {exact['solve_time']:.1f} s; PSO median "
-                  f"{np.median(case['pso_costs']):.4g} m in {case['pso_median_time']:.1f} s, failure rate "
-                  f"{case['pso_failure_rate']:.0%} ({len(pso)} seeds)", file=sys.stderr)
+            print(f"{name} {blocks} blocks: exact {exact['cost']:.4f} m in {exact['time']:.2f} s "
+                  f"({'certified' if exact['certified'] else 'lower bound %.4f' % exact['lower_bound']}); "
+                  + (f"brute force {reference['cost']:.4f} m; " if reference else "")
+                  + f"PSO median ratio {np.median(case['pso_cost_ratio']):.3f}, collisions "
+                  f"{case['pso_collision_rate']:.0%}", file=sys.stderr, flush=True)
+    throughput = kernel_throughput(table)
+    print(f"placements/s: {throughput}", file=sys.stderr)
     FIGURES.mkdir(parents=True, exist_ok=True)
-    (FIGURES / "finger_optimizers.json").write_text(json.dumps({"cases": cases}, indent=1))
-    plot(cases)
+    (FIGURES / "finger_optimizers.json").write_text(json.dumps(
+        {"cases": cases, "placements_per_second": throughput, "budget_s": BUDGET, "load_average_1min": load,
+         "command": " ".join(sys.argv),
+         "load_average_1min_end": os.getloadavg()[0], "cpu_count": os.cpu_count()}, indent=1))
+    plot(cases, throughput)
 
 
-def plot(cases) -> None:
-    fig, (trace_ax, spread_ax) = plt.subplots(1, 2, figsize=(12, 4.5))
-    for case, colour in zip(cases, plt.cm.tab10.colors):
-        label = f"{case['object']} {case['blocks']}"
-        for method, style in (("exact", "-"), ("pso", ":")):
-            trace = np.array([p for p in case["traces"][method] if p[1] < 1e10])
-            if len(trace):
-                trace_ax.step(trace[:, 0], trace[:, 1], style, where="post", color=colour,
-                              label=f"{label} {method}")
-    trace_ax.set_xscale("log")
-    trace_ax.set_xlabel("wall time [s] (left finger)")
-    trace_ax.set_ylabel("best cost so far [m]")
-    trace_ax.set_title("cost vs time: exact (solid), PSO seed 0 (dotted)")
-    trace_ax.legend(fontsize=6, ncol=2)
-    labels = [f"{c['object'][:5]} {c['blocks']}" for c in cases]
-    ratios = [np.minimum(np.array(c["pso_costs"]) / c["best_known"], 3.0) for c in cases]
-    spread_ax.boxplot(ratios, tick_labels=labels)
-    spread_ax.scatter(range(1, len(cases) + 1), [c["exact"]["cost"] / c["best_known"] for c in cases],
-                      marker="*", color="k", zorder=3, label="exact")
-    proven = [(i + 1, c["certified"]["cost"] / c["best_known"]) for i, c in enumerate(cases)
-              if c.get("certified", {}).get("optimal")]
-    if proven:
-        spread_ax.scatter(*zip(*proven), marker="D", facecolor="none", edgecolor="g", s=60, zorder=4,
-                          label="certified optimum")
-    spread_ax.axhline(1 + FAILURE_MARGIN, color="r", lw=0.8, ls="--", label="failure threshold (+5 %)")
-    spread_ax.set_ylabel("cost / best known (capped at 3; collisions at 3)")
-    spread_ax.set_title("PSO over seeds (left + right finger)")
-    spread_ax.tick_params(axis="x", labelrotation=45, labelsize=7)
-    spread_ax.legend(fontsize=7)
+def plot(cases, throughput) -> None:
+    fig, (time_ax, ratio_ax, kernel_ax) = plt.subplots(1, 3, figsize=(15, 4.8),
+                                                        gridspec_kw={"width_ratios": [3, 3, 1]})
+    names = list(dict.fromkeys(c["object"] for c in cases))
+    for name, colour in zip(names, plt.cm.tab10.colors):
+        rows = [c for c in cases if c["object"] == name]
+        blocks = [c["blocks"] for c in rows]
+        times = [c["exact"]["time"] for c in rows]
+        time_ax.plot(blocks, times, "-", color=colour, label=name)
+        for c, t in zip(rows, times):
+            time_ax.plot(c["blocks"], t, "o" if c["exact"]["certified"] else "x", color=colour, ms=7)
+    time_ax.plot([3.8, 4.2], [1.0, 1.0], "g-", lw=2, label="goals: 1 s (4 blocks), 5 s (5 blocks)")
+    time_ax.plot([4.8, 5.2], [5.0, 5.0], "g-", lw=2)
+    time_ax.axhline(BUDGET, color="r", ls="--", lw=1, label=f"budget {BUDGET:.0f} s (x: not certified)")
+    time_ax.set_yscale("log")
+    time_ax.set_xlabel("blocks per finger")
+    time_ax.set_ylabel("time to certified optimum, finger pair [s]")
+    time_ax.set_title("exact search (o certified, x budget ran out)")
+    time_ax.legend(fontsize=7)
+    labels = [f"{c['object'][:6]} {c['blocks']}" for c in cases]
+    ratios = [np.minimum(c["pso_cost_ratio"], 3.0) for c in cases]
+    ratio_ax.boxplot(ratios, tick_labels=labels)
+    ratio_ax.scatter(range(1, len(cases) + 1), [c["pso_collision_rate"] * 3 for c in cases], marker="s",
+                     color="r", s=12, label="PSO collision rate (x 3)")
+    ratio_ax.axhline(1.0, color="k", lw=0.8)
+    ratio_ax.set_ylabel("PSO cost / best known (capped at 3; collisions at 3)")
+    ratio_ax.set_title(f"PSO over {len(cases[0]['pso']['costs'])} seeds (pair)")
+    ratio_ax.tick_params(axis="x", labelrotation=60, labelsize=6)
+    ratio_ax.legend(fontsize=7)
+    kernel_ax.bar(list(throughput), list(throughput.values()), color=["0.6", "tab:blue"])
+    kernel_ax.set_yscale("log")
+    kernel_ax.set_ylabel("block placements evaluated / s")
+    kernel_ax.tick_params(axis="x", labelsize=7)
     fig.tight_layout()
     fig.savefig(FIGURES / "finger_optimizers.png", dpi=110)
 

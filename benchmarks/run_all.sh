@@ -11,6 +11,7 @@ benchmarks=(
     kinematics_throughput.py
     image_estimation.py
     finger_optimizers.py
+    gripper_design.py
     path_optimizers.py
     hv_loop.py
     hv_ramp.py

@@ -1,19 +1,21 @@
 """HV supply driver with a safety supervisor (no ROS).
 
-Public API: `HvSupply` (driver), `ChannelConfig` (per-channel limits), `Fault` (latched fault
-bits, equal to HvChannelState.msg), `SupplySnapshot` / `ChannelSnapshot`, `RampHandle`, and the
+Public API: `HvSupply` (driver), `ChannelConfig` (per-channel limits), `DIALECTS` / `dialect(name)` (the supplies
+it speaks), `Fault` (latched fault
+bits, equal to HvChannelState.msg), `SupplySnapshot` / `ChannelSnapshot`, `RampHandle`, `PulseHandle` (periodic actuation), and the
 errors, all `HvError`: `SettingError` (and its `LimitError`), `StateError`, `FaultLatchedError`,
-`ConfigurationError`, `LinkError`, `ProtocolError`.
+`ConfigurationError`, `LinkError`, `ProtocolError`, `PulseLimitError` (a waveform the supply cannot produce).
 """
 from .config import ChannelConfig
 from .control import ControlError
-from .dialects import Dialect, IsegEdcp, ProtocolError
-from .driver import ChannelSnapshot, ConfigurationError, HvSupply, RampHandle, SupplySnapshot
+from .dialects import DIALECTS, Dialect, IsegEdcp, ProtocolError, dialect
+from .driver import ChannelSnapshot, ConfigurationError, HvSupply, PulseHandle, RampHandle, SupplySnapshot
+from .pulse import PulseLimitError
 from .errors import HvError, SettingError, StateError
 from .faults import Fault, fault_names
 from .link import LinkError
 from .supervisor import FaultLatchedError, LimitError, Supervisor
 
-__all__ = ["ChannelConfig", "ChannelSnapshot", "ConfigurationError", "ControlError", "Dialect", "Fault",
+__all__ = ["ChannelConfig", "ChannelSnapshot", "ConfigurationError", "ControlError", "DIALECTS", "Dialect", "Fault",
            "FaultLatchedError", "HvError", "HvSupply", "IsegEdcp", "LimitError", "LinkError", "ProtocolError",
-           "RampHandle", "SettingError", "StateError", "Supervisor", "SupplySnapshot", "fault_names"]
+           "PulseHandle", "PulseLimitError", "RampHandle", "SettingError", "StateError", "Supervisor", "SupplySnapshot", "dialect", "fault_names"]

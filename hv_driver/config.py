@@ -16,7 +16,8 @@ class ChannelConfig:
     """Limits of one output channel.
 
     name: label used by every API ("front", "back").
-    index: channel number on the supply (0-based, as in ``(@0)``).
+    index: channel number on its supply (0-based, as in ``(@0)``; 0 on a single-channel supply).
+    device: which supply the channel is on: the position of its port in HvSupply's port list (0 for one supply).
     max_voltage_v: hard maximum [V]; the ceiling never exceeds it (the assembly's safe voltage and the
         supply's own limit may lower it further).
     slew_rate_v_per_s: maximum rate of change of the commanded voltage [V/s]; at least the rate that
@@ -38,10 +39,12 @@ class ChannelConfig:
     mismatch_time_s: float = 0.5
     creep_voltage_v: float | None = None
     max_time_at_voltage_s: float | None = None
+    device: int = 0
 
     def __post_init__(self):
         _require(isinstance(self.name, str) and self.name != "", "name", self.name, "non-empty string")
         _require(isinstance(self.index, int) and self.index >= 0, "index", self.index, "integer >= 0")
+        _require(isinstance(self.device, int) and self.device >= 0, "device", self.device, "integer >= 0")
         for parameter in ("max_voltage_v", "slew_rate_v_per_s", "current_trip_a", "mismatch_tolerance_v",
                           "mismatch_time_s"):
             value = getattr(self, parameter)

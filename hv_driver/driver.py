@@ -1,7 +1,9 @@
-"""HvSupply: owns the serial link, runs the supervised control loop in its own thread.
+"""HvSupply: owns the serial links of one or more supplies, runs the supervised control loop in its own thread.
 
-Thread model: one loop thread does all serial I/O; the public methods (thread-safe) only change
-the supervisor's state under a lock and wake the loop, which applies the change within one cycle.
+Thread model: one loop thread does all serial I/O; the public methods (thread-safe) only change the supervisor's
+state under a lock and wake the loop, which applies the change within one cycle. Each supply (one port, a
+`Device`) is served in turn every cycle; a failing link trips only the channels on it. What is sent to a supply
+is chosen from its dialect's capabilities (device.py); nothing here depends on one dialect.
 """
 import atexit
 import logging
@@ -10,31 +12,19 @@ import signal
 import threading
 import time
 import weakref
+from collections.abc import Sequence
 from dataclasses import dataclass
 
-import serial
-
 from .config import ChannelConfig
-from .dialects import Dialect, IsegEdcp, ProtocolError
-from .dialects.iseg_edcp import TRIP_ACTION_OFF_WITHOUT_RAMP
-from .errors import HvError, SettingError, StateError
+from .device import ConfigurationError, Device
+from .dialects import CurrentSensing, Dialect, IsegEdcp, ProtocolError
+from .errors import SettingError, StateError
 from .faults import Fault
-from .link import Link, LinkError
-from .supervisor import DEFAULT_HEARTBEAT_TIMEOUT_S, ChannelCommand, Supervisor
-
-# The device-side ramp is set this much faster than the host slew limit: fast enough to follow the
-# streamed setpoints, slow enough to cap the slew if the host misbehaves.
-DEVICE_RAMP_MARGIN = 1.2
-# Device-side current trip limit relative to the host trip level, and its delay: a second line of
-# defence that acts only if the host loop fails to.
-DEVICE_CURRENT_MARGIN = 1.5
-DEVICE_TRIP_TIME_S = 0.1
+from .link import LinkError
+from .pulse import PulseTrain, plan_pulse_train
+from .supervisor import DEFAULT_HEARTBEAT_TIMEOUT_S, Supervisor
 
 log = logging.getLogger(__name__)
-
-
-class ConfigurationError(HvError, RuntimeError):
-    """The device did not accept or read back the configured limits."""
 
 
 @dataclass(frozen=True)
@@ -44,20 +34,21 @@ class ChannelSnapshot:
     setpoint: float            # [V] commanded to the supply
     target: float              # [V] end of the running ramp
     measured_voltage: float    # [V]
-    measured_current: float    # [A]
+    measured_current: float    # [A]; NaN on a supply without current readback
     ceiling: float             # [V]
     output_enabled: bool
     ramping: bool
     faults: Fault
     fault_text: str
+    port: str = ""             # the port of the channel's supply
 
 
 @dataclass(frozen=True)
 class SupplySnapshot:
-    device_id: str
-    port: str
+    device_id: str             # identification of each supply, "; "-separated
+    port: str                  # port of each supply, ", "-separated
     estop: bool
-    link_error: str            # last failed exchange, "" when the last one succeeded
+    link_error: str            # last failed exchange of any supply, "" when the last ones succeeded
     stamp: float               # clock time [s] of the last control cycle's setpoints
     channels: tuple[ChannelSnapshot, ...]
     controller: str = ""       # name of the client holding control, "" when none
@@ -75,15 +66,6 @@ class _Applied:
     ramp_id: int = 0
     ramping: bool = False
     settled: bool = True  # the readback of that cycle within the mismatch tolerance of the setpoint
-
-
-@dataclass
-class _Sent:
-    """What the device was last told on one channel."""
-
-    setpoint: float = 0.0
-    output_on: bool = False
-    emergency: bool = False
 
 
 class RampHandle:
@@ -139,23 +121,106 @@ class RampHandle:
         return down
 
 
-class HvSupply:
-    """A multi-channel HV supply behind the safety supervisor.
+class PulseHandle:
+    """A running pulse train on one or more channels: ``wait``, ``done``, ``cancel`` (back to 0 V), ``cycles_done``
+    (periods begun on the driver's clock), ``frequency`` (as the device quantised it, or as generated)."""
 
-    port: pyserial URL or device path (a pty path for the simulated supply).
+    def __init__(self, supply: "HvSupply", trains: dict[str, PulseTrain], ramp_ids: dict[str, int]):
+        self._supply, self.trains, self._ramp_ids = supply, trains, ramp_ids
+        self._channels = [RampHandle(supply, name, ramp_ids[name], trains[name].end) for name in trains]
+        self.generated_by = "device" if next(iter(trains.values())).on_device else "loop"
+        self._ended_at: float | None = None
+        self._failure: str | None = None  # why it failed, as it stood before the others were stopped
+
+    def _ended(self) -> bool:
+        """Every channel's train is over, or one ended without completing (fault, superseded)."""
+        states = [(channel, channel._state()[1]) for channel in self._channels]
+        return all(done for _, done in states) or any(done and not c.succeeded for c, done in states)
+
+    @property
+    def done(self) -> bool:
+        with self._supply._lock:
+            return self._ended()
+
+    @property
+    def short_pulses(self) -> dict[str, int]:
+        """Per channel of a streamed train: pulses that fell short of the amplitude (see `PulseTally`)."""
+        with self._supply._lock:
+            tallies = {name: self._supply._supervisor.channel(name).pulse_tally for name in self.trains}
+            return {name: tally.short for name, tally in tallies.items()
+                    if tally is not None and tally.ramp_id == self._ramp_ids[name]}
+
+    @property
+    def message(self) -> str:
+        """Why it ended ("" while it runs): the channels that did not complete or whose pulses fell short, else
+        "completed"."""
+        if not self.done:
+            return ""
+        if self._failure is not None:
+            return self._failure
+        failed = [f"{c.channel}: {c.message}" for c in self._channels if c.done and not c.succeeded]
+        train = next(iter(self.trains.values()))
+        failed += [f"{name}: {short} of {train.cycles} pulses fell short of {train.amplitude:g} V (the control loop "
+                   f"fell behind; slew-limited, it does not catch up)" for name, short in self.short_pulses.items()
+                   if short]
+        return "; ".join(failed) if failed else f"completed {self.cycles_done} cycles"
+
+    @property
+    def succeeded(self) -> bool:
+        return (self.done and all(channel.succeeded for channel in self._channels)
+                and not any(self.short_pulses.values()))
+
+    @property
+    def cycles_done(self) -> int:
+        if self._ended_at is None and self.done:
+            self._ended_at = self._supply._clock()
+        at = self._supply._clock() if self._ended_at is None else self._ended_at
+        return min(train.cycles_done(at) for train in self.trains.values())
+
+    @property
+    def frequency(self) -> float:
+        """[Hz] the device's quantised frequency once it is armed (square), else the requested one."""
+        with self._supply._lock:
+            answered = [d.sent[n].frequency for d in self._supply._devices for n in self.trains
+                        if n in d.sent and d.sent[n].armed is self.trains[n]]
+        return answered[0] if answered else next(iter(self.trains.values())).frequency
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Block until every channel's train ends or ``timeout`` [s] passes; True when they ended."""
+        with self._supply._cycle_done:
+            ended = self._supply._cycle_done.wait_for(self._ended, timeout)
+        if ended and not self.succeeded and self._failure is None:  # the others stop too (one train, one outcome)
+            self._failure = self.message
+            for channel in self._channels:
+                if not channel.done:
+                    channel.cancel()
+        return ended
+
+    def cancel(self) -> None:
+        """Stop the train: each channel still running it goes back to 0 V (square: at once; smooth: ramped); the
+        handle then follows those ramps down."""
+        self._channels = [channel.cancel() or channel for channel in self._channels]
+
+
+class HvSupply:
+    """One or more HV supplies behind the safety supervisor.
+
+    port: pyserial URL or device path of the supply (a pty path for the simulated supply), or a list of them, one
+        per supply (e.g. one single-channel board per leg); a channel's ``device`` is its supply's position in it.
+    dialect: the supplies' dialect (all of one kind); default iseg EDCP.
     channels: one ChannelConfig per output used.
     loop_rate_hz: control loop rate; each cycle sends new setpoints and reads voltage, current
         and status of every channel.
-    link_timeout_s: no valid reply for this long trips LINK.
+    link_timeout_s: no valid reply from a supply for this long trips LINK on its channels.
     heartbeat_timeout_s: the client holding control (`claim_control`) must call `heartbeat(token)` (or
         ramp) this often, or its control lapses and its energised outputs ramp to 0 V (HEARTBEAT).
         math.inf switches the watchdog off on purpose; the driver then warns at every `open()`.
-    reply_timeout_s: time allowed for one echoed answer (default: a quarter of link_timeout_s).
-    expected_identity: text the device's identification (``*IDN?``) must contain, e.g. its model, checked at
+    reply_timeout_s: time allowed for one answer (default: a quarter of link_timeout_s).
+    expected_identity: text each device's identification (``*IDN?``) must contain, e.g. its model, checked at
         `open`; "" checks nothing.
     """
 
-    def __init__(self, port: str, baudrate: int | None = None, channels: list[ChannelConfig] = (),
+    def __init__(self, port: str | Sequence[str], baudrate: int | None = None, channels: list[ChannelConfig] = (),
                  loop_rate_hz: float = 100.0, link_timeout_s: float = 0.5,
                  heartbeat_timeout_s: float = DEFAULT_HEARTBEAT_TIMEOUT_S, reply_timeout_s: float | None = None,
                  dialect: Dialect | None = None, handle_signals: bool = True, clock=time.monotonic,
@@ -165,17 +230,22 @@ class HvSupply:
         reply_timeout_s = link_timeout_s / 4 if reply_timeout_s is None else reply_timeout_s
         if not (math.isfinite(reply_timeout_s) and 0 < reply_timeout_s < link_timeout_s):
             raise SettingError(f"reply_timeout_s={reply_timeout_s!r}: > 0 and below link_timeout_s")
-        self.port_name = port
+        ports = [port] if isinstance(port, str) else list(port)
+        self.configs = list(channels)
+        for config in self.configs:
+            if config.device >= len(ports):
+                raise SettingError(f"channel {config.name!r}: device={config.device}, but only {len(ports)} port(s) "
+                                   f"are given: {ports}")
+        self.port_name = ", ".join(ports)
         self.expected_identity = expected_identity
         self.dialect = dialect or IsegEdcp()
-        self.baudrate = baudrate or self.dialect.default_baudrate
-        self.configs = list(channels)
         self._clock = clock
         self._period = 1.0 / loop_rate_hz
         self._supervisor = Supervisor(self.configs, link_timeout_s=link_timeout_s,
                                       heartbeat_timeout_s=heartbeat_timeout_s, nominal_period_s=self._period,
                                       now=clock())
-        self._reply_timeout = reply_timeout_s
+        self._devices = [Device(name, baudrate, self.dialect, [c for c in self.configs if c.device == k],
+                                reply_timeout_s) for k, name in enumerate(ports)]
         self._link_timeout = link_timeout_s
         self._handle_signals = handle_signals
         self._lock = threading.RLock()
@@ -183,105 +253,79 @@ class HvSupply:
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._port = self._link = None
-        self._sent = {c.name: _Sent() for c in self.configs}
         self._measured = {c.name: (0.0, 0.0) for c in self.configs}
         self._applied = {c.name: _Applied() for c in self.configs}
         self._reconfigure = self._device_reset = False
-        self._link_error = ""
         self._cycles = 0
         self._stamp = clock()
-        self.device_id = ""
+        self._next_start: float | None = None  # start of the next train a supply switches, if one is armed
+
+    @property
+    def device_id(self) -> str:
+        return "; ".join(device.device_id for device in self._devices)
 
     # --- lifecycle -----------------------------------------------------------------------------
     def open(self) -> "HvSupply":
-        """Open the port, identify the supply, set and read back its limits, start the loop."""
+        """Open every port, identify each supply, set and read back its limits, start the loop."""
+        opened = []
         try:
-            self._port = serial.serial_for_url(self.port_name, baudrate=self.baudrate,
-                                               timeout=self._reply_timeout, write_timeout=self._reply_timeout)
-        except (serial.SerialException, OSError, ValueError) as error:
-            raise LinkError(f"cannot open {self.port_name!r}: {error}") from error
-        self._link = Link(self._port, self.dialect, self._reply_timeout)
-        failing_since = None
-        try:
-            while True:
-                try:
-                    self._start_session()
-                    break
-                except (LinkError, ProtocolError):
-                    # The link watchdog's rule: only answers failing for longer than link_timeout_s mean a dead
-                    # supply; one still starting up (a simulator on a loaded host) gets the same grace.
-                    failing_since = self._clock() if failing_since is None else failing_since
-                    if self._clock() - failing_since > self._link_timeout:
-                        raise
+            for device in self._devices:
+                device.open_port()
+                opened.append(device)
+                self._start_session(device)
         except (LinkError, ProtocolError, ConfigurationError):
-            self._port.close()
+            for device in opened:
+                device.close_port()
             raise
         if self._supervisor.heartbeat_watchdog_off:
             log.warning("heartbeat watchdog OFF (heartbeat_timeout_s=inf) on %s: energised outputs stay on "
                         "when the controlling client dies", self.port_name)
-        self._supervisor.link_ok(self._clock())
+        for k, _ in enumerate(self._devices):
+            self._supervisor.link_ok(self._clock(), k)
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name=f"hv-loop {self.port_name}", daemon=True)
         self._thread.start()
         self._install_exit_guards()
         return self
 
-    def _start_session(self) -> None:
-        """Identify, check the channels, switch every output off, configure the device side and take in what
-        an earlier session left (outputs still up, latched device faults). Every step may be repeated."""
-        self.device_id = self._link.query("identify")
-        if self.expected_identity not in self.device_id:
-            raise ConfigurationError(f"device on {self.port_name} identifies as {self.device_id!r}, "
-                                     f"expected_identity={self.expected_identity!r} is not part of it")
-        self._check_channels(*self._link.query("read_channel_count"))
-        indices = [c.index for c in self.configs]
-        self._link.query("set_voltage", indices, 0.0)  # known state: 0 V, off (an output left on ramps down)
-        self._link.query("output_off", indices)
-        self._configure_device()
-        registers = zip(self._link.query("read_status", indices), self._link.query("read_event_status", indices))
-        voltages = self._link.query("measure_voltage", indices)
+    def _start_session(self, device: Device) -> None:
+        """Identify, check the channels, switch every output off, configure the device side and take in what an
+        earlier session left (outputs still up, latched device faults). The steps are repeated while answers keep
+        failing, for up to link_timeout_s (the link watchdog's rule: a supply still starting up, e.g. a simulator
+        on a loaded host, is not a dead one)."""
+        failing_since = None
+        while True:
+            try:
+                device.identify(self.expected_identity)
+                device.switch_all_off()
+                self._configure(device)
+                found = device.found()
+                break
+            except (LinkError, ProtocolError):
+                failing_since = self._clock() if failing_since is None else failing_since
+                if self._clock() - failing_since > self._link_timeout:
+                    raise
         with self._lock:
-            for config, (status, events), voltage in zip(self.configs, registers, voltages):
-                channel = self._supervisor.channel(config.name)
+            for name, (voltage, report) in found.items():
+                channel = self._supervisor.channel(name)
                 channel.output_found(self._clock(), voltage)
-                report = self.dialect.status_report(status, events)
                 if report.fault:  # a latched device fault survives reconnects until reset on purpose
                     channel.trip(Fault.DEVICE, report.fault)
-                    self._sent[config.name].emergency = True
+                    device.sent[name].emergency = True
 
-    def _check_channels(self, count: int) -> None:
-        """Refuse configured channel indices the supply does not have (it reports its channel count)."""
-        for config in self.configs:
-            if config.index >= count:
-                raise ConfigurationError(f"channel {config.name!r}: index {config.index} is not on this supply, "
-                                         f"which has {count} channel(s) (indices 0-{count - 1})")
-
-    def _configure_device(self) -> None:
-        """Device-side second line of defence: ramp speed, current limit and trip; read back."""
-        for config in self.configs:
-            ch = [config.index]
-            ramp = config.slew_rate_v_per_s * DEVICE_RAMP_MARGIN
-            current = config.current_trip_a * DEVICE_CURRENT_MARGIN
-            trip_ms = DEVICE_TRIP_TIME_S * 1000.0
-            for operation, value in (("set_ramp_up", ramp), ("set_ramp_down", ramp),
-                                     ("set_current_limit", current), ("set_trip_time", trip_ms),
-                                     ("set_trip_action", TRIP_ACTION_OFF_WITHOUT_RAMP)):
-                self._link.query(operation, ch, value)
-            for operation, expected in (("read_ramp", ramp), ("read_current_limit", current),
-                                        ("read_trip_time", trip_ms)):
-                (actual,) = self._link.query(operation, ch)
-                if not math.isclose(actual, expected, rel_tol=1e-3):
-                    raise ConfigurationError(f"channel {config.name!r}: {operation} reads {actual:g}, "
-                                             f"configured {expected:g}")
-            (limit,) = self._link.query("read_voltage_limit", ch)
-            with self._lock:
-                channel = self._supervisor.channel(config.name)
-                channel.set_device_limit(limit)
-                channel.set_device_ramp(ramp)  # read back above: outputs move, and ramp down when off, at it
+    def _configure(self, device: Device) -> None:
+        """Device-side second line of defence, read back; the supervisor learns the supply's limit and ramp."""
+        sides = device.configure()
+        with self._lock:
+            for name, side in sides.items():
+                channel = self._supervisor.channel(name)
+                channel.set_device_limit(side.voltage_limit)
+                channel.set_device_ramp(side.ramp_rate_v_per_s)  # outputs move, and ramp down when off, at it
+                # Without current readback a breakdown shows only as the voltage collapsing.
+                channel.breakdown_guard = device.capabilities.current is CurrentSensing.NONE
 
     def close(self, ramp_down_timeout: float = 5.0) -> None:
-        """Ramp every output to 0 V and switch it off, stop the loop, close the port."""
+        """Ramp every output to 0 V and switch it off, stop the loop, close the ports."""
         if self._thread is None:
             return
         for name in self._supervisor.channels:
@@ -302,19 +346,12 @@ class HvSupply:
         if self._thread is not threading.current_thread():
             self._thread.join(timeout=2.0)
         self._thread = None
-        indices = [c.index for c in self.configs]
-        steps = ["emergency_off"] if emergency else []
         try:
-            for operation in steps + ["set_voltage", "output_off"]:
-                self._link.query(operation, indices, 0.0 if operation == "set_voltage" else None)
-        except (LinkError, ProtocolError):
-            if not emergency:
-                try:
-                    self._link.query("emergency_off", indices)
-                except (LinkError, ProtocolError):
-                    pass  # the link is gone: the device-side limits and watchdog remain
+            for device in self._devices:
+                device.shut_down(emergency)
         finally:
-            self._port.close()
+            for device in self._devices:
+                device.close_port()
             self._remove_exit_guards()
 
     def __enter__(self):
@@ -370,6 +407,21 @@ class HvSupply:
             lambda now: self._supervisor.ramp_to(channel, now, target_v, slew_rate_v_per_s, token=token))
         return RampHandle(self, channel, ramp_id, float(target_v))
 
+    def pulse(self, channels: Sequence[str], amplitude_v: float, frequency_hz: float, duty: float = 0.5,
+              phase: float = 0.0, cycles: int = 1, edge: str = "smooth", slew_rate_v_per_s: float | None = None, *,
+              token: str) -> "PulseHandle":
+        """Switch ``channels`` together between 0 V and ``amplitude_v``, ``cycles`` periods at ``frequency_hz``,
+        on for ``duty`` of each period, the on-edges delayed by ``phase`` of a period on a time grid shared by
+        every train of that frequency. ``edge`` "square": the device switches itself (supplies with device-side
+        switching); "smooth": minimum-jerk edges at ``slew_rate_v_per_s`` (None: the configured slew limit),
+        generated in this loop. What the supply cannot produce raises PulseLimitError naming the limit, before
+        anything changes (all channels or none); the control claim applies as for `ramp_to`."""
+        def plan(config, now):
+            return plan_pulse_train(config, self.dialect.capabilities, self.dialect.name, now, self._period,
+                                    amplitude_v, frequency_hz, duty, phase, cycles, edge, slew_rate_v_per_s)
+        trains, ramp_ids = self._change(lambda now: self._supervisor.pulse(list(channels), now, plan, token=token))
+        return PulseHandle(self, trains, ramp_ids)
+
     def claim_control(self, client: str) -> str:
         """Take control as ``client`` (a name); returns the session token that ramps and heartbeats carry.
         ControlError while another client holds control."""
@@ -402,8 +454,11 @@ class HvSupply:
         return self._change(reset)
 
     def reset_device(self) -> None:
-        """Send ``*RST`` (outputs off, Vset 0, device defaults), then set and read back the device limits
-        again; only with every output off. Latched faults stay latched."""
+        """Send each supply's own reset (outputs off, Vset 0, device defaults), then set and read back the device
+        limits again; only with every output off, and only on supplies that have a reset. Latched faults stay."""
+        without = [d.port_name for d in self._devices if not d.has("reset")]
+        if without:
+            raise StateError(f"reset_device: the {self.dialect.name} supply has no reset command ({without})")
         with self._lock:
             if any(c.output_enabled for c in self._supervisor.channels.values()):
                 raise StateError("reset_device: switch every output off first (disable)")
@@ -412,15 +467,17 @@ class HvSupply:
 
     def snapshot(self) -> SupplySnapshot:
         with self._lock:
+            ports = {c.name: self._devices[c.device].port_name for c in self.configs}
             channels = tuple(
                 ChannelSnapshot(name=c.config.name, index=c.config.index, setpoint=c.setpoint, target=c.target,
                                 measured_voltage=self._measured[name][0], measured_current=self._measured[name][1],
                                 ceiling=c.ceiling, output_enabled=c.output_enabled, ramping=c.ramping,
-                                faults=c.faults, fault_text=c.fault_text)
+                                faults=c.faults, fault_text=c.fault_text, port=ports[name])
                 for name, c in self._supervisor.channels.items())
             control = self._supervisor.control
+            link_error = "; ".join(d.link_error for d in self._devices if d.link_error)
             return SupplySnapshot(self.device_id, self.port_name, self._supervisor.estop_latched,
-                                  self._link_error, self._stamp, channels, control.owner or "",
+                                  link_error, self._stamp, channels, control.owner or "",
                                   control.heartbeat_age(self._clock()), self._supervisor.heartbeat_timeout_s)
 
     def wait_outputs_off(self, timeout: float | None = None) -> bool:
@@ -445,6 +502,8 @@ class HvSupply:
                 delay = next_cycle - self._clock()
                 if delay < -self._period:  # fell behind: restart the schedule instead of bursting
                     next_cycle, delay = self._clock(), 0.0
+                if self._next_start is not None:  # a train the supply switches starts on time, not on the grid
+                    delay = min(delay, self._next_start - self._clock())
                 if tripped or self._wake.wait(max(0.0, delay)):
                     # A new fault or a request (e-stop, ramp): run at once and keep the period from there.
                     self._wake.clear()
@@ -457,10 +516,19 @@ class HvSupply:
             raise
 
     def _safe_off_from_loop(self) -> None:
-        try:
-            self._link.query("emergency_off", [c.index for c in self.configs])
-        except (LinkError, ProtocolError):
-            pass
+        for device in self._devices:
+            try:
+                device.cut(device.configs)
+            except (LinkError, ProtocolError):
+                pass
+
+    def _start_due_trains(self, pulses: dict) -> None:
+        """Start every armed train the supplies switch whose start has come, before any other exchange."""
+        for device in self._devices:
+            try:
+                device.start_due_trains(pulses, self._clock())
+            except (LinkError, ProtocolError):
+                pass  # retried by apply, where a failure counts against the link
 
     def _cycle(self) -> bool:
         """One control cycle; True when a new fault latched (the next cycle then runs at once)."""
@@ -471,77 +539,52 @@ class HvSupply:
             reconfigure, self._reconfigure = self._reconfigure, False
             device_reset, self._device_reset = self._device_reset, False
             faults_before = {n: c.faults for n, c in self._supervisor.channels.items()}
-        try:
-            if device_reset:
-                self._link.query("reset")
-                self._sent = {c.name: _Sent() for c in self.configs}  # latched faults cut again below
-            if reconfigure:
-                self._configure_device()
-            self._emergency_off([c for c in self.configs
-                                 if commands[c.name].emergency_off and not self._sent[c.name].emergency])
-            for config in self.configs:
-                if not commands[config.name].emergency_off:
-                    self._apply(config, commands[config.name])
-            indices = [c.index for c in self.configs]
-            voltages = self._link.query("measure_voltage", indices)
-            currents = self._link.query("measure_current", indices)
-            statuses = self._link.query("read_status", indices)
-            events = self._link.query("read_event_status", indices)
-        except (LinkError, ProtocolError, ConfigurationError) as error:
-            with self._cycle_done:
-                self._supervisor.link_failed(self._clock())
-                self._link_error = str(error)
-                self._reconfigure |= reconfigure
-                self._device_reset |= device_reset
-                self._cycles += 1
-                self._cycle_done.notify_all()
-            return False
+        pulses = {name: c.pulse for name, c in commands.items() if c.output_on and not c.emergency_off}
+        self._next_start = min((t.start for t in pulses.values() if t is not None and t.start > self._stamp),
+                               default=None)
+        for k, device in enumerate(self._devices):
+            self._start_due_trains(pulses)  # between the supplies' exchanges too: a slow cycle delays no start
+            try:
+                if device_reset:
+                    device.reset()  # latched faults are cut again below
+                if reconfigure:
+                    self._configure(device)
+                device.cut([c for c in device.configs
+                            if commands[c.name].emergency_off and not device.sent[c.name].emergency])
+                for config in device.configs:
+                    command = commands[config.name]
+                    if not command.emergency_off:
+                        device.apply(config, command.setpoint, command.output_on, command.pulse, self._clock())
+                readings = device.read()
+            except (LinkError, ProtocolError, ConfigurationError) as error:
+                with self._lock:
+                    self._supervisor.link_failed(self._clock(), k)
+                    device.link_error = str(error)
+                    self._reconfigure |= reconfigure
+                    self._device_reset |= device_reset
+                continue
+            with self._lock:
+                now = self._clock()
+                self._supervisor.link_ok(now, k)
+                device.link_error = ""
+                for config in device.configs:
+                    reading, sent = readings[config.name], device.sent[config.name]
+                    fault, over_current = None, False
+                    if not sent.emergency:  # after our own cut the device flags are expected
+                        fault, over_current = reading.report.fault, reading.report.over_current
+                        # An output the device cut for over-current is explained by that fault.
+                        if (fault is None and not over_current and sent.output_on != reading.report.output_on
+                                and not device.count_ended(config, now)):
+                            fault = "supply output " + ("off although commanded on (reset or interlock)"
+                                                        if sent.output_on else "on although commanded off")
+                    self._supervisor.channel(config.name).observe(now, reading.voltage, reading.current, fault,
+                                                                  over_current)
+                    current = math.nan if reading.current is None else reading.current
+                    self._measured[config.name] = (reading.voltage, current)
+                    ramp_id, ramping, setpoint = stepped[config.name]
+                    self._applied[config.name] = _Applied(ramp_id, ramping,
+                                                          abs(reading.voltage - setpoint) <= config.mismatch_tolerance_v)
         with self._cycle_done:
-            now = self._clock()
-            self._supervisor.link_ok(now)
-            self._link_error = ""
-            for config, voltage, current, status, event in zip(self.configs, voltages, currents, statuses, events):
-                report = self.dialect.status_report(status, event)
-                sent = self._sent[config.name]
-                fault, over_current = None, False
-                if not sent.emergency:  # after our own emergency off the device flags are expected
-                    fault, over_current = report.fault, report.over_current
-                    if fault is None and sent.output_on != report.output_on:
-                        fault = "supply output " + ("off although commanded on (reset or interlock)"
-                                                    if sent.output_on else "on although commanded off")
-                self._supervisor.channel(config.name).observe(now, voltage, current, fault, over_current)
-                self._measured[config.name] = (voltage, current)
-                ramp_id, ramping, setpoint = stepped[config.name]
-                self._applied[config.name] = _Applied(ramp_id, ramping,
-                                                      abs(voltage - setpoint) <= config.mismatch_tolerance_v)
             self._cycles += 1
             self._cycle_done.notify_all()
             return any(c.faults != faults_before[n] for n, c in self._supervisor.channels.items())
-
-    def _emergency_off(self, configs: list[ChannelConfig]) -> None:
-        """Cut the outputs of every newly faulted channel in one line (retried each cycle until acknowledged)."""
-        if configs:
-            indices = [c.index for c in configs]
-            self._link.query("emergency_off", indices)
-            for config in configs:
-                self._sent[config.name] = _Sent(0.0, False, True)
-            self._link.query("set_voltage", indices, 0.0)
-
-    def _apply(self, config: ChannelConfig, command: ChannelCommand) -> None:
-        """Send what changed on one channel since the last cycle."""
-        sent, ch = self._sent[config.name], [config.index]
-        if sent.emergency:  # faults were reset: release the device's latched emergency off
-            self._link.query("emergency_clear", ch)
-            self._link.query("clear_events", ch)
-            sent.emergency = False
-        if command.output_on and not sent.output_on:
-            self._link.query("set_voltage", ch, 0.0)
-            self._link.query("output_on", ch)
-            sent.setpoint, sent.output_on = 0.0, True
-        if command.output_on and command.setpoint != sent.setpoint:
-            self._link.query("set_voltage", ch, command.setpoint)
-            sent.setpoint = command.setpoint
-        if not command.output_on and sent.output_on:
-            self._link.query("set_voltage", ch, 0.0)
-            self._link.query("output_off", ch)
-            sent.setpoint, sent.output_on = 0.0, False

@@ -16,6 +16,7 @@ class Fault(IntFlag):
     TIME_AT_VOLTAGE = 16    # continuous time above the creep threshold exceeded
     ESTOP = 32              # emergency stop
     DEVICE = 64             # the supply itself reported a trip, interlock or reset
+    BREAKDOWN = 128         # the output voltage collapsed far below a held setpoint (supply without current readback)
 
 
 def fault_names(faults: Fault) -> str:

@@ -1,4 +1,5 @@
-"""Line framing over a serial port: write a command, check its echo, read the one answer line."""
+"""Line framing over a serial port: write a command, check its echo (if the device echoes), read the answer line
+(if the operation has one)."""
 import termios
 import time
 
@@ -33,27 +34,27 @@ class Link:
         """Run ``operation`` and return its decoded answer (see `Dialect.decode`)."""
         line = self.dialect.encode(operation, channels, value)
         try:
-            reply = self._exchange(line)
-            return self.dialect.decode(operation, reply, max(1, len(channels)))
+            reply = self._exchange(line, self.dialect.expects_reply(operation))
+            return None if reply is None else self.dialect.decode(operation, reply, max(1, len(channels)), line)
         except (LinkError, ProtocolError):
             self._stale = True
             raise
 
-    def _exchange(self, line: str) -> str:
+    def _exchange(self, line: str, answered: bool) -> str | None:
         if self._stale:
             self._buffer.clear()
             self._call(self.port.reset_input_buffer)
             self._stale = False
-        self._call(self.port.write, line.encode("ascii") + self.dialect.terminator)
+        self._call(self.port.write, line.encode("ascii") + self.dialect.command_terminator)
         deadline = time.monotonic() + self.reply_timeout
         if self.dialect.echo:
             echo = self._read_line(deadline, line)
             if echo != line:
                 raise ProtocolError(f"wrong echo {echo!r} for {line!r}")
-        return self._read_line(deadline, line)
+        return self._read_line(deadline, line) if answered else None
 
     def _read_line(self, deadline: float, line: str) -> str:
-        terminator = self.dialect.terminator
+        terminator = self.dialect.reply_terminator
         while (end := self._buffer.find(terminator)) < 0:
             if len(self._buffer) > MAX_LINE:
                 raise ProtocolError(f"reply to {line!r} longer than {MAX_LINE} bytes without terminator")
@@ -64,7 +65,7 @@ class Link:
                 what = f"partial reply {bytes(self._buffer)!r}" if self._buffer else "no reply"
                 raise LinkError(f"{what} to {line!r} within {self.reply_timeout:g} s")
             self._buffer += self._call(self.port.read, max(1, waiting))
-        raw = bytes(self._buffer[:end])
+        raw = bytes(self._buffer[:end]).rstrip(b"\r")  # a CR before an LF terminator is part of the line end
         del self._buffer[: end + len(terminator)]
         try:
             return raw.decode("ascii")

@@ -26,10 +26,14 @@ class ReadbackCheck:
         self.expected = 0.0   # [V] where a device ramping at ramp_rate would be now
         self._since = now     # time of the last command or readback the expectation was advanced to
         self._last_readback: float | None = None
+        self._switching = False  # the device switches by itself (see `switching`)
         self.off_for = 0.0    # [s] observed time off the expectation, counted from the first readback off it
         self._off = False
 
     def _advance(self, now: float) -> None:
+        if self._switching:  # anywhere from 0 V (expected) to the amplitude (commanded) fits
+            self._since = max(self._since, now)
+            return
         if self.ramp_rate_v_per_s is None:
             self.expected = self.commanded
         else:
@@ -39,10 +43,18 @@ class ReadbackCheck:
 
     def command(self, now: float, voltage: float, ramped: bool = True) -> None:
         """The device is told ``voltage`` at ``now``; ``ramped`` False: it drops without ramp (emergency off)."""
+        if self._switching:  # the device stops switching: its output falls from at most the amplitude
+            self._switching, self.expected = False, self.commanded
         self._advance(now)
         self.commanded = voltage
         if not ramped:
             self.expected = voltage
+
+    def switching(self, now: float, amplitude: float) -> None:
+        """The device switches its output between 0 V and ``amplitude`` by itself: any readback in between fits
+        until the next `command`."""
+        self._advance(now)
+        self.commanded, self.expected, self._switching = amplitude, 0.0, True
 
     def found(self, now: float, voltage: float) -> None:
         """The output was found at ``voltage`` (at open: left on by an earlier session); it ramps from there."""

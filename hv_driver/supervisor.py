@@ -14,23 +14,42 @@ Rules enforced here:
 - only the client holding control (its session token) may ramp or feed the heartbeat watchdog; the
   watchdog is on unless switched off on purpose (heartbeat_timeout_s=math.inf);
 - the readback must follow the commands at the device's own ramp (`ReadbackCheck`);
+- on a supply without current readback (breakdown guard on), a measured voltage far below a setpoint held for a
+  moment, or a pulse train none of whose pulses reaches half its amplitude for two periods, is a film breakdown
+  (BREAKDOWN);
+- a pulse train (`PulseTrain`) runs in place of a ramp: smooth trains are streamed within the slew limit, square
+  ones are switched by the device itself (the setpoint is their amplitude while it switches; stopping one drops the
+  output to 0 V at once, one more square edge of the kind it was making);
 - faults latch until `reset`; every fault but HEARTBEAT puts the output to 0 V and off at once
   (emergency off), a lost heartbeat ramps to 0 V at the slew limit and then switches off;
 - after a reset the outputs stay off until enabled again (never resume by themselves).
 """
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from .config import ChannelConfig
 from .control import ControlClaim
 from .errors import HvError, SettingError, StateError
 from .faults import Fault, fault_names
+from .pulse import PulseTally, PulseTrain
 from .ramp import MinimumJerkRamp, check_slew_rate
 from .readback import ReadbackCheck
 
 # A lost heartbeat ramps down smoothly; every other fault cuts the output at once.
 RAMP_DOWN_FAULTS = Fault.HEARTBEAT
 IMMEDIATE_FAULTS = Fault(sum(Fault)) & ~RAMP_DOWN_FAULTS
+
+# Breakdown guard (supplies without current readback): a readback below COLLAPSE_FRACTION of a setpoint of at least
+# COLLAPSE_MIN_V held for COLLAPSE_SETTLE_S (the output regulates towards it), COLLAPSE_READBACKS times in a row.
+COLLAPSE_FRACTION = 0.5
+COLLAPSE_MIN_V = 50.0
+COLLAPSE_SETTLE_S = 0.05
+COLLAPSE_READBACKS = 2
+# ... and while a pulse train runs whose on-phase spans at least PULSE_GUARD_MIN_CYCLES loop periods: no readback at
+# or above COLLAPSE_FRACTION of its amplitude for PULSE_GUARD_PERIODS periods of observed time.
+PULSE_GUARD_MIN_CYCLES = 3
+PULSE_GUARD_PERIODS = 2.0
 
 # The control loop's nominal period [s] unless told otherwise: the largest time step credited to the slew
 # allowance (a stalled loop resumes with a slew-limited move instead of a jump) and to the readback check.
@@ -54,6 +73,7 @@ class ChannelCommand:
     setpoint: float        # [V]
     output_on: bool
     emergency_off: bool    # a fault is latched: output off without ramp, setpoint 0
+    pulse: PulseTrain | None = None  # a square train the device switches by itself: armed, then from its start on
 
 
 def _finite(value) -> bool:
@@ -74,10 +94,16 @@ class ChannelSupervisor:
         self._reasons: dict[Fault, str] = {}
         self.safe_voltage: float | None = None
         self.device_limit: float | None = None
-        self._ramp: MinimumJerkRamp | None = None
+        self._ramp: MinimumJerkRamp | PulseTrain | None = None
         self._off_at_zero = False
         self._readback = ReadbackCheck(config.mismatch_tolerance_v, config.mismatch_time_s, max_step_s, self._clock)
         self._creep_since: float | None = None
+        self.breakdown_guard = False
+        self._held = (0.0, self._clock)  # (setpoint, since when) as last commanded
+        self._collapsed = 0              # readbacks in a row far below the held setpoint
+        self._low_for = 0.0              # [s] observed time a running pulse train has not reached its guard level
+        self._last_observed: float | None = None
+        self.pulse_tally: PulseTally | None = None  # the last streamed train's short pulses (kept after it ends)
         self.ramp_id = 0  # counts accepted ramp requests, so a waiting caller sees being superseded
 
     # --- state -------------------------------------------------------------------------------
@@ -94,6 +120,10 @@ class ChannelSupervisor:
     @property
     def ramping(self) -> bool:
         return self._ramp is not None
+
+    @property
+    def pulse_train(self) -> PulseTrain | None:
+        return self._ramp if isinstance(self._ramp, PulseTrain) else None
 
     @property
     def fault_text(self) -> str:
@@ -177,7 +207,37 @@ class ChannelSupervisor:
         self.ramp_id += 1
         return self.ramp_id
 
+    def check_pulse(self, train: PulseTrain) -> None:
+        """Refuse ``train`` (faults latched, output off, amplitude over a limit, a square train from a live output)."""
+        self._refuse_if_faulted()
+        if not self.output_enabled:
+            raise StateError(f"channel {self.config.name!r}: output not enabled")
+        self.check_target(train.amplitude)
+        if train.on_device and self.setpoint > 0.0 and self.pulse_train is None:
+            raise StateError(f"channel {self.config.name!r}: at {self.setpoint:g} V; square edges start from 0 V "
+                             f"(ramp it down first)")
+
+    def pulse(self, now: float, train: PulseTrain) -> int:
+        """Run ``train`` in place of any ramp; returns its ramp id. Refuses, never clips."""
+        now = self._now(now)
+        self.check_pulse(train)
+        self._stop_device_switching()
+        self._ramp, self.target, self._low_for = train, train.amplitude, 0.0
+        self._off_at_zero = False
+        self.ramp_id += 1
+        self.pulse_tally = None if train.on_device else PulseTally(train, self.ramp_id)
+        return self.ramp_id
+
+    def _stop_device_switching(self) -> None:
+        """A square train the device switches stops at 0 V at once, one more edge of the kind it was making."""
+        train = self.pulse_train
+        if train is not None and train.on_device:
+            self.setpoint = 0.0
+
     def _start_ramp(self, now: float, target: float, slew: float) -> None:
+        self._stop_device_switching()
+        if self.pulse_tally is not None and self._ramp is self.pulse_tally.train:  # a streamed train is stopped
+            self.pulse_tally.finish()
         self._ramp = MinimumJerkRamp(self.setpoint, target, now, slew)
         self.target = target
 
@@ -196,14 +256,15 @@ class ChannelSupervisor:
             self._start_ramp(self._clock, 0.0, self.config.slew_rate_v_per_s)
             self._off_at_zero = True
 
-    def observe(self, now: float, voltage: float, current: float, device_fault: str | None = None,
+    def observe(self, now: float, voltage: float, current: float | None, device_fault: str | None = None,
                 device_over_current: bool = False) -> None:
-        """Check one readback: measured voltage [V] and current [A], the device's own flags."""
+        """Check one readback: measured voltage [V] and current [A] (None: the supply has no current readback),
+        the device's own flags."""
         now = self._now(now)
-        if not (_finite(voltage) and _finite(current)):
+        if not (_finite(voltage) and (current is None or _finite(current))):
             self.trip(Fault.LINK, f"readback not a finite number ({voltage!r} V, {current!r} A)")
             return
-        if current > self.config.current_trip_a:
+        if current is not None and current > self.config.current_trip_a:
             self.trip(Fault.OVER_CURRENT, f"measured {current:.3g} A above the trip level "
                                           f"{self.config.current_trip_a:.3g} A")
         if device_over_current:
@@ -213,6 +274,9 @@ class ChannelSupervisor:
         mismatch = self._readback.check(now, voltage)
         if mismatch:
             self.trip(Fault.READBACK_MISMATCH, mismatch)
+        if self.breakdown_guard:
+            self._check_collapse(now, voltage)
+        self._last_observed = now
         if self.config.creep_voltage_v is not None and voltage >= self.config.creep_voltage_v:
             self._creep_since = now if self._creep_since is None else self._creep_since
             if now - self._creep_since > self.config.max_time_at_voltage_s:
@@ -220,6 +284,37 @@ class ChannelSupervisor:
                                                  f"{self.config.max_time_at_voltage_s:g} s")
         else:
             self._creep_since = None
+
+    def _check_collapse(self, now: float, voltage: float) -> None:
+        train = self.pulse_train
+        if train is not None:
+            self._check_pulses(now, voltage, train)
+            return
+        held, since = self._held
+        if (self.output_enabled and held >= COLLAPSE_MIN_V and now - since >= COLLAPSE_SETTLE_S
+                and voltage < COLLAPSE_FRACTION * held):
+            self._collapsed += 1
+        else:
+            self._collapsed = 0
+        if self._collapsed >= COLLAPSE_READBACKS:
+            self.trip(Fault.BREAKDOWN, f"measured {voltage:.0f} V, below {COLLAPSE_FRACTION:g} x the held setpoint of "
+                                       f"{held:.0f} V in {COLLAPSE_READBACKS} readbacks: the voltage collapsed (film "
+                                       f"breakdown); this supply has no current readback")
+
+    def _check_pulses(self, now: float, voltage: float, train: PulseTrain) -> None:
+        """Every pulse must reach COLLAPSE_FRACTION of the amplitude; time counted as observed (a stalled loop adds
+        at most one nominal period per readback), where the on-phase is long enough for the loop to see it."""
+        if now < train.start or train.duty * train.period < PULSE_GUARD_MIN_CYCLES * self.max_step_s:
+            return
+        if voltage >= COLLAPSE_FRACTION * train.amplitude:
+            self._low_for = 0.0
+            return
+        interval = 0.0 if self._last_observed is None else max(0.0, now - self._last_observed)
+        self._low_for += min(interval, self.max_step_s)
+        if self._low_for > PULSE_GUARD_PERIODS * train.period:
+            self.trip(Fault.BREAKDOWN, f"no pulse of the {train.frequency:g} Hz train reached {COLLAPSE_FRACTION:g} x "
+                                       f"its {train.amplitude:.0f} V for {PULSE_GUARD_PERIODS:g} periods: the voltage "
+                                       f"collapsed (film breakdown); this supply has no current readback")
 
     def reset(self) -> None:
         """Clear the latched faults; the output stays off until enabled again."""
@@ -236,7 +331,12 @@ class ChannelSupervisor:
     def step(self, now: float) -> ChannelCommand:
         """Advance to ``now`` and return the command for this cycle."""
         command = self._command(now)
-        self._readback.command(self._clock, command.setpoint, ramped=not command.emergency_off)
+        if command.pulse is not None and self._clock >= command.pulse.start:
+            self._readback.switching(self._clock, command.setpoint)  # the device is anywhere from 0 V to it
+        else:
+            self._readback.command(self._clock, command.setpoint, ramped=not command.emergency_off)
+        if command.setpoint != self._held[0]:
+            self._held = (command.setpoint, self._clock)
         return command
 
     def _command(self, now: float) -> ChannelCommand:
@@ -252,14 +352,21 @@ class ChannelSupervisor:
         if self.target > ceiling:  # the ceiling dropped under a running ramp: re-plan towards it
             self._start_ramp(now, ceiling, self._ramp.slew_rate if self._ramp else self.config.slew_rate_v_per_s)
         desired = self._ramp.value(now) if self._ramp else self.target
-        allowance = self.config.slew_rate_v_per_s * dt
-        desired = min(max(desired, self.setpoint - allowance), self.setpoint + allowance)
+        train = self.pulse_train
+        device_switched = train is not None and train.on_device
+        if not device_switched:  # the device's own square edges are not the host's to slew
+            allowance = self.config.slew_rate_v_per_s * dt
+            desired = min(max(desired, self.setpoint - allowance), self.setpoint + allowance)
         self.setpoint = max(0.0, min(desired, ceiling))
+        tally = self.pulse_tally
+        if tally is not None and self._ramp is tally.train:
+            tally.add(now, self.setpoint)
         if self._ramp is not None and self._ramp.finished(now) and self.setpoint == self._ramp.end:
-            self._ramp = None
+            self.target, self._ramp = self._ramp.end, None
         if self._off_at_zero and self._ramp is None and self.setpoint == 0.0:
             self.output_enabled = self._off_at_zero = False
-        return ChannelCommand(self.setpoint, self.output_enabled, False)
+        pulse = self._ramp if device_switched and self._ramp is train else None
+        return ChannelCommand(self.setpoint, self.output_enabled, False, pulse)
 
 
 class Supervisor:
@@ -277,7 +384,7 @@ class Supervisor:
         if not configs:
             raise SettingError("channels: at least one ChannelConfig")
         for parameter, values in (("channel names", [c.name for c in configs]),
-                                  ("channel indices", [c.index for c in configs])):
+                                  ("channel indices", [(c.device, c.index) for c in configs])):
             if len(set(values)) != len(values):
                 raise SettingError(f"{parameter} must be unique, got {values}")
         if not (_finite(link_timeout_s) and link_timeout_s > 0):
@@ -292,10 +399,10 @@ class Supervisor:
         self._clock = float(now) if _finite(now) else 0.0
         self.channels = {c.name: ChannelSupervisor(c, self._clock, nominal_period_s) for c in configs}
         self.control = ControlClaim(self.heartbeat_timeout_s)
-        # Start of the current run of failed exchanges (None while the link answers). Timing the
-        # failures, not the gap since the last success, keeps a host that was merely descheduled (a
-        # loaded machine) from tripping while a supply that stops answering still trips on time.
-        self._link_failing_since: float | None = None
+        # Per supply (device): start of the current run of failed exchanges (None while its link answers). Timing
+        # the failures, not the gap since the last success, keeps a host that was merely descheduled (a loaded
+        # machine) from tripping while a supply that stops answering still trips on time.
+        self._link_failing_since: dict[int, float | None] = {c.device: None for c in configs}
 
     @property
     def heartbeat_watchdog_off(self) -> bool:
@@ -316,16 +423,16 @@ class Supervisor:
         except (KeyError, TypeError):
             raise SettingError(f"channel={name!r}: unknown, configured are {sorted(self.channels)}") from None
 
-    def link_ok(self, now: float) -> None:
-        """A complete, valid exchange with the supply finished at ``now``."""
+    def link_ok(self, now: float, device: int = 0) -> None:
+        """A complete, valid exchange with supply ``device`` finished at ``now``."""
         self._now(now)
-        self._link_failing_since = None
+        self._link_failing_since[device] = None
 
-    def link_failed(self, now: float) -> None:
-        """An exchange with the supply failed at ``now`` (no, partial, garbled or wrong answer)."""
+    def link_failed(self, now: float, device: int = 0) -> None:
+        """An exchange with supply ``device`` failed at ``now`` (no, partial, garbled or wrong answer)."""
         now = self._now(now)
-        if self._link_failing_since is None:
-            self._link_failing_since = now
+        if self._link_failing_since.get(device) is None:
+            self._link_failing_since[device] = now
 
     # --- who may command ---------------------------------------------------------------------
     def claim_control(self, client: str, now: float) -> str:
@@ -358,6 +465,21 @@ class Supervisor:
         self.control.confirm(token, now)
         return channel.ramp_to(now, target_v, slew_rate_v_per_s)
 
+    def pulse(self, names: list[str], now: float, plan: Callable[[ChannelConfig, float], PulseTrain], *,
+              token: str) -> tuple[dict[str, PulseTrain], dict[str, int]]:
+        """Start a pulse train, ``plan(config, now)`` (e.g. `plan_pulse_train`), on each channel of ``names`` for
+        the client holding control (all or none); returns the train and the ramp id of each. The request counts as
+        the client's sign of life."""
+        now = self._now(now)
+        channels = [self.channel(name) for name in names]
+        if not channels or len(set(names)) != len(names):
+            raise SettingError(f"channels={names!r}: one or more distinct channel names")
+        self.control.confirm(token, now)
+        trains = {channel.config.name: plan(channel.config, now) for channel in channels}
+        for channel in channels:  # every check before anything changes
+            channel.check_pulse(trains[channel.config.name])
+        return trains, {channel.config.name: channel.pulse(now, trains[channel.config.name]) for channel in channels}
+
     def set_safe_voltage(self, voltage: float | None) -> None:
         for channel in self.channels.values():
             channel.set_safe_voltage(voltage)
@@ -383,8 +505,12 @@ class Supervisor:
 
     def step(self, now: float) -> dict[str, ChannelCommand]:
         now = self._now(now)
-        if self._link_failing_since is not None and now - self._link_failing_since > self.link_timeout_s:
-            self.trip_all(Fault.LINK, f"no valid reply from the supply for more than {self.link_timeout_s:g} s")
+        for device, since in self._link_failing_since.items():
+            if since is not None and now - since > self.link_timeout_s:
+                for channel in self.channels.values():
+                    if channel.config.device == device:
+                        channel.trip(Fault.LINK, f"no valid reply from the supply for more than "
+                                                 f"{self.link_timeout_s:g} s")
         self.control.lapse_if_silent(now)
         if not self.heartbeat_watchdog_off and self.control.owner is None:
             # Only an output held or raised above 0 V needs a live client; one on its way to 0 V does not.

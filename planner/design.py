@@ -12,16 +12,22 @@ the image resolution.
 """
 from __future__ import annotations
 
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 
 from planner.assembly import ROTATION_STEP
+from planner.clearance import FingerBody, ObjectDistance
 from planner.contours import extract_contours
-from planner.kinematics import BLOCK_RADIUS, chain_shape, design_parameters
-from planner.objectives import ClearanceMap, ShapeTarget, evaluate, finger_target, path_target
-from planner.optimize import DesignOptimizeResult, DesignSpace, Status, design_space, solve_exact, solve_pso
+from planner.kinematics import BLOCK_RADIUS, CAP_LENGTH, chain_shape, design_parameters
+from planner.objectives import ShapeTarget, evaluate, finger_target, path_target
+from planner.optimize import (DesignOptimizeResult, DesignSpace, design_space, solve_exact, solve_finger,
+                              solve_pso)
+from planner.optimize.finger_search import DEFAULT_OPTIONS as FINGER_OPTIONS
+from planner.optimize.lookahead import block_shapes, lookahead_fields
 from planner.optimize.space import MAX_BLOCKS
 from planner.table import load_table
 
@@ -29,6 +35,7 @@ DEFAULT_MIN_STIFF_ROD_DIAMETER = 0.62e-3  # [m], the D of ID 57 used for the pap
 DEFAULT_CONTOUR_SPACING = 1e-3  # [m]
 DEFAULT_BASE_OFFSETS = np.arange(0.0, 12.5e-3, 1e-3)  # outward from touching the bounding box [m]
 PATH_EXACT_OPTIONS = {"max_width": 64, "polish_starts": 1}  # 12 rotations x 84 shapes per block: narrow
+PREPARED_CONFIGURATIONS = ((4, 2), (5, 3), (5, 2))  # (blocks, stiff top) of the gripper and the benchmarks
 METHODS = ("exact", "pso")
 
 
@@ -40,9 +47,11 @@ class FingerDesign:
     design_ids: tuple[int, ...]  # base (top) first
     cost: float  # eq. (3) [m], including k = 1e11 if colliding
     collision: bool
+    min_clearance_m: float  # smallest distance between the finger body and the object [m]; negative: overlap
     optimal: bool  # certified optimum for this finger
+    lower_bound_m: float  # proven lower bound on this finger's optimum [m] (= cost when optimal)
     contour: np.ndarray  # (n, 2) the resampled target contour
-    centerline: np.ndarray  # (m, 2) the finger's centerline, base first
+    centerline: np.ndarray  # (m, 2) the finger's centerline samples, base first
     base: np.ndarray  # (2,) base centerline point
     result: DesignOptimizeResult
 
@@ -83,7 +92,8 @@ def _optimize(target: ShapeTarget, space: DesignSpace, method: str, *, seed, tim
     if method == "pso":
         return solve_pso(target, space, rng=np.random.default_rng(seed), options=options,
                          time_budget=time_budget, callback=callback)
-    return solve_exact(target, space, options=options, time_budget=time_budget, callback=callback)
+    solve = solve_exact if target.body is None else solve_finger
+    return solve(target, space, options=options, time_budget=time_budget, callback=callback)
 
 
 def resample_polyline(points: np.ndarray, spacing: float) -> np.ndarray:
@@ -107,8 +117,48 @@ def _scaled_callback(callback, start: float, share: float):
     return scaled
 
 
-def _cancel(progress) -> None:
-    raise StopIteration
+class _PairProgress:
+    """The user's callback for two fingers designed at once: it hears the mean fraction done, one call at a
+    time; once it cancels (StopIteration), both fingers stop."""
+
+    def __init__(self, callback):
+        self._callback = callback
+        self._fractions = [0.0, 0.0]
+        self._lock = threading.Lock()
+        self._canceled = False
+
+    def for_side(self, index: int):
+        if self._callback is None:
+            return None
+
+        def report(progress):
+            with self._lock:
+                if not self._canceled:
+                    self._fractions[index] = progress.fraction
+                    try:
+                        self._callback(type(progress)(0.5 * sum(self._fractions), progress.best_cost, progress.nfev,
+                                                      progress.elapsed))
+                    except StopIteration:
+                        self._canceled = True
+                if self._canceled:
+                    raise StopIteration
+
+        return report
+
+
+def finger_problems(contours, base_offsets=DEFAULT_BASE_OFFSETS, contour_spacing: float = DEFAULT_CONTOUR_SPACING,
+                    contact_tolerance_m: float = 0.0) -> dict[str, tuple[ShapeTarget, np.ndarray]]:
+    """The eq. (3) target of each finger ("left", "right") of an object (``planner.contours.ObjectContours``)
+    and its resampled contour in the object frame, placed as the module docstring says."""
+    distance = ObjectDistance.from_contours(contours)
+    problems = {}
+    for side, contour, sign in (("left", contours.left, 1.0), ("right", contours.right, -1.0)):
+        base_x = -sign * (contours.width / 2 + BLOCK_RADIUS)
+        body = FingerBody(distance, base_x, sign, contact_tolerance_m=float(contact_tolerance_m))
+        resampled = resample_polyline(contour, contour_spacing)
+        finger_frame = np.stack([sign * (resampled[:, 0] - base_x), np.zeros(len(resampled)), -resampled[:, 1]], 1)
+        problems[side] = (finger_target(finger_frame, body, base_offsets), resampled)
+    return problems
 
 
 def design_fingers(
@@ -127,6 +177,7 @@ def design_fingers(
     options: dict | None = None,
     contour_spacing: float = DEFAULT_CONTOUR_SPACING,
     base_offsets=DEFAULT_BASE_OFFSETS,
+    contact_tolerance_m: float = 0.0,
 ) -> FingerDesignResult:
     """Design a left and a right finger of ``num_blocks`` conforming to the object in ``mask`` (eq. 3).
 
@@ -134,9 +185,12 @@ def design_fingers(
     [m]. ``inventory`` (design ID -> blocks on the shelf) is shared by both fingers: when their separate
     optima do not fit together, the right finger is redesigned from what the left one leaves (the pair is
     then not certified). ``callback(progress)`` gets a ``planner.optimize.Progress`` and may raise
-    StopIteration to cancel. ``time_budget`` [s] covers both fingers. ``options`` go to the optimizer
-    (``planner.optimize.exact.DEFAULT_OPTIONS`` or ``planner.optimize.pso.DEFAULT_OPTIONS``; e.g.
-    ``{"max_width": None}`` makes the exact method widen until it proves the optimum).
+    StopIteration to cancel. The two fingers are designed at once (two threads; the compiled search releases
+    the GIL). ``time_budget`` [s] covers both fingers; the exact method certifies its result
+    unless the budget ends it first (it then says so and reports a proven lower bound). ``options`` go to the
+    optimizer (``planner.optimize.finger_search.DEFAULT_OPTIONS`` or ``planner.optimize.pso.DEFAULT_OPTIONS``).
+    ``contact_tolerance_m``: how far the finger body may enter the object before it counts as a collision
+    (0: touching only).
     """
     _check_common(num_blocks, method)
     if not isinstance(num_stiff_top, (int, np.integer)) or not 0 <= num_stiff_top <= num_blocks:
@@ -150,6 +204,8 @@ def design_fingers(
         raise ValueError(f"inventory holds {sum(inventory.values())} blocks; two fingers need {2 * num_blocks}")
     if time_budget is not None and not (np.isfinite(time_budget) and time_budget > 0):
         raise ValueError(f"time_budget must be a positive number of seconds or None, got {time_budget!r}")
+    if not (np.isfinite(contact_tolerance_m) and 0.0 <= contact_tolerance_m < BLOCK_RADIUS):
+        raise ValueError(f"contact_tolerance_m must be a length in [0, {BLOCK_RADIUS}) m, got {contact_tolerance_m!r}")
     table = load_table() if table is None else table
     contours = extract_contours(mask, pixel_size)
     space_for = lambda stock: design_space(  # noqa: E731
@@ -157,23 +213,15 @@ def design_fingers(
         inventory=stock,
     )
     space = space_for(inventory)
-    problems = {}
-    for side, contour, sign in (("left", contours.left, 1.0), ("right", contours.right, -1.0)):
-        base_x = -sign * (contours.width / 2 + BLOCK_RADIUS)
-        clearance = ClearanceMap.from_contours(contours, base_x, sign)
-        resampled = resample_polyline(contour, contour_spacing)
-        finger_frame = np.stack([sign * (resampled[:, 0] - base_x), np.zeros(len(resampled)), -resampled[:, 1]], 1)
-        problems[side] = (finger_target(finger_frame, clearance, base_offsets), clearance, resampled)
+    problems = finger_problems(contours, base_offsets, contour_spacing, contact_tolerance_m)
 
     started = time.perf_counter()
-    results = {}
-    for index, side in enumerate(("left", "right")):
-        budget = None if time_budget is None else max(time_budget - (time.perf_counter() - started), 1e-3) / (2 - index)
-        progress = _scaled_callback(callback, 0.5 * index, 0.5)
-        if index and results["left"].status == Status.CANCELED:
-            progress = _cancel  # a canceled request stops both fingers, even if the callback raised only once
-        results[side] = _optimize(problems[side][0], space, method, seed=seed, time_budget=budget,
-                                  callback=progress, options=options)
+    progress = _PairProgress(callback)
+    with ThreadPoolExecutor(max_workers=2) as pool:  # the two fingers are independent problems: both cores
+        futures = {side: pool.submit(_optimize, problems[side][0], space, method, seed=seed,
+                                     time_budget=time_budget, callback=progress.for_side(index), options=options)
+                   for index, side in enumerate(("left", "right"))}
+        results = {side: future.result() for side, future in futures.items()}
     shared_stock_ok = True
     if inventory is not None:
         used: dict[int, int] = {}
@@ -202,20 +250,37 @@ def design_fingers(
     )
 
 
-def _finger(side, result, target, clearance, contour, table) -> FingerDesign:
+def prepare_finger_search(configurations=PREPARED_CONFIGURATIONS, table=None) -> None:
+    """Compile the finger search and build (or load) its lookahead fields for each (num_blocks,
+    num_stiff_top), so that later requests start at once; both are kept on disk (numba's cache and
+    ``planner.optimize.field_cache.cache_directory()``)."""
+    table = load_table() if table is None else table
+    rows, columns = np.mgrid[:60, :40]
+    ellipse = ((rows - 30) / 24.0) ** 2 + ((columns - 20) / 12.0) ** 2 < 1.0
+    design_fingers(ellipse, 5e-4, 2, table=table)  # compiles every kernel on a small problem
+    for blocks, stiff in configurations:
+        space = design_space(table, blocks, stiff_positions=range(stiff))
+        lookahead_fields(block_shapes(space, CAP_LENGTH), space, BLOCK_RADIUS, FINGER_OPTIONS["field_spacing"],
+                         FINGER_OPTIONS["region_spacing"])
+
+
+def _finger(side, result, target, contour, table) -> FingerDesign:
     theta, length, _ = design_parameters(table, np.array(result.design_ids))
     shape = chain_shape(theta, length, 0.0)
     base = target.bases[result.base]
-    cost = evaluate(target, shape.points + base, shape.rotations[-1], shape.positions[-1] + base)
+    cost = evaluate(target, shape.points + base, shape.rotations[-1], shape.positions[-1] + base,
+                    (theta, length, base[0]))
     return FingerDesign(
         side=side,
         design_ids=result.design_ids,
         cost=float(cost.total),
         collision=bool(cost.collision),
+        min_clearance_m=float(target.body.clearance(theta, length, base[0])),
         optimal=result.optimal,
+        lower_bound_m=result.lower_bound,
         contour=contour,
-        centerline=clearance.to_object(shape.points + base),
-        base=clearance.to_object(base),
+        centerline=target.body.to_object(shape.points + base),
+        base=target.body.to_object(base),
         result=result,
     )
 

@@ -12,18 +12,17 @@ Both objectives compare a chain's centerline with target points, all in the chai
 
 "The centerline point whose normal passes through p" is taken as the centerline sample closest to p: on a
 smooth curve the closest point is a foot of the normal (and the nearest one when there are several). The
-finger body is the tube of the block radius around the centerline; it overlaps the object when a
-centerline sample is closer to the object than the radius (less one pixel, so touching is allowed), which
-is checked on a distance transform of the object mask (``ClearanceMap``).
+finger body is the tube of the block radius around the whole continuous centerline; C is decided exactly
+against the object's pixel squares by ``planner.clearance.FingerBody`` (touching is allowed, and so is an
+overlap up to its ``contact_tolerance_m``).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import ndimage
 
-from planner.kinematics import BLOCK_RADIUS
+from planner.clearance import FingerBody
 
 COLLISION_PENALTY = 1e11  # k of eq. (3)
 
@@ -38,53 +37,12 @@ def _finite_points(points, name: str) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class ClearanceMap:
-    """Distance from points of a finger's plane to the object [m] (y of the points is ignored).
-
-    Built on the object frame of ``planner.contours`` (x right, z up, origin at the top centre of the
-    object): a finger-frame point (X, Y, Z) lies at x = base_x + side * X, z = -Z (the finger hangs down
-    from the object's top edge and bends toward the object). The mask is padded by more than the block
-    radius, so points outside the padded image are farther than the radius from the object.
-    """
-
-    distance: np.ndarray  # (rows, cols) distance of each padded pixel centre to the nearest object pixel [m]
-    pixel_size: float
-    pad: int
-    origin_pixel: tuple[float, float]  # (column, row) of the object-frame origin in pixel-edge coordinates
-    base_x: float  # finger base in the object frame [m] (at z = 0)
-    side: float  # +1: finger X along object +x (left finger); -1: mirrored (right finger)
-
-    @classmethod
-    def from_contours(cls, contours, base_x: float, side: float, radius: float = BLOCK_RADIUS) -> ClearanceMap:
-        pad = int(np.ceil(radius / contours.pixel_size)) + 2
-        padded = np.pad(np.asarray(contours.mask, dtype=bool), pad)
-        distance = ndimage.distance_transform_edt(~padded) * contours.pixel_size
-        return cls(distance, float(contours.pixel_size), pad, tuple(contours.origin_pixel), float(base_x), float(side))
-
-    def to_object(self, points: np.ndarray) -> np.ndarray:
-        """(..., 2) object-frame x, z [m] of finger-frame points (..., 3)."""
-        return np.stack([self.base_x + self.side * points[..., 0], -points[..., 2]], axis=-1)
-
-    def __call__(self, points: np.ndarray) -> np.ndarray:
-        """Distances [m] at finger-frame points (..., 3); inf outside the padded image."""
-        column0, row0 = self.origin_pixel
-        x = self.base_x + self.side * points[..., 0]
-        col = np.floor(x / self.pixel_size + column0).astype(np.int64) + self.pad
-        row = np.floor(row0 + points[..., 2] / self.pixel_size).astype(np.int64) + self.pad
-        rows, cols = self.distance.shape
-        inside = (row >= 0) & (row < rows) & (col >= 0) & (col < cols)
-        result = np.full(points.shape[:-1], np.inf)
-        result[inside] = self.distance[row[inside], col[inside]]
-        return result
-
-
-@dataclass(frozen=True)
 class ShapeTarget:
     """What a chain's centerline is compared with, in the chain base frame [m].
 
     ``offset`` is subtracted from each centerline distance (0 for a path, the block radius for a finger
     conforming with its periphery); ``tip_offset`` moves the tip point along the tip's bending normal (the
-    finger's periphery point on the object side). ``clearance`` (fingers only) gives the collision term.
+    finger's periphery point on the object side). ``body`` (fingers only) decides the collision term.
     """
 
     points: np.ndarray  # (P, 3) target points: path points or contour points
@@ -92,14 +50,8 @@ class ShapeTarget:
     offset: float = 0.0
     tip_offset: float = 0.0
     start_error: float = 0.0  # E0, fixed because the chain base is fixed
-    clearance: ClearanceMap | None = None
-    collision_tolerance: float = 0.0  # overlap allowed before C = 1 [m]
+    body: FingerBody | None = None
     bases: np.ndarray = field(default_factory=lambda: np.zeros((1, 3)))  # (K, 3) base positions to choose from
-
-    @property
-    def collision_distance(self) -> float:
-        """Centerline samples closer than this to the object mean C = 1 [m]."""
-        return self.offset - self.collision_tolerance
 
 
 def path_target(points) -> ShapeTarget:
@@ -108,19 +60,18 @@ def path_target(points) -> ShapeTarget:
     return ShapeTarget(points=points, end_point=points[-1], start_error=float(np.linalg.norm(points[0])))
 
 
-def finger_target(contour, clearance: ClearanceMap, base_offsets, radius: float = BLOCK_RADIUS) -> ShapeTarget:
-    """Eq. (3) target: contour points (n, 3) in the finger frame, top to bottom, the object's clearance and
-    the candidate base offsets [m] away from the object (along finger-frame -x)."""
+def finger_target(contour, body: FingerBody, base_offsets) -> ShapeTarget:
+    """Eq. (3) target: contour points (n, 3) in the finger frame, top to bottom, the finger's collision rule
+    and the candidate base offsets [m] away from the object (along finger-frame -x)."""
     contour = _finite_points(contour, "contour")
     offsets = np.asarray(base_offsets, dtype=float).reshape(-1)
     return ShapeTarget(
         bases=np.stack([-offsets, np.zeros_like(offsets), np.zeros_like(offsets)], axis=1),
         points=contour,
         end_point=contour[-1],
-        offset=radius,
-        tip_offset=radius,
-        clearance=clearance,
-        collision_tolerance=clearance.pixel_size,
+        offset=body.radius,
+        tip_offset=body.radius,
+        body=body,
     )
 
 
@@ -149,17 +100,20 @@ class Cost:
     collision: np.ndarray  # (...,) bool, C of eq. (2)
 
 
-def evaluate(target: ShapeTarget, samples: np.ndarray, tip_rotation: np.ndarray, tip_position: np.ndarray) -> Cost:
-    """Objective of chains given their centerline samples (..., M, 3) and tip frames (..., 3, 3)/(..., 3)."""
+def evaluate(target: ShapeTarget, samples: np.ndarray, tip_rotation: np.ndarray, tip_position: np.ndarray,
+             blocks=None) -> Cost:
+    """Objective of chains given their centerline samples (..., M, 3) and tip frames (..., 3, 3)/(..., 3).
+
+    ``blocks`` = (theta, length, base_x): the planar chains' blocks (..., N) and base positions (...), which
+    finger targets need for the collision term (None for paths).
+    """
     gaps = np.abs(nearest_distances(target.points, samples) - target.offset)
     end_error = np.linalg.norm(tip_point(target, tip_rotation, tip_position) - target.end_point, axis=-1)
     error = target.start_error + end_error + gaps.sum(axis=-1)
-    collision = colliding(target, samples)
+    if target.body is None:
+        collision = np.zeros(error.shape, dtype=bool)
+    elif blocks is None:
+        raise ValueError("a finger target needs the chains' blocks (theta, length, base_x) for the collision term")
+    else:
+        collision = target.body.colliding(*blocks)
     return Cost(total=error + COLLISION_PENALTY * collision, error=error, collision=collision)
-
-
-def colliding(target: ShapeTarget, samples: np.ndarray) -> np.ndarray:
-    """(...,) True where any centerline sample of (..., M, 3) is too close to the object."""
-    if target.clearance is None:
-        return np.zeros(samples.shape[:-2], dtype=bool)
-    return np.any(target.clearance(samples) < target.collision_distance, axis=-1)

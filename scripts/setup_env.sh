@@ -45,4 +45,6 @@ if [[ "$(cat ros_ws/.build-stamp 2>/dev/null)" != "$ws_hash" || ! -f ros_ws/inst
     )
     echo "$ws_hash" > ros_ws/.build-stamp
 fi
+# 3. compiled finger search and its lookahead fields (kept on disk; seconds once, then a moment)
+"$venv/bin/python" -m planner prepare-design
 step "ready"

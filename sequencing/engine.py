@@ -264,36 +264,18 @@ class SequenceEngine:
         return "; ".join(f"{child.name}: {future.result()}" for child, future in futures)
 
     def _pulse_train(self, step: PulseTrainStep, ctx: _Context) -> str:
-        """Each edge fires on schedule; its result is awaited only when the next edge is due, so the
-        action round trip overlaps the on/off phase instead of adding to it. An edge never supersedes
-        a ramp still running on its channels: a late edge waits (the schedule stays absolute, later
-        edges catch up). The last edge is also checked for the settled voltage."""
-        period, start = 1.0 / step.frequency, self.clock()
-        edges = [(start + (cycle + step.phase + offset) * period, voltage)
-                 for cycle in range(step.cycles) for offset, voltage in ((0.0, step.voltage), (step.duty, 0.0))]
-        previous: list[tuple[str, float, Motion]] = []
-        worst_delay, on_times = 0.0, []
-        for when, target in edges:
-            self._sleep_until(when, ctx)
-            self._check_edges(previous, ctx)
-            worst_delay = max(worst_delay, self.clock() - when)
-            if target > 0:
-                on_times.append(self.clock())
-            previous = [(channel, target, self.robot.ramp(channel, target, step.slew_rate))
-                        for channel in step.channels]
-        for channel, target, outcome in self._check_edges(previous, ctx):
-            self._check_reached(channel, target, step.tolerance, outcome, ctx)
-        achieved = f"{(len(on_times) - 1) / (on_times[-1] - on_times[0]):.2f} Hz" if len(on_times) > 1 else "-"
-        return (f"{step.cycles} cycles on {list(step.channels)} at {achieved} (asked {step.frequency:g} Hz); "
-                f"latest edge {worst_delay * 1e3:.0f} ms behind schedule")
-
-    def _check_edges(self, edges: list[tuple[str, float, Motion]], ctx: _Context) -> list:
-        """Wait for the ramps of one edge; fail if one did not succeed; (channel, target, outcome) each."""
-        outcomes = self._watch([motion for _, _, motion in edges], ctx)
-        for (channel, target, _), outcome in zip(edges, outcomes):
-            if not outcome.success:
-                raise StepFailure(f"edge of {channel!r} to {target:.0f} V failed: {outcome.message}")
-        return [(channel, target, outcome) for (channel, target, _), outcome in zip(edges, outcomes)]
+        """One periodic command for all the step's channels: the HV driver switches them itself (on the supply
+        where it switches by itself, else in its control loop), never one action round trip per edge. Cancel,
+        a fault or the timeout cancel it (the channels go back to 0 V); at its end every channel is checked back
+        at 0 V."""
+        train = self.robot.pulse(step.channels, step.voltage, step.frequency, step.duty, step.phase, step.cycles,
+                                 step.edge, step.slew_rate)
+        outcome, = self._watch([train], ctx)
+        if not outcome.success:
+            raise StepFailure(f"pulse train on {list(step.channels)} failed: {outcome.message}")
+        for channel in step.channels:
+            self._check_reached(channel, 0.0, step.tolerance, Outcome(True), ctx)
+        return f"{step.cycles} cycles on {list(step.channels)} at {step.frequency:g} Hz ({outcome.message})"
 
     # -- reactions --------------------------------------------------------------------------------------
 

@@ -3,7 +3,7 @@ and how it runs (`RunOptions`). A backend (the ROS adapter, a test fake) impleme
 """
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -29,7 +29,7 @@ class ChannelReading:
 
 
 class Motion(Protocol):
-    """A running arm move or channel ramp."""
+    """A running arm move, channel ramp or pulse train."""
 
     def wait(self, timeout: float) -> bool:
         """Block up to ``timeout`` seconds; True once the motion has finished."""
@@ -47,6 +47,11 @@ class Robot(Protocol):
     def move_arm(self, position, orientation, frame_id: str, speed: float) -> Motion: ...
 
     def ramp(self, channel: str, target: float, slew_rate: float) -> Motion: ...
+
+    def pulse(self, channels: Sequence[str], voltage: float, frequency: float, duty: float, phase: float,
+              cycles: int, edge: str, slew_rate: float) -> Motion:
+        """A periodic train on ``channels`` run by the HV driver (``edge`` "smooth" or "square"); its outcome
+        says how it ran."""
 
     def channel_states(self) -> Mapping[str, ChannelReading]: ...
 

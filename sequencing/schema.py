@@ -24,6 +24,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import yaml
+from hv_driver.pulse import EDGES as PULSE_EDGES
 from hv_driver.ramp import MIN_JERK_PEAK_RATE
 
 ON_FAILURE = ("safe_stop", "estop")  # ramp every channel to 0 V (e-stop if that fails) | e-stop at once
@@ -129,7 +130,9 @@ class PulseTrainStep(Step):
     """Channels switched on (``voltage``) and off (0 V) together, ``cycles`` times at ``frequency``.
 
     Within each period the output is on for the fraction ``duty``; ``phase`` (fraction of a period)
-    delays the train, so two trains in a ``parallel`` step make an alternating gait.
+    delays the train, so two trains in a ``parallel`` step make an alternating gait. ``edge`` "smooth":
+    minimum-jerk edges at ``slew_rate``, generated in the HV driver's loop; "square": the supply switches
+    itself (e.g. a Peta-pico-Voltron; ``slew_rate`` unused).
     """
 
     channels: tuple[str, ...]
@@ -140,6 +143,7 @@ class PulseTrainStep(Step):
     slew_rate: float    # [V/s]
     phase: float = 0.0
     tolerance: float = 50.0
+    edge: str = "smooth"
 
     @property
     def ramp_time(self) -> float:
@@ -328,7 +332,7 @@ class _Parser:
 
     def pulse_train(self, where: _Where, spec, common) -> PulseTrainStep:
         spec = _mapping(where, spec, "pulse_train", {"channels", "voltage", "frequency", "duty", "cycles",
-                                                     "phase", "slew_rate", "tolerance"})
+                                                     "phase", "slew_rate", "tolerance", "edge"})
         channels = spec.get("channels", _MISSING)
         if not isinstance(channels, list) or not channels:
             where.fail("pulse_train.channels", channels, "a non-empty list of channels")
@@ -337,17 +341,23 @@ class _Parser:
         cycles = spec.get("cycles", _MISSING)
         if isinstance(cycles, bool) or not isinstance(cycles, int) or cycles < 1:
             where.fail("pulse_train.cycles", cycles, "an integer >= 1")
+        edge = spec.get("edge", "smooth")
+        if edge not in PULSE_EDGES:
+            where.fail("pulse_train.edge", edge, f"one of {', '.join(PULSE_EDGES)}")
         step = PulseTrainStep(
             **common, channels=tuple(channels), cycles=cycles,
             voltage=self.voltage(where, spec, "voltage", "pulse_train.voltage"),
             frequency=_number(where, spec, "frequency", "pulse_train.frequency", exclusive_minimum=0.0,
                               maximum=self.limits.max_pulse_frequency_hz),
             duty=_number(where, spec, "duty", "pulse_train.duty", exclusive_minimum=0.0, maximum=0.999),
-            phase=_number(where, spec, "phase", "pulse_train.phase", 0.0, minimum=0.0, maximum=1.0),
-            slew_rate=self.slew_rate(where, spec, "pulse_train.slew_rate", _MISSING),
+            phase=_number(where, spec, "phase", "pulse_train.phase", 0.0, minimum=0.0, maximum=0.999),
+            slew_rate=self.slew_rate(where, spec, "pulse_train.slew_rate", _MISSING if edge == "smooth" else 0.0),
+            edge=edge,
             tolerance=_number(where, spec, "tolerance", "pulse_train.tolerance", self.defaults["tolerance"],
                               exclusive_minimum=0.0),
             timeout=1.0)
+        if edge == "square":  # the supply's own edges: it checks what it can switch when the train is sent
+            return replace(step, timeout=step.length + self.defaults["timeout"])
         if step.slew_rate == 0:
             where.fail("pulse_train.slew_rate", 0, "must be > 0 (the edges must fit the on/off times)")
         shortest_phase = min(step.duty, 1.0 - step.duty) / step.frequency

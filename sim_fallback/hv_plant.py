@@ -1,16 +1,28 @@
-"""Output dynamics of one simulated HV channel driving a DEA load (pure, time passed in).
+"""Output dynamics of one simulated HV channel driving a DEA load (pure, time passed in), for every simulated dialect.
 
-The supply moves its output towards the set voltage at its configured ramp speed; the DEA is a
-capacitor with a leakage resistance, so the supply current is C·dV/dt + V/R_leak. Switched off
-(`:VOLT OFF`, a trip with action 1, `*RST`), the output ramps down at the configured ramp-down speed, as
-the iseg manual says; an emergency off (or a trip with action 2 or 3) cuts it without ramp and the load
-discharges through the supply's discharge resistor. An arc (film breakdown) collapses the voltage and
-draws a large current until the output is switched off.
+A supply with a device ramp (iseg) moves its output towards the set voltage at its configured ramp speed; one
+without (Keithley 2290, Peta-pico-Voltron) regulates towards it with a first-order lag whose time constant grows
+with the load's capacitance. The DEA is a capacitor with a leakage resistance, so the supply current is
+C·dV/dt + V/R_leak. Switched off with ramp (iseg `:VOLT OFF`, a trip with action 1, `*RST`), the output ramps down
+at the configured ramp-down speed, as the iseg manual says; an emergency off, a trip with action 2 or 3, or a
+supply without a ramp cuts it, and the load discharges through the supply's discharge resistor. An arc (film
+breakdown) collapses the voltage and draws a large current until the output is switched off. Device-side
+switching (Peta-pico-Voltron mode 2) alternates the target between 0 V and the set voltage on the device's own
+clock; the rising edges of the output through a watched level are recorded with their exact times.
 """
 import math
 from dataclasses import dataclass, field
+from enum import IntFlag
 
-from hv_driver.dialects.iseg_edcp import ChannelEvent, ChannelStatus
+
+class PlantEvent(IntFlag):
+    """Latched events of a channel, until the simulated device clears them (each dialect maps them to its bits)."""
+
+    ARC = 1 << 0
+    ON_TO_OFF = 1 << 1
+    EMERGENCY_OFF = 1 << 2
+    CURRENT_TRIP = 1 << 3
+    EXTERNAL_INHIBIT = 1 << 4
 
 
 @dataclass(frozen=True)
@@ -23,16 +35,54 @@ class DeaLoad:
     current_averaging: float = 0.02         # [s] time constant of the current readback filter
 
 
+NOMINAL_CAPACITANCE = DeaLoad.capacitance  # [F] the load the regulation time constant is given for
+
+
 @dataclass(frozen=True)
 class ChannelDefaults:
-    """Power-up (and *RST) configuration of a channel."""
+    """Power-up (and reset) configuration of a channel."""
 
-    voltage_limit: float = 5000.0   # [V] hardware limit (:READ:VOLT:LIM?)
-    ramp_speed: float = 100.0       # [V/s]
+    voltage_limit: float = 5000.0   # [V] hardware limit
+    ramp_speed: float | None = 100.0  # [V/s] device ramp; None: no device ramp (regulates with regulation_time_s)
     max_ramp_speed: float = 20000.0 # [V/s] faster ramp settings are clamped to this
+    regulation_time_s: float = 0.002  # [s] output time constant without device ramp, with NOMINAL_CAPACITANCE
     current_limit: float = 2e-3     # [A]
     trip_time_ms: float = 0.0       # [ms]
-    trip_action: int = 0            # 0 = flag only
+    trip_action: int = 0            # 0 = flag only, 1 off with ramp, 2 and 3 off without ramp
+
+
+@dataclass
+class Switching:
+    """Device-side switching between 0 V and the set voltage: ``frequency`` [Hz], ``duty``, ``cycles`` (0 = forever),
+    started at ``start`` [s] on the device clock."""
+
+    frequency: float
+    duty: float
+    cycles: int
+    start: float
+
+    def on(self, t: float) -> bool:
+        phase = (t - self.start) * self.frequency
+        return phase - math.floor(phase) < self.duty
+
+    def done(self, t: float) -> bool:
+        return self.cycles > 0 and (t - self.start) * self.frequency >= self.cycles
+
+    def completed(self, t: float) -> int:
+        return int(max(0.0, t - self.start) * self.frequency)
+
+    def boundaries(self, t0: float, t1: float) -> list[float]:
+        """Times of the edges (and of the end) in (t0, t1)."""
+        times, period = [], 1.0 / self.frequency
+        k = math.floor((t0 - self.start) * self.frequency)
+        while True:
+            for offset in (0.0, self.duty):
+                t = self.start + (k + offset) * period
+                if t0 < t < t1:
+                    times.append(t)
+            if self.start + (k + 1) * period >= t1:
+                return times
+            k += 1
 
 
 @dataclass
@@ -47,12 +97,14 @@ class PlantChannel:
     arcing: bool = False
     ramping_down: bool = False      # switched off with ramp, still above 0 V
     off_at: float | None = None     # time the output last went from on to off
+    watch_level: float | None = None  # [V] rising crossings of this level are recorded in rising_edges
+    rising_edges: list = field(default_factory=list)
 
     def __post_init__(self):
         self.power_on_reset()
 
     def power_on_reset(self) -> None:
-        """State after power-up or *RST: output off, Vset 0, default configuration."""
+        """State after power-up or reset: output off, Vset 0, default configuration."""
         d = self.defaults
         self.voltage_set = 0.0
         self.output_on = False
@@ -61,25 +113,30 @@ class PlantChannel:
         self.current_limit = d.current_limit
         self.trip_time_ms = d.trip_time_ms
         self.trip_action = d.trip_action
+        self.voltage_bounds = self.current_bounds = 0.0  # iseg :VOLT:BOU / :CURR:BOU (stored, not acted on)
         self.current_trip = False
-        self.events = ChannelEvent(0)
+        self.events = PlantEvent(0)
+        self.switching: Switching | None = None
         self._over_limit_since: float | None = None
 
     # --- commands ----------------------------------------------------------------------------
     def switch_off(self, now: float, emergency: bool, ramp: bool = True) -> None:
-        """Output off: ramped down at the ramp-down speed, or without ramp (``ramp`` False, or an emergency off)."""
+        """Output off: ramped down at the ramp-down speed, or without ramp (``ramp`` False, an emergency off, or a
+        supply without a device ramp)."""
+        ramp = ramp and self.ramp_down is not None
         if self.output_on:
             self.off_at = now
-            self.events |= ChannelEvent.EVENT_ON_TO_OFF
+            self.events |= PlantEvent.ON_TO_OFF
             self.ramping_down = ramp
         self.output_on = False
+        self.switching = None
         self.arcing = False
         if emergency or not ramp:
             self.ramping_down = False
         if emergency:
             self.emergency = True
             self.voltage_set = 0.0
-            self.events |= ChannelEvent.EVENT_EMERGENCY_OFF
+            self.events |= PlantEvent.EMERGENCY_OFF
 
     def switch_on(self) -> bool:
         """Switch on; refused (False) while an emergency off or a current trip is latched."""
@@ -88,22 +145,56 @@ class PlantChannel:
         self.output_on = True
         return True
 
+    def start_switching(self, now: float, frequency: float, duty: float, cycles: int) -> bool:
+        """Switch between 0 V and the set voltage from ``now`` on (refused like `switch_on`)."""
+        if not self.switch_on():
+            return False
+        self.switching = Switching(frequency, duty, cycles, now)
+        return True
+
     # --- dynamics ----------------------------------------------------------------------------
+    def target(self, t: float) -> float:
+        if self.switching is not None and not self.switching.on(t):
+            return 0.0
+        return self.voltage_set
+
     def step(self, now: float, dt: float) -> None:
+        """Advance to ``now``; a device-side switching edge inside the step splits it, so edges keep their times."""
+        if dt <= 0:
+            return
+        t = now - dt
+        inside = [] if self.switching is None else self.switching.boundaries(t, now)
+        for boundary in inside + [now]:
+            self._advance(boundary, boundary - t)
+            t = boundary
+            if self.switching is not None and self.switching.done(t):
+                self.switching = None  # the counted cycles are over: output off, as the device does
+                self.switch_off(t, emergency=False, ramp=False)
+
+    def _advance(self, now: float, dt: float) -> None:
         if dt <= 0:
             return
         load, before = self.load, self.voltage
+        # Target in the middle of the step: a step begins or ends on a switching edge, whose own time would
+        # fall on either side of it by rounding.
+        target = self.target(now - dt / 2)
+        rise_rate = tau = None  # how the output moves in this step, for the exact time of a watched crossing
         if self.arcing and self.output_on:
             self.voltage *= math.exp(-dt / load.arc_collapse_time)
-        elif self.output_on:
-            delta = self.voltage_set - self.voltage
+        elif self.output_on and self.ramp_up is not None:
+            delta = target - self.voltage
             limit = (self.ramp_up if delta > 0 else self.ramp_down) * dt
             self.voltage += max(-limit, min(limit, delta))
+            rise_rate = self.ramp_up
+        elif self.output_on:
+            tau = self.defaults.regulation_time_s * load.capacitance / NOMINAL_CAPACITANCE
+            self.voltage += (target - self.voltage) * -math.expm1(-dt / tau)
         elif self.ramping_down:
             self.voltage = max(0.0, self.voltage - self.ramp_down * dt)
             self.ramping_down = self.voltage > 0.0
         else:
             self.voltage *= math.exp(-dt / (load.discharge_resistance * load.capacitance))
+        self._record_edge(now - dt, dt, before, target, rise_rate, tau)
         self.current = load.capacitance * (self.voltage - before) / dt + self.voltage / load.leakage_resistance
         if self.arcing and self.output_on:
             self.current += load.arc_current
@@ -111,15 +202,30 @@ class PlantChannel:
         self.drift += self.drift_rate * dt
         self._device_trip(now)
 
+    def _record_edge(self, start: float, dt: float, before: float, target: float, rise_rate: float | None,
+                     tau: float | None) -> None:
+        """A rising crossing of the watched level in the step from ``start``, timed by the step's own law (a ramp
+        at ``rise_rate`` or a first-order lag ``tau`` towards ``target``), so long steps keep exact edge times."""
+        level = self.watch_level
+        if level is None or not before < level <= self.voltage:
+            return
+        if rise_rate is not None:
+            into = (level - before) / rise_rate
+        elif tau is not None and target > level:
+            into = tau * math.log((target - before) / (target - level))
+        else:
+            into = dt * (level - before) / (self.voltage - before)
+        self.rising_edges.append(start + min(dt, into))
+
     def _device_trip(self, now: float) -> None:
-        """Delayed current trip (:CONF:TRIP:TIME / :CONF:TRIP:ACTION), the device's own defence."""
+        """Delayed current trip (trip time and action), the device's own defence."""
         if not (self.output_on and self.current > self.current_limit):
             self._over_limit_since = None
             return
         self._over_limit_since = now if self._over_limit_since is None else self._over_limit_since
         if self.trip_action in (1, 2, 3) and now - self._over_limit_since >= self.trip_time_ms / 1000.0:
             self.current_trip = True
-            self.events |= ChannelEvent.EVENT_CURRENT_TRIP
+            self.events |= PlantEvent.CURRENT_TRIP
             self.switch_off(now, emergency=False, ramp=self.trip_action == 1)  # 1 off with ramp, 2/3 without
 
     # --- readback ----------------------------------------------------------------------------
@@ -128,15 +234,6 @@ class PlantChannel:
         return self.voltage + self.drift
 
     @property
-    def status(self) -> ChannelStatus:
-        status = ChannelStatus.IS_POSITIVE
-        ramping = (self.output_on and abs(self.voltage_set - self.voltage) > 0.5) or self.ramping_down
-        for flag, active in ((ChannelStatus.IS_ON, self.output_on),
-                             (ChannelStatus.IS_VOLTAGE_RAMP, ramping),
-                             (ChannelStatus.IS_CONSTANT_VOLTAGE, self.output_on and not ramping),
-                             (ChannelStatus.IS_EMERGENCY_OFF, self.emergency),
-                             (ChannelStatus.IS_ARC, self.arcing),
-                             (ChannelStatus.IS_CURRENT_TRIP, self.current_trip)):
-            if active:
-                status |= flag
-        return status
+    def ramping(self) -> bool:
+        return (self.output_on and self.switching is None and abs(self.voltage_set - self.voltage) > 0.5) \
+            or self.ramping_down

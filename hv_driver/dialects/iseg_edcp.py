@@ -6,12 +6,18 @@ default), so each answer is preceded by the echoed command line. Settings are se
 plus one answer line. Numbers go out in exponent notation (``1.200000E+03``) and come back in
 exponent notation followed by their unit (``1.20000E3V``, ``5.00000E-9A``, ``ms``, ``V/s``);
 several channels answer comma-separated. Channel lists are ``(@0)``, ``(@0,1)``.
+
+Capabilities: several channels per module (``:READ:MOD:CHAN?``); a device ramp (``:CONF:RAMP:VOLT``, and
+``:VOLT OFF`` ramps down at it); current readback and a delayed device trip (``:CURR`` limit, ``:CONF:TRIP:TIME``,
+``:CONF:TRIP:ACTION``) set 1.5 x above the host's trip level with 100 ms delay, a slower second line behind the
+host's check; a latched emergency off; no host watchdog (wire the INHIBIT input to an external interlock); no
+device-side switching.
 """
 import re
 from collections.abc import Sequence
 from enum import IntFlag
 
-from .base import Command, Dialect, ProtocolError, StatusReport
+from .base import Capabilities, Command, CurrentSensing, Dialect, ProtocolError, StatusReport
 
 
 class ChannelStatus(IntFlag):
@@ -67,13 +73,18 @@ OVER_CURRENT_EVENTS = ChannelEvent.EVENT_CURRENT_TRIP | ChannelEvent.EVENT_ARC
 
 # TRIP:ACTION codes: 0 flag only, 1 off with ramp, 2 off without ramp, 3 module off, 4 no delayed trip.
 TRIP_ACTION_OFF_WITHOUT_RAMP = 2
+# Delay of the device's own current trip: it acts only if the host's check (every control cycle) did not.
+DEVICE_TRIP_TIME_MS = 100.0
 
 _NUMBER = re.compile(r"[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?")
 
 
 class IsegEdcp(Dialect):
     name = "iseg-edcp"
-    terminator = b"\r\n"
+    capabilities = Capabilities(channels_per_device=None, device_ramp=True, current=CurrentSensing.DEVICE_TRIP,
+                                emergency_off=True, status_operations=("read_status", "read_event_status"),
+                                device_current_margin=1.5)
+    command_terminator = reply_terminator = b"\r\n"
     echo = True
     default_baudrate = 9600
     commands = {
@@ -98,12 +109,18 @@ class IsegEdcp(Dialect):
         "read_current_limit": Command(":READ:CURR? {channels}", "number", "A"),
         "set_trip_time": Command(":CONF:TRIP:TIME {value},{channels}", "ack"),
         "read_trip_time": Command(":CONF:TRIP:TIME? {channels}", "number", "ms"),
-        "set_trip_action": Command(":CONF:TRIP:ACTION {value},{channels}", "ack", integer=True),
+        "set_trip_action": Command(":CONF:TRIP:ACTION {value},{channels}", "ack", fmt=".0f"),
     }
     ack_reply = "1"
 
     def acknowledged(self, line: str) -> str:
         return f"{line};*OPC?"
+
+    def device_trip_settings(self, current_a: float) -> list[tuple[str, float, str | None]]:
+        """Current limit, then a trip after DEVICE_TRIP_TIME_MS that switches the output off without ramp."""
+        return [("set_current_limit", current_a, "read_current_limit"),
+                ("set_trip_time", DEVICE_TRIP_TIME_MS, "read_trip_time"),
+                ("set_trip_action", TRIP_ACTION_OFF_WITHOUT_RAMP, None)]
 
     def format_number(self, value: float) -> str:
         return f"{value:.6E}"

@@ -7,14 +7,15 @@ from __future__ import annotations
 
 import json
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
 import yaml
 
 from planner import design
-from planner.assembly import Assembly, Chain, PlacedBlock, save_assembly
-from planner.contours import OBJECTS_CATALOG, load_mask
+from planner.assembly import ROTATION_STEP, Assembly, Chain, PlacedBlock, save_assembly
+from planner.contours import OBJECTS_CATALOG, extract_contours, load_mask
 
 
 def register(subparsers) -> None:
@@ -27,10 +28,14 @@ def register(subparsers) -> None:
                         help="rod diameter a stiff block needs [m] (default %(default)s)")
     _common(finger)
     finger.add_argument("--inventory", type=Path, help="YAML mapping design ID -> blocks on the shelf")
-    finger.add_argument("--certify", action="store_true",
-                        help="exact method: widen the search until the optimum is proven (minutes)")
+    finger.add_argument("--contact-tolerance", type=float, default=0.0,
+                        help="how far a finger body may enter the object before it collides [m] (default 0)")
     finger.add_argument("--png", type=Path, help="draw the fingers over the object into this PNG")
     finger.set_defaults(handler=run_finger)
+
+    prepare = subparsers.add_parser("prepare-design", help="compile the finger search and build its lookahead "
+                                    "fields for the usual block counts (set-up runs this once)")
+    prepare.set_defaults(handler=run_prepare)
 
     path = subparsers.add_parser("design-path", help="design a chain (with rotations) following a 3D path")
     path.add_argument("points", type=Path, help="CSV of x,y,z [m] per line, base first (header line allowed)")
@@ -78,52 +83,41 @@ def run_finger(args) -> int:
     result = design.design_fingers(
         mask, pixel_size, args.blocks, num_stiff_top=args.stiff_top, min_stiff_rod_diameter=args.min_stiff_diameter,
         method=args.method, time_budget=args.time_budget, seed=args.seed,
-        inventory=_load_inventory(args.inventory), callback=_progress,
-        options={"max_width": None} if args.certify and args.method == "exact" else None,
+        inventory=_load_inventory(args.inventory), callback=_progress, contact_tolerance_m=args.contact_tolerance,
     )
     print(file=sys.stderr)
     report = {"success": result.success, "message": result.message, "optimal": result.optimal,
-              "solve_time": result.solve_time}
+              "solve_time_s": result.solve_time, "contact_tolerance_m": args.contact_tolerance,
+              "frame": "object frame: origin at the top centre of the object's bounding box, x right, z up [m]"}
     for finger in (result.left, result.right):
         report[finger.side] = {
-            "design_ids": list(finger.design_ids), "cost": finger.cost, "collision": finger.collision,
-            "optimal": finger.optimal, "base": finger.base.tolist(), "solve_time": finger.result.solve_time,
+            "design_ids": list(finger.design_ids), "cost_m": finger.cost, "collision": finger.collision,
+            "min_clearance_m": finger.min_clearance_m, "optimal": finger.optimal,
+            "lower_bound_m": finger.lower_bound_m if np.isfinite(finger.lower_bound_m) else None,
+            "base_m": finger.base.tolist(), "centerline_m": finger.centerline.tolist(),
+            "solve_time_s": finger.result.solve_time,
         }
+        bound = "certified optimal" if finger.optimal else f"not certified (lower bound {finger.lower_bound_m:.4f} m)"
         print(f"{finger.side:5s} IDs {list(finger.design_ids)}  cost {finger.cost:.4f} m  "
-              f"base x {1e3 * finger.base[0]:.1f} mm  collision {finger.collision}  "
-              f"{'certified optimal' if finger.optimal else 'not certified'}  {finger.result.solve_time:.2f} s")
+              f"base x {1e3 * finger.base[0]:.1f} mm  clearance {1e3 * finger.min_clearance_m:.3f} mm  "
+              f"collision {finger.collision}  {bound}  {finger.result.solve_time:.2f} s")
     print(result.message)
     if args.json:
         args.json.write_text(json.dumps(report, indent=2))
     if args.png:
-        _draw_fingers(result, mask, pixel_size, args.png)
+        from planner.finger_plot import plot_designed_fingers  # matplotlib only when drawing
+
+        plot_designed_fingers(result, extract_contours(mask, pixel_size), args.png)
     return 0 if result.success else 1
 
 
-def _draw_fingers(result, mask, pixel_size, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from planner.kinematics import BLOCK_RADIUS
-
-    fig, ax = plt.subplots(figsize=(5, 6))
-    for finger, colour in ((result.left, "tab:blue"), (result.right, "tab:red")):
-        ax.plot(*finger.contour.T, color="k", lw=1)
-        centre = finger.centerline
-        tangent = np.gradient(centre, axis=0)
-        normal = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1) / np.linalg.norm(tangent, axis=1)[:, None]
-        body = np.vstack([centre + BLOCK_RADIUS * normal, (centre - BLOCK_RADIUS * normal)[::-1]])
-        ax.fill(*body.T, color=colour, alpha=0.2)
-        ax.plot(*centre.T, color=colour, lw=1.5, label=f"{finger.side} {list(finger.design_ids)}")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("z [m]")
-    ax.legend(fontsize=7, loc="lower center")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+def run_prepare(args) -> int:
+    started = time.perf_counter()
+    print(f"preparing the finger search for (blocks, stiff top) {list(design.PREPARED_CONFIGURATIONS)} ...",
+          file=sys.stderr, flush=True)
+    design.prepare_finger_search()
+    print(f"finger search ready ({time.perf_counter() - started:.1f} s)", file=sys.stderr)
+    return 0
 
 
 def run_path(args) -> int:
@@ -139,9 +133,9 @@ def run_path(args) -> int:
     if args.json:
         args.json.write_text(json.dumps({
             "success": result.success, "message": result.message, "optimal": result.optimal,
-            "cost": result.cost, "lower_bound": result.lower_bound if np.isfinite(result.lower_bound) else None,
-            "solve_time": result.solve_time,
-            "blocks": [{"id": i, "rotation_steps": k, "rotation": k * np.pi / 6}
+            "cost_m": result.cost, "lower_bound_m": result.lower_bound if np.isfinite(result.lower_bound) else None,
+            "solve_time_s": result.solve_time,
+            "blocks": [{"id": i, "rotation_steps": k, "rotation_rad": k * ROTATION_STEP}
                        for i, k in zip(result.design_ids, result.rotation_steps)],
         }, indent=2))
     return 0 if result.success else 1

@@ -1,12 +1,13 @@
-"""Branch and bound over block prefixes with a widening beam and local search ("exact" method).
+"""Branch and bound over block prefixes with a widening beam and local search ("exact" method for paths).
 
 A chain is built from its base. Once blocks 1..k are placed, their centerline samples are fixed, and so is
 each target point's distance ``a`` to them. The remaining blocks start at the prefix end, reach at most
 ``R`` from it (sum of the longest remaining block chords) and, while their total bend stays below 90
 degrees, stay ahead of the end (planar chains bending toward +x also stay on its +x side). With ``b`` the
 distance of a target point to that region, its final centerline distance lies in [min(a, b), a], which
-bounds its error term from below; the tip term is bounded the same way and a prefix that collides keeps
-the penalty k. The bound is exact for complete chains.
+bounds its error term from below; the tip term is bounded the same way. The bound is exact for complete
+chains. (Fingers, which must also keep clear of an object, have their own certified search:
+``planner.optimize.finger_search``.)
 
 The search runs level by level (block 1, 2, ...) and drops every prefix whose bound reaches the best
 complete design found. Rounds keep the ``width`` best prefixes per level and also the ``width // bases``
@@ -17,8 +18,8 @@ the best complete designs of each round are improved by block-by-block local sea
 (``planner.optimize.local_search``). Certificate: a round that dropped no prefix whose bound was below
 its best design proves that design optimal (``optimal=True``); otherwise the smallest dropped bound is a
 proven lower bound (``lower_bound``). Small spaces certify (``max_width=None`` widens until they do); for
-4-6 block fingers and long 3D paths the bound is weak (contour points still ahead of a prefix bound to
-about zero), so those runs end uncertified with a proven but loose lower bound.
+long 3D paths the bound is weak (path points still ahead of a prefix bound to about zero), so those runs
+end uncertified with a proven but loose lower bound.
 """
 from __future__ import annotations
 
@@ -28,7 +29,7 @@ import numpy as np
 
 from planner.assembly import ROTATION_STEP
 from planner.kinematics import CAP_LENGTH, DEFAULT_SAMPLES_PER_BLOCK, chain_shape
-from planner.objectives import COLLISION_PENALTY, ShapeTarget
+from planner.objectives import ShapeTarget
 from planner.optimize.local_search import polish
 from planner.optimize.result import DesignOptimizeResult, RunControl, Status, Stop, make_result
 from planner.optimize.space import DesignSpace
@@ -54,7 +55,6 @@ class BlockLibrary:
     reach: float  # farthest sample from a block start [m]
     remaining_length: np.ndarray  # (N,) after block k: sum of the longest chords of blocks k+1.. [m]
     remaining_turn: np.ndarray  # (N, 2) after block k: least and most total bend of blocks k+1.. [rad]
-    straight_tails: tuple[np.ndarray, ...]  # after block k: samples (T, 3) of the least-bent completion
 
 
 def block_library(space: DesignSpace, samples_per_block: int) -> BlockLibrary:
@@ -68,15 +68,6 @@ def block_library(space: DesignSpace, samples_per_block: int) -> BlockLibrary:
     least_bend = np.array([np.minimum(space.theta[c], 0).min() for c in space.choices])
     most_bend = np.array([np.maximum(space.theta[c], 0).max() for c in space.choices])
     after = lambda values: np.concatenate([np.cumsum(values[::-1])[::-1][1:], [0.0]])  # noqa: E731
-    straightest = np.array([c[np.argmin(np.abs(space.theta[c]))] for c in space.choices])
-    tails = []
-    for level in range(space.num_blocks):
-        rest = straightest[level + 1 :]
-        tails.append(
-            chain_shape(space.theta[rest], space.length[rest], samples_per_block=samples_per_block).points[1:]
-            if rest.size
-            else np.zeros((0, 3))
-        )
     return BlockLibrary(
         samples=samples,
         end_rotation=shape.rotations[:, :, 1],
@@ -84,7 +75,6 @@ def block_library(space: DesignSpace, samples_per_block: int) -> BlockLibrary:
         reach=float(np.linalg.norm(samples, axis=-1).max()),
         remaining_length=after(longest),
         remaining_turn=np.stack([after(least_bend), after(most_bend)], axis=-1),
-        straight_tails=tuple(tails),
     )
 
 
@@ -98,7 +88,6 @@ class _Prefixes:
     frame_rotation: np.ndarray  # (n, 3, 3) end frame
     frame_position: np.ndarray  # (n, 3)
     nearest: np.ndarray  # (n, P) distance of each target point to the prefix samples
-    collided: np.ndarray  # (n,)
     counts: np.ndarray | None  # (n, S) blocks used per shape (inventory only)
     stiff_counts: np.ndarray | None
     bound: np.ndarray  # (n,)
@@ -133,15 +122,11 @@ class PrefixSearch:
         steps = np.linalg.norm(np.diff(target.points, axis=0), axis=1)
         self.target_arc = np.linalg.norm(target.points[0]) + np.concatenate([[0.0], np.cumsum(steps)])
         self.block_arc = space.length + 2 * CAP_LENGTH
-        self.points_per_block = self.block_arc.mean() / max(steps.mean(), 1e-9) if len(steps) else 1.0
 
     def root(self) -> _Prefixes:
         """One empty chain per candidate base position."""
         bases = self.target.bases
         count = len(bases)
-        collided = np.zeros(count, dtype=bool)
-        if self.target.clearance is not None:
-            collided[:] = self.target.clearance(bases) < self.target.collision_distance
         inventory = self.space.stock is not None
         counts = np.zeros((count, len(self.space.theta)), dtype=np.int16) if inventory else None
         return _Prefixes(
@@ -151,7 +136,6 @@ class PrefixSearch:
             frame_rotation=np.repeat(np.eye(3)[None], count, axis=0),
             frame_position=bases.copy(),
             nearest=np.linalg.norm(self.target.points[None] - bases[:, None], axis=-1),
-            collided=collided,
             counts=counts,
             stiff_counts=None if counts is None else counts.copy(),
             bound=np.zeros(count),
@@ -175,10 +159,6 @@ class PrefixSearch:
         rotation, position = parents.frame_rotation, parents.frame_position
         world = (local.reshape(-1, 3) @ rotation.transpose(0, 2, 1)).reshape(n, q, -1, 3) + position[:, None, None, :]
 
-        collided = np.repeat(parents.collided[:, None], q, axis=1)
-        if target.clearance is not None:
-            collided |= np.any(target.clearance(world) < target.collision_distance, axis=-1)
-
         nearest = np.repeat(parents.nearest[:, None, :], q, axis=1)
         to_end = np.linalg.norm(target.points[None] - position[:, None, :], axis=-1)
         active = np.flatnonzero(np.any(to_end - library.reach < parents.nearest, axis=0))
@@ -190,7 +170,7 @@ class PrefixSearch:
 
         end_rotation = rotation[:, None] @ library.end_rotation[shapes, rotations][None]
         end_position = position[:, None] + library.end_position[shapes, rotations] @ rotation.transpose(0, 2, 1)
-        bound = self._bound(nearest, collided, end_rotation, end_position, level)
+        bound = self._bound(nearest, end_rotation, end_position, level)
         travelled = parents.travelled[:, None] + self.block_arc[shapes]
         rank = self._rank(bound, nearest, travelled, end_rotation, end_position, level) if ranked else bound
 
@@ -215,7 +195,6 @@ class PrefixSearch:
             frame_rotation=reshape(end_rotation, 3, 3),
             frame_position=reshape(end_position, 3),
             nearest=reshape(nearest, nearest.shape[-1]),
-            collided=reshape(collided),
             counts=None if counts is None else reshape(counts, counts.shape[-1]),
             stiff_counts=None if stiff_counts is None else reshape(stiff_counts, stiff_counts.shape[-1]),
             bound=reshape(bound),
@@ -224,25 +203,11 @@ class PrefixSearch:
         )
 
     def _rank(self, bound, nearest, travelled, rotation, position, level: int) -> np.ndarray:
-        """Beam order of children (a heuristic; pruning uses the bound alone).
-
-        Fingers: the bound, plus the gap between the prefix end's clearance and the block radius (the
-        ideal centerline runs one radius off the object) weighted by the contour points one block covers,
-        plus k when even the least-bent completion collides. Paths: the error of the target points up to
-        the same length along the path, plus the distance from the prefix end to the path point at that
-        length (where the tip should be by now).
+        """Beam order of children (a heuristic; pruning uses the bound alone): the error of the target
+        points up to the same length along the path, plus the distance from the prefix end to the path
+        point at that length (where the tip should be by now).
         """
         target = self.target
-        if target.clearance is not None:
-            off_track = np.abs(np.minimum(target.clearance(position), 1.0) - target.offset)
-            rank = bound + self.points_per_block * off_track
-            tail = self.library.straight_tails[level]
-            if len(tail):
-                completion = np.einsum("nqij,tj->nqti", rotation, tail) + position[:, :, None, :]
-                rank = rank + COLLISION_PENALTY * np.any(
-                    target.clearance(completion) < target.collision_distance, axis=-1
-                )
-            return rank
         covered = self.target_arc <= travelled[..., None]
         passed = np.where(covered, np.abs(nearest - target.offset), 0.0).sum(axis=-1)
         due = np.stack([np.interp(travelled, self.target_arc, target.points[:, k]) for k in range(3)], axis=-1)
@@ -268,7 +233,7 @@ class PrefixSearch:
             bound = np.maximum(bound, behind)
         return bound
 
-    def _bound(self, nearest, collided, rotation, position, level: int) -> np.ndarray:
+    def _bound(self, nearest, rotation, position, level: int) -> np.ndarray:
         target = self.target
         tip = position + target.tip_offset * rotation[..., :, 0]
         if level == self.space.num_blocks - 1:  # complete chains: the objective itself
@@ -280,7 +245,7 @@ class PrefixSearch:
             gaps = np.maximum(np.maximum(lowest - target.offset, target.offset - nearest), 0.0).sum(axis=-1)
             end_region = self._region_distance(target.end_point[None], rotation, position, level)[..., 0]
             end_error = np.maximum(end_region - target.tip_offset, 0.0)
-        return target.start_error + end_error + gaps + COLLISION_PENALTY * collided
+        return target.start_error + end_error + gaps
 
 
 @dataclass
@@ -378,7 +343,10 @@ def _width_schedule(settings: dict) -> list[int | None]:
 
 def solve_exact(target: ShapeTarget, space: DesignSpace, *, options: dict | None = None, time_budget=None,
                 callback=None) -> DesignOptimizeResult:
-    """Minimise the objective of ``target`` over ``space`` by prefix branch and bound (see module doc)."""
+    """Minimise the objective of ``target`` (a path: fingers go to ``solve_finger``) over ``space`` by prefix
+    branch and bound (see module doc)."""
+    if target.body is not None:
+        raise ValueError("solve_exact designs paths; a finger target (with a body) needs solve_finger")
     unknown = set(options or {}) - set(DEFAULT_OPTIONS)
     if unknown:
         raise ValueError(f"options: unknown keys {sorted(unknown)}; known: {sorted(DEFAULT_OPTIONS)}")

@@ -29,11 +29,12 @@ def design_costs(target: ShapeTarget, space: DesignSpace, shapes: np.ndarray, ro
                  base=0, samples_per_block: int = DEFAULT_SAMPLES_PER_BLOCK) -> np.ndarray:
     """Objective (...) of designs given as shape indices and rotation steps (..., N) and base index (...),
     inventory penalty included."""
-    shape = chain_shape(space.theta[shapes], space.length[shapes], rotations * ROTATION_STEP,
-                        samples_per_block=samples_per_block)
+    theta, length = space.theta[shapes], space.length[shapes]
+    shape = chain_shape(theta, length, rotations * ROTATION_STEP, samples_per_block=samples_per_block)
     offset = target.bases[base]
+    blocks = None if target.body is None else (theta, length, offset[..., 0])  # finger bodies are planar
     cost = evaluate(target, shape.points + offset[..., None, :], shape.rotations[..., -1, :, :],
-                    shape.positions[..., -1, :] + offset)
+                    shape.positions[..., -1, :] + offset, blocks)
     return cost.total + COLLISION_PENALTY * space.excess(shapes)
 
 

@@ -96,9 +96,11 @@ class RunControl:
         if self.time_budget is not None and self.elapsed > self.time_budget:
             raise Stop(Status.TIME_BUDGET)
 
-    def report(self, fraction: float, best_cost: float, nfev: int) -> None:
-        """Give the callback a Progress; StopIteration from it cancels the run."""
-        self.check_time()
+    def report(self, fraction: float, best_cost: float, nfev: int, timed: bool = True) -> None:
+        """Give the callback a Progress; StopIteration from it cancels the run. ``timed`` False: the time
+        budget is not checked (a step that must finish once begun)."""
+        if timed:
+            self.check_time()
         if self.callback is not None:
             try:
                 self.callback(Progress(min(max(fraction, 0.0), 1.0), float(best_cost), nfev, self.elapsed))
@@ -108,7 +110,9 @@ class RunControl:
 
 def make_result(space, shapes, rotations, cost, status: Status, *, base, nit, nfev, lower_bound,
                 control) -> DesignOptimizeResult:
-    """Assemble a result; the success flag follows the status, the message adds the numbers."""
+    """Assemble a result; the message adds the numbers. ``success``: a usable design (collision-free, within
+    the inventory) is returned, also when the time budget ended the run; ``optimal`` says whether it is
+    proven best."""
     shapes = np.asarray(shapes, dtype=np.int64)
     ids = space.design_ids(shapes)
     x = np.stack([np.array(ids, dtype=np.int64), np.asarray(rotations, dtype=np.int64)], axis=1)
@@ -122,7 +126,7 @@ def make_result(space, shapes, rotations, cost, status: Status, *, base, nit, nf
     return DesignOptimizeResult(
         x=x,
         fun=float(cost),
-        success=status in (Status.CERTIFIED, Status.FINISHED),
+        success=status in (Status.CERTIFIED, Status.FINISHED) or status == Status.TIME_BUDGET and cost < COLLISION_PENALTY,
         status=status,
         message=message,
         nit=nit,

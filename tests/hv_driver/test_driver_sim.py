@@ -13,7 +13,7 @@ import pytest
 
 from hv_driver import (ChannelConfig, ConfigurationError, ControlError, Fault, FaultLatchedError, HvSupply, LimitError,
                        LinkError)
-from hv_driver.dialects.iseg_edcp import ChannelEvent
+from sim_fallback.hv_plant import PlantEvent
 from sim_fallback.hv_plant import ChannelDefaults
 from sim_fallback.hv_supply import SimulatedSupply
 
@@ -123,7 +123,7 @@ def test_every_injected_fault_ends_with_outputs_off_and_the_named_fault(fault, s
 
 def test_an_interlock_pulse_between_two_polls_is_caught_by_the_event_register(sim, supply, token, wait_until):
     ramp_both(supply, token, 800.0)
-    sim.plant[1].events |= ChannelEvent.EVENT_EXTERNAL_INHIBIT  # the status bit came and went unseen
+    sim.plant[1].events |= PlantEvent.EXTERNAL_INHIBIT  # the status bit came and went unseen
     assert wait_until(lambda: supply.snapshot().channel("back").faults == Fault.DEVICE)
     assert "event_external_inhibit" in supply.snapshot().channel("back").fault_text
     assert wait_until(lambda: not sim.plant[1].output_on) and sim.plant[0].output_on
@@ -342,7 +342,7 @@ def test_open_ramps_down_an_output_an_earlier_session_left_on(sim, wait_until):
 
 def test_a_channel_index_the_supply_does_not_have_is_refused_at_open(sim):
     hv = HvSupply(sim.port, channels=[ChannelConfig("front", 999, max_voltage_v=3000.0)], handle_signals=False)
-    with pytest.raises(ConfigurationError, match=r"channel 'front': index 999 is not on this supply, which has 2 "
+    with pytest.raises(ConfigurationError, match=r"channel 'front': index 999 is not on the supply at \S+, which has 2 "
                                                  r"channel\(s\) \(indices 0-1\)"):
         hv.open()
     assert not [line for _, line in sim.command_log if "999" in line]  # nothing sent to it

@@ -1,4 +1,6 @@
 """iseg EDCP dialect and line framing against scripted exchanges, garbage, partial lines, wrong echoes."""
+from dataclasses import replace
+
 import pytest
 import serial
 
@@ -71,10 +73,17 @@ def test_status_and_event_registers_map_to_output_and_fault_flags():
     assert inhibited.fault == "supply reports is_emergency_off, is_external_inhibit, event_voltage_limit"
 
 
-def test_a_dialect_must_define_every_operation():
-    with pytest.raises(TypeError, match="lacks operations"):
-        class Incomplete(Dialect):  # noqa: F841
-            commands = {"identify": Command("*IDN?", "text")}
+def test_a_dialect_must_define_every_operation_its_capabilities_need():
+    with pytest.raises(TypeError, match=r"lacks operations \['set_ramp_up', 'set_ramp_down', 'read_ramp'\]"):
+        class NoRampCommands(Dialect):  # noqa: F841 (declares a device ramp but has no commands for it)
+            capabilities = replace(IsegEdcp.capabilities)
+            commands = {op: c for op, c in IsegEdcp.commands.items() if "ramp" not in op}
+    host_ramped = replace(IsegEdcp.capabilities, device_ramp=False)
+
+    class HostRamped(Dialect):  # the same table without ramp commands is fine once the host ramps
+        capabilities = host_ramped
+        commands = {op: c for op, c in IsegEdcp.commands.items() if "ramp" not in op}
+    assert "read_ramp" not in HostRamped.capabilities.required_operations()
 
 
 def test_scripted_exchanges_with_echo(scripted_port):

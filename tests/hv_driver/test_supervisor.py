@@ -2,13 +2,16 @@
 import math
 
 import pytest
-from hypothesis import HealthCheck, settings
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, precondition, rule
 
 from hv_driver import ChannelConfig, ControlError, Fault, FaultLatchedError, LimitError, Supervisor
+from hv_driver.dialects import DIALECTS, CurrentSensing
+from hv_driver.pulse import EDGES, plan_pulse_train
 from hv_driver.ramp import MinimumJerkRamp
-from hv_driver.supervisor import DEFAULT_PERIOD_S, IMMEDIATE_FAULTS, ChannelCommand, ChannelSupervisor
+from hv_driver.supervisor import (COLLAPSE_FRACTION, COLLAPSE_SETTLE_S, DEFAULT_PERIOD_S, IMMEDIATE_FAULTS, ChannelCommand,
+                                  ChannelSupervisor)
 
 CONFIG = ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=1000.0, current_trip_a=50e-6,
                        mismatch_tolerance_v=100.0, mismatch_time_s=0.5, creep_voltage_v=2000.0, max_time_at_voltage_s=60.0)
@@ -219,6 +222,42 @@ def test_time_running_backwards_moves_nothing():
     assert channel.step(math.nan).setpoint == held
 
 
+# --- breakdown guard (supplies without current readback) --------------------------------------------------
+@settings(deadline=None, max_examples=200)
+@given(setpoint=st.floats(min_value=60.0, max_value=3000.0), hold=st.floats(min_value=0.0, max_value=1.0),
+       fractions=st.lists(st.floats(min_value=0.0, max_value=1.2), min_size=1, max_size=12))
+def test_the_breakdown_guard_trips_exactly_on_two_readbacks_far_below_a_held_setpoint(setpoint, hold, fractions):
+    channel = ChannelSupervisor(ChannelConfig("leg", 0, max_voltage_v=3000.0, slew_rate_v_per_s=1e5,
+                                              mismatch_tolerance_v=1000.0, mismatch_time_s=10.0))
+    channel.breakdown_guard = True
+    channel.enable()
+    channel.ramp_to(0.0, setpoint)
+    run(channel, 0.0, 0.2)
+    t = 0.2
+    channel.step(t + hold)  # held since the ramp ended
+    below_in_a_row, expected = 0, False
+    for k, fraction in enumerate(fractions):
+        now = t + hold + 0.01 * k
+        channel.observe(now, fraction * setpoint, None)
+        held_long_enough = now - channel._held[1] >= COLLAPSE_SETTLE_S
+        below_in_a_row = below_in_a_row + 1 if (fraction < COLLAPSE_FRACTION and held_long_enough) else 0
+        expected = expected or below_in_a_row >= 2
+        assert (Fault.BREAKDOWN in channel.faults) == expected
+    if expected:
+        assert channel.step(t + hold + 1.0) == ChannelCommand(0.0, False, True) and "collapsed" in channel.fault_text
+
+
+def test_the_breakdown_guard_ignores_a_setpoint_on_its_way():
+    channel = ChannelSupervisor(ChannelConfig("leg", 0, max_voltage_v=3000.0, slew_rate_v_per_s=1000.0))
+    channel.breakdown_guard = True
+    channel.enable()
+    channel.ramp_to(0.0, 2000.0)
+    for k in range(1, 100):  # the output lags the streamed ramp: far below it, but the setpoint is never held
+        command = channel.step(0.01 * k)
+        channel.observe(0.01 * k, 0.3 * command.setpoint, None)
+    assert not channel.faults
+
+
 # --- property-based: random command sequences with absurd values --------------------------------
 absurd_floats = st.one_of(st.floats(allow_nan=True, allow_infinity=True),
                           st.floats(min_value=-10.0, max_value=6000.0),
@@ -234,18 +273,30 @@ class SupervisorMachine(RuleBasedStateMachine):
     live session's token ramps or feeds the watchdog (an ended session's never again), and with the watchdog
     on no output stays energised without a client in control."""
 
-    @initialize(hb=st.one_of(st.just(math.inf), st.floats(min_value=0.05, max_value=2.0)))
-    def setup(self, hb):
+    @initialize(hb=st.one_of(st.just(math.inf), st.floats(min_value=0.05, max_value=2.0)),
+                dialect=st.sampled_from(sorted(DIALECTS)))
+    def setup(self, hb, dialect):
+        """The supervisor as the driver sets it up for each dialect's capabilities (device ramp or host ramp,
+        current readback or the breakdown guard; single-channel dialects: one supply per channel)."""
+        capabilities = DIALECTS[dialect].capabilities
+        self.dialect, self.capabilities = dialect, capabilities
+        single = capabilities.channels_per_device == 1
         configs = [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=1000.0, mismatch_time_s=0.3),
-                   ChannelConfig("back", 1, max_voltage_v=2500.0, slew_rate_v_per_s=300.0,
-                                 creep_voltage_v=1000.0, max_time_at_voltage_s=2.0)]
+                   ChannelConfig("back", 0 if single else 1, max_voltage_v=2500.0, slew_rate_v_per_s=300.0,
+                                 creep_voltage_v=1000.0, max_time_at_voltage_s=2.0, device=1 if single else 0)]
         self.sup = Supervisor(configs, link_timeout_s=0.5, heartbeat_timeout_s=hb, now=0.0)
+        self.devices = sorted({c.device for c in configs})
+        self.no_current = capabilities.current is CurrentSensing.NONE
+        for channel in self.sup.channels.values():
+            channel.set_device_ramp(1.2 * channel.config.slew_rate_v_per_s if capabilities.device_ramp else None)
+            channel.breakdown_guard = self.no_current
         self.now = 0.0
         self.clock = 0.0  # the supervisor's monotonic view of time
         self.last = {n: (0.0, False) for n in NAMES}
         self.faults_seen = {n: Fault(0) for n in NAMES}
         self.allowed_on = {n: False for n in NAMES}
         self.exempt_fall = {n: False for n in NAMES}
+        self.switched = {n: False for n in NAMES}  # the last command was a train the device switches itself
         self.tokens: list[str] = []   # every token ever issued
         self.ended: set[str] = set()  # tokens of sessions that ended (released, lapsed, e-stop)
 
@@ -301,6 +352,20 @@ class SupervisorMachine(RuleBasedStateMachine):
         self._note_ended()
         self._obeyed(token, lambda: self.sup.ramp_to(name, self.now, volts, slew, token=token))
 
+    @rule(names=st.lists(st.sampled_from(NAMES), min_size=1, max_size=2, unique=True), volts=absurd_floats,
+          frequency=st.one_of(st.sampled_from([0.5, 2.0, 5.0, 50.0]), absurd_floats),
+          duty=st.sampled_from([0.5, 0.2, 0.0, 1.0, math.nan]), cycles=st.integers(min_value=0, max_value=30),
+          edge=st.sampled_from(EDGES + ("ramp",)), slew=st.one_of(st.none(), absurd_floats),
+          which=st.integers(min_value=-1, max_value=5))
+    def pulse(self, names, volts, frequency, duty, cycles, edge, slew, which):
+        """A periodic train as the driver plans it for this dialect (refusals included)."""
+        token = self._token(which)
+
+        def plan(config, now):
+            return plan_pulse_train(config, self.capabilities, self.dialect, now, DEFAULT_PERIOD_S, volts, frequency,
+                                    duty, 0.0, cycles, edge, slew)
+        self._obeyed(token, lambda: self.sup.pulse(names, self.now, plan, token=token))
+
     @rule(name=st.sampled_from(NAMES))
     def disable(self, name):
         self.sup.channel(name).disable(self.now)
@@ -323,7 +388,7 @@ class SupervisorMachine(RuleBasedStateMachine):
     @rule(name=st.sampled_from(NAMES), voltage=absurd_floats, current=absurd_floats,
           device=st.sampled_from([None, "", "supply reports is_external_inhibit"]), oc=st.booleans())
     def observe(self, name, voltage, current, device, oc):
-        self.sup.channel(name).observe(self.now, voltage, current, device, oc)
+        self.sup.channel(name).observe(self.now, voltage, None if self.no_current else current, device, oc)
 
     @rule(which=st.integers(min_value=-1, max_value=5))
     def heartbeat(self, which):
@@ -331,13 +396,13 @@ class SupervisorMachine(RuleBasedStateMachine):
         self._note_ended()
         self._obeyed(token, lambda: self.sup.heartbeat(self.now, token))
 
-    @rule()
-    def link_ok(self):
-        self.sup.link_ok(self.now)
+    @rule(device=st.integers(min_value=0, max_value=1))
+    def link_ok(self, device):
+        self.sup.link_ok(self.now, self.devices[device % len(self.devices)])
 
-    @rule()
-    def link_failed(self):
-        self.sup.link_failed(self.now)
+    @rule(device=st.integers(min_value=0, max_value=1))
+    def link_failed(self, device):
+        self.sup.link_failed(self.now, self.devices[device % len(self.devices)])
 
     @rule(name=st.sampled_from(NAMES), fault=st.sampled_from(list(Fault)))
     def trip(self, name, fault):
@@ -377,8 +442,13 @@ class SupervisorMachine(RuleBasedStateMachine):
             last_setpoint, _ = self.last[name]
             slew = channel.config.slew_rate_v_per_s
             assert 0.0 <= command.setpoint <= channel.ceiling
-            assert command.setpoint - last_setpoint <= slew * allowance_dt + 1e-9
-            fault_free = not channel.faults and not self.exempt_fall[name]
+            # Square edges are the device's own: the setpoint is the amplitude while it switches, 0 V once stopped.
+            device_edges = command.pulse is not None or self.switched[name]
+            self.switched[name] = command.pulse is not None
+            if command.pulse is not None:
+                assert self.capabilities.switching is not None and command.output_on
+            assert device_edges or command.setpoint - last_setpoint <= slew * allowance_dt + 1e-9
+            fault_free = not channel.faults and not self.exempt_fall[name] and not device_edges
             if fault_free and channel.ceiling >= last_setpoint and command.output_on:
                 assert last_setpoint - command.setpoint <= slew * allowance_dt + 1e-9
             assert channel.faults >= self.faults_seen[name]  # latched: never cleared without reset

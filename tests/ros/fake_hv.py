@@ -1,4 +1,5 @@
-"""A small stand-in for the HV driver node: `hv/ramp`, `hv/state` (50 Hz), `hv/estop`, `hv/heartbeat`,
+"""A small stand-in for the HV driver node: `hv/ramp`, `hv/pulse` (square trains on the fake outputs),
+`hv/state` (50 Hz), `hv/estop`, `hv/heartbeat`,
 `hv/claim_control` / `hv/release_control` (one session at a time; ramps need its token).
 
 Ramps move the measured voltage linearly over the minimum-jerk duration (1.875 |dV| / slew_rate).
@@ -12,7 +13,7 @@ import time
 from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
-from softblock_interfaces.action import RampChannel
+from softblock_interfaces.action import PulseChannels, RampChannel
 from softblock_interfaces.msg import HvChannelState, HvHeartbeat, HvState
 from softblock_interfaces.srv import ClaimControl, ReleaseControl
 from std_srvs.srv import Trigger
@@ -31,6 +32,7 @@ class FakeHv(Node):
         self.token = ""  # the live control session's token
         self.sessions = 0
         self.ramps: list[tuple[str, float]] = []
+        self.pulses: list[tuple[tuple[str, ...], int]] = []  # (channels, cycles) of each train run
         self.fault_during_ramp: tuple[str, float, str] | None = None
         self.silent = False  # hv/state stops (a driver lost to its clients) while its services keep answering
         group = ReentrantCallbackGroup()
@@ -42,10 +44,13 @@ class FakeHv(Node):
         self.create_service(ReleaseControl, "hv/release_control", self.on_release, callback_group=group)
         self.server = ActionServer(self, RampChannel, "hv/ramp", execute_callback=self.execute,
                                    cancel_callback=lambda _: CancelResponse.ACCEPT, callback_group=group)
+        self.pulse_server = ActionServer(self, PulseChannels, "hv/pulse", execute_callback=self.execute_pulse,
+                                         cancel_callback=lambda _: CancelResponse.ACCEPT, callback_group=group)
 
     def reset(self) -> None:
         with self.lock:
             self.estop, self.ramps, self.fault_during_ramp, self.token = False, [], None, ""
+            self.pulses = []
             self.silent = False
             for channel in self.channels.values():
                 channel.faults, channel.fault_text, channel.measured_voltage = 0, "", 0.0
@@ -140,3 +145,29 @@ class FakeHv(Node):
             channel.output_enabled = goal.target > 0.0
         goal_handle.succeed()
         return RampChannel.Result(success=True, message="reached", final_voltage=channel.measured_voltage)
+
+    def execute_pulse(self, goal_handle):
+        """The train as square steps of the fake outputs; a fault or cancel ends it with the outputs at 0 V."""
+        goal = goal_handle.request
+        channels = [self.channels.get(name) for name in goal.channels]
+        if None in channels or any(c.faults for c in channels) or goal.token != self.token:
+            goal_handle.abort()
+            return PulseChannels.Result(success=False, message="refused: unknown channel, faults or not in control")
+        self.pulses.append((tuple(goal.channels), goal.cycles))
+        period, t0 = 1.0 / goal.frequency, time.monotonic() + goal.phase / goal.frequency
+        while (elapsed := time.monotonic() - t0) < goal.cycles * period:
+            if any(c.faults for c in channels) or goal_handle.is_cancel_requested:
+                for channel in channels:
+                    self.set_voltage(channel, 0.0)
+                canceled = goal_handle.is_cancel_requested
+                goal_handle.canceled() if canceled else goal_handle.abort()
+                return PulseChannels.Result(success=False, message="canceled" if canceled else "fault")
+            on = elapsed >= 0 and (elapsed % period) < goal.duty * period
+            for channel in channels:
+                self.set_voltage(channel, goal.amplitude if on else 0.0)
+            time.sleep(STEP)
+        for channel in channels:
+            self.set_voltage(channel, 0.0)
+        goal_handle.succeed()
+        return PulseChannels.Result(success=True, message="completed", cycles_done=goal.cycles,
+                                    frequency=goal.frequency, generated_by="loop")

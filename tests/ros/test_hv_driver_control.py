@@ -1,16 +1,17 @@
 """Who may command the HV driver node: the control claim over ROS.
 
-Only the client holding control ramps and feeds the heartbeat watchdog; others are refused with the
+Only the client holding control ramps, runs pulse trains (hv/pulse) and feeds the heartbeat watchdog; others are refused with the
 owner's name; /diagnostics shows the owner and its heartbeat age; the e-stop is open to everyone; a
 silent owner loses control and its outputs ramp down; a replayed recording of an earlier session's
 heartbeats cannot keep an output energised."""
 import pytest
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
+from action_msgs.msg import GoalStatus
 from rclpy.lifecycle import TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from ros_testing import Inbox, Spinner, call, wait_for
-from softblock_interfaces.action import RampChannel
+from softblock_interfaces.action import PulseChannels, RampChannel
 from softblock_interfaces.msg import HvChannelState, HvHeartbeat, HvState
 from softblock_interfaces.srv import ClaimControl, InjectFault
 from std_srvs.srv import Trigger
@@ -38,6 +39,7 @@ class Clients:
         self.reset = n.create_client(Trigger, "hv/reset_faults")
         self.inject = n.create_client(InjectFault, "hv/inject_fault")
         self.ramp = ActionClient(n, RampChannel, "hv/ramp")
+        self.pulse = ActionClient(n, PulseChannels, "hv/pulse")
         self.state = Inbox(n, HvState, "hv/state")
         self.diagnostics = Inbox(n, DiagnosticArray, "/diagnostics")
         self.heartbeats = Inbox(n, HvHeartbeat, "hv/heartbeat", 100)
@@ -49,6 +51,10 @@ class Clients:
         status, result = run_action(self.ramp, RampChannel.Goal(channel=channel, target=target, token=token),
                                     RAMP_TIMEOUT)
         return result
+
+    def pulse_result(self, token: str, **fields):
+        goal = dict(channels=["front", "back"], amplitude=600.0, frequency=2.0, duty=0.5, cycles=3, token=token)
+        return run_action(self.pulse, PulseChannels.Goal(**{**goal, **fields}), RAMP_TIMEOUT)
 
     def latest_state(self, predicate=lambda s: True, timeout: float = 15.0) -> HvState:
         self.state.messages.clear()
@@ -164,3 +170,32 @@ def test_a_claim_with_an_unusable_name_is_refused(ready):
     assert not reply.success and "a printable name of 1 to 64 characters" in reply.message
     with pytest.raises(ClientError, match="hv/claim_control refused"):
         HvControl(ready.node, "x" * 65).claim()
+
+
+def test_a_pulse_train_runs_in_the_driver_loop_for_the_client_holding_control(ready):
+    token = ready.owner.claim()
+    status, result = ready.pulse_result("")
+    assert status == GoalStatus.STATUS_ABORTED
+    assert result.message == "refused: control is held by 'sequencer', and this token is not its session's"
+    state_seen = ready.state.messages
+    state_seen.clear()
+    # Slow enough that a loop running far below its rate on a loaded machine still reaches the amplitude.
+    status, result = ready.pulse_result(token, amplitude=300.0, frequency=0.5, cycles=2)
+    assert status == GoalStatus.STATUS_SUCCEEDED and result.success, result.message
+    assert (result.cycles_done, result.frequency, result.generated_by) == (2, 0.5, "loop")
+    peaks = [max(c.measured_voltage for c in msg.channels) for msg in list(state_seen)]
+    assert max(peaks) > 250.0 and peaks[-1] < 100.0  # it pulsed, and ended at 0 V
+
+
+def test_a_waveform_the_supply_cannot_produce_is_refused_naming_the_limit(ready):
+    token = ready.owner.claim()
+    status, result = ready.pulse_result(token, amplitude=2400.0, frequency=5.0, cycles=100)
+    assert status == GoalStatus.STATUS_ABORTED and not result.success
+    assert "needs edges of at most 100 ms; a smooth edge over 2400 V takes 562 ms at the slew limit of 8000 V/s" \
+        in result.message
+    status, result = ready.pulse_result(token, edge=PulseChannels.Goal.EDGE_SQUARE)
+    assert "square edges need a supply that switches by itself; the iseg-edcp supply does not" in result.message
+    status, result = ready.pulse_result(token, edge=7)
+    assert "edge=7: EDGE_SMOOTH (0) or EDGE_SQUARE (1)" in result.message
+    state = ready.latest_state()
+    assert all(c.setpoint == 0.0 for c in state.channels)

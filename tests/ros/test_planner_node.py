@@ -91,6 +91,34 @@ def test_fingers_for_a_sample_object_file_with_stiff_top_blocks(client):
         assert chain.blocks[0].design.rod_diameter >= 0.00062 - 1e-9
 
 
+def test_gripper_designs_arrive_within_their_timeout(client):
+    """The demo's gripper: front fingers of 4 blocks (top 2 stiff), back fingers of 5 (top 3 stiff) around
+    the asymmetric sample object, each pair with a 2 s budget; the replies carry clearances and bounds."""
+    for blocks, stiff in ((4, 2), (5, 3)):
+        request = fingers_request(image_path="config/objects/asymmetric.png", pixel_size=0.00025, num_blocks=blocks,
+                                  num_stiff_top=stiff, min_stiff_rod_diameter=0.00062, time_budget=2.0)
+        request.image = image_msg(np.zeros((0, 0), dtype=np.uint8))
+        reply = call(client.create_client(DesignFingers, "planner/design_fingers"), request, timeout=10.0)
+        assert reply.success, reply.message
+        for side in ("left", "right"):
+            assert_blocks_from_table(getattr(reply, side), blocks)
+            assert not getattr(reply, f"{side}_collision")
+            assert getattr(reply, f"{side}_min_clearance") >= -2e-6
+            assert getattr(reply, f"{side}_lower_bound") <= getattr(reply, f"{side}_cost")
+        assert reply.optimal or "lower bound" in reply.message
+
+
+def test_contact_tolerance_lets_the_body_enter_the_object(client):
+    strict = design_fingers(client, fingers_request())
+    tolerant = design_fingers(client, fingers_request(contact_tolerance=0.002))
+    assert strict.success and tolerant.success
+    assert min(strict.left_min_clearance, strict.right_min_clearance) >= -2e-6
+    assert min(tolerant.left_min_clearance, tolerant.right_min_clearance) >= -0.002 - 2e-6
+    assert tolerant.left_cost + tolerant.right_cost <= strict.left_cost + strict.right_cost + 1e-9
+    refused = design_fingers(client, fingers_request(contact_tolerance=-0.001))
+    assert not refused.success and "contact_tolerance" in refused.message
+
+
 def blank():
     return np.zeros((40, 40), dtype=np.uint8)
 

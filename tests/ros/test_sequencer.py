@@ -185,9 +185,11 @@ def test_legged_gait_pulses_the_legs(stack, hv):
                                                  cycles=2)).result()
     assert status == GoalStatus.STATUS_SUCCEEDED, result.message
     assert result.step_names == ["walk_forward", "turn_left", "turn_right"]
-    legs = {name: [target for channel, target in hv.ramps if channel == name] for name in CHANNELS[3:]}
-    # walk: every leg 2 pulses; turn_left adds 2 on the right legs, turn_right 2 on the left legs.
-    assert all(targets == [600.0, 0.0] * 4 for targets in legs.values())
+    assert hv.ramps == []  # one periodic command per train, never one action per edge
+    assert sorted(hv.pulses) == sorted([(("leg_front_left", "leg_rear_right"), 2),
+                                        (("leg_front_right", "leg_rear_left"), 2),
+                                        (("leg_front_right", "leg_rear_right"), 2),
+                                        (("leg_front_left", "leg_rear_left"), 2)])
     assert channels_off(hv)
 
 

@@ -76,6 +76,22 @@ class FakeRobot:
         self.states[channel] = ChannelReading(target, 0, "", target > 0)
         return FakeMotion(Outcome(True, "", target))
 
+    def pulse(self, channels, voltage, frequency, duty, phase, cycles, edge, slew_rate):
+        """Like the driver: the whole train in one command, the channels back at 0 V when it ends."""
+        call = ("pulse", tuple(channels), voltage, frequency, duty, phase, cycles, edge, slew_rate)
+        motion = self._record(call)
+        if motion is not None:
+            return motion
+        unknown = [channel for channel in channels if channel not in self.states]
+        if unknown:
+            return FakeMotion(Outcome(False, f"unknown channels {unknown}"))
+        if self.refuse_ramps or any(self.states[channel].faults for channel in channels):
+            return FakeMotion(Outcome(False, "refused: faults latched"))
+        return FakeMotion(Outcome(True, f"completed {cycles} cycles"))
+
+    def pulses(self) -> list[tuple]:
+        return [call for call in self.calls if call[0] == "pulse"]
+
     def channel_states(self):
         return dict(self.states)
 

@@ -192,19 +192,19 @@ def test_parallel_failure_cancels_the_sibling_and_names_the_branch():
     assert robot.hanging[0].canceled
 
 
-def test_pulse_train_alternates_on_and_off_and_ends_off():
+def test_a_gait_is_one_periodic_command_per_train_never_one_per_edge():
     gait = load_sequence("legged_gait", SEQUENCES)
     robot = FakeRobot(gait.channels)
-    sequence = parse_sequence({"name": "t", "channels": list(gait.channels), "steps": [{
-        "name": "trot", "pulse_train": {"channels": ["leg_front_left", "leg_rear_right"], "voltage": 2000.0,
-                                        "frequency": 5.0, "duty": 0.5, "cycles": 3, "slew_rate": 50000.0}}]},
-        source="inline")
-    result, events = run(sequence, robot)
+    result, events = run(gait, robot)
     assert result.success, result.message
-    for channel in ("leg_front_left", "leg_rear_right"):
-        assert [call[2] for call in robot.ramps(channel)] == [2000.0, 0.0] * 3
-    assert robot.ramps("leg_rear_left") == []
-    assert "3 cycles on ['leg_front_left', 'leg_rear_right']" in events[-1].message
+    assert robot.ramps() == []
+    assert robot.pulses()[:2] == [
+        ("pulse", ("leg_front_left", "leg_rear_right"), 600.0, 5.0, 0.5, 0.0, 20, "smooth", 16000.0),
+        ("pulse", ("leg_front_right", "leg_rear_left"), 600.0, 5.0, 0.5, 0.5, 20, "smooth", 16000.0)] or \
+        robot.pulses()[:2][::-1] == [  # the two branches of the parallel step start in either order
+        ("pulse", ("leg_front_left", "leg_rear_right"), 600.0, 5.0, 0.5, 0.0, 20, "smooth", 16000.0),
+        ("pulse", ("leg_front_right", "leg_rear_left"), 600.0, 5.0, 0.5, 0.5, 20, "smooth", 16000.0)]
+    assert len(robot.pulses()) == 4
     assert channels_safe(robot)
 
 
@@ -252,36 +252,50 @@ def one_train(cycles=1, **fields):
     return parse_sequence({"name": "t", "channels": ["front"], "steps": [{"name": "trot", "pulse_train": spec}]})
 
 
-def test_a_late_edge_waits_for_the_running_ramp_instead_of_superseding_it():
-    """The on-edge's result comes after the off-edge is due: the off-edge goes out only once it is in."""
-    results, pending_at_call = [], []
-
-    def late(robot, call):
-        if call[0] != "ramp":
-            return None
-        pending_at_call.append([not motion.wait(0.0) for motion in results])
-        motion = FakeMotion()
-        threading.Timer(0.15, lambda: motion.finish(Outcome(True, "", call[2]))).start()
-        robot.states[call[1]] = ChannelReading(call[2], 0, "", call[2] > 0)
-        results.append(motion)
-        return motion
-
-    result, events = run(one_train(), FakeRobot(["front"], late), options=RunOptions(poll_period_s=0.002))
+def test_square_edges_are_asked_of_the_driver_without_a_slew_rate():
+    robot = FakeRobot(["front"])
+    spec = {"channels": ["front"], "voltage": 600.0, "frequency": 5.0, "duty": 0.5, "cycles": 100, "edge": "square"}
+    sequence = parse_sequence({"name": "t", "channels": ["front"], "steps": [{"name": "trot", "pulse_train": spec}]})
+    result, events = run(sequence, robot)
     assert result.success, result.message
-    assert pending_at_call == [[], [False]]
-    assert "behind schedule" in events[-1].message
+    assert robot.pulses() == [("pulse", ("front",), 600.0, 5.0, 0.5, 0.0, 100, "square", 0.0)]
+    assert "100 cycles on ['front'] at 5 Hz (completed 100 cycles)" in events[-1].message
 
 
-def test_a_failed_edge_stops_the_train_and_names_it():
-    def refuse_second_on_edge(robot, call):
-        if call[0] == "ramp" and call[2] > 0 and len(robot.ramps("front")) == 3:
-            return FakeMotion(Outcome(False, "superseded by a later request"))
+def test_a_refused_train_fails_the_step_naming_the_reason():
+    def refuse(robot, call):
+        if call[0] == "pulse":
+            return FakeMotion(Outcome(False, "channel 'front': 5 Hz at 2400 V ... needs edges of at most 100 ms"))
 
-    robot = FakeRobot(["front"], refuse_second_on_edge)
-    result, _ = run(one_train(cycles=3), robot)
-    assert "edge of 'front' to 600 V failed: superseded by a later request" in result.message
-    assert len(robot.ramps("front")) == 3  # on, off, refused on: the channel is off, nothing to ramp down
+    robot = FakeRobot(["front"], refuse)
+    result, _ = run(one_train(), robot)
+    assert not result.success and result.failed_step == "trot"
+    assert "pulse train on ['front'] failed: channel 'front': 5 Hz at 2400 V" in result.message
     assert channels_safe(robot)
+
+
+def test_a_fault_during_a_train_cancels_it_and_ends_safe():
+    def fault_while_pulsing(robot, call):
+        if call[0] == "pulse":
+            robot.states["front"] = ChannelReading(600.0, 0, "", True)
+            threading.Timer(0.05, robot.inject_fault, ("front",)).start()
+            return robot.hang()
+
+    robot = FakeRobot(["front"], fault_while_pulsing)
+    result, _ = run(one_train(cycles=100), robot, options=RunOptions(poll_period_s=0.002))
+    assert not result.success and "HV fault" in result.message
+    assert robot.hanging[0].canceled and channels_safe(robot)
+
+
+def test_a_train_that_ends_with_a_channel_still_up_fails():
+    def stuck(robot, call):
+        if call[0] == "pulse":
+            robot.states["front"] = ChannelReading(600.0, 0, "", True)
+            return FakeMotion(Outcome(True, "completed 1 cycles"))
+
+    result, _ = run(one_train(), FakeRobot(["front"], stuck), options=RunOptions(poll_period_s=0.002,
+                                                                                 settle_time_s=0.05))
+    assert not result.success and "channel 'front' ended at 600 V, expected 0 +- 50 V" in result.message
 
 
 def test_unexpected_backend_error_still_ends_in_the_safe_state():

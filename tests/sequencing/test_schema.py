@@ -108,6 +108,8 @@ def pulse(**fields):
     ({"cycles": 2.5}, r"pulse_train.cycles=2.5: an integer >= 1"),
     ({"channels": []}, r"pulse_train.channels=\[\]: a non-empty list"),
     ({"slew_rate": 0.0}, r"pulse_train.slew_rate=0: must be > 0"),
+    ({"edge": "sine"}, r"pulse_train.edge='sine': one of smooth, square"),
+    ({"phase": 1.0}, r"pulse_train.phase=1.0: must be <= 0.999"),
 ])
 def test_pulse_trains_must_fit_the_frequency_and_slew_limit(fields, message):
     with pytest.raises(SequenceError, match=message):

@@ -10,7 +10,7 @@ import serial
 
 from hv_driver.dialects.iseg_edcp import ChannelStatus
 from sim_fallback.hv_plant import ChannelDefaults, DeaLoad, PlantChannel
-from sim_fallback.hv_supply import ERROR_REPLY, SimulatedSupply
+from sim_fallback.hv_supply import ERROR_REPLY, SimulatedSupply, channel_status
 
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -56,7 +56,7 @@ def test_output_follows_the_device_ramp_and_draws_charging_current():
     ch.step(0.1, 0.1)
     assert ch.voltage == pytest.approx(100.0)
     assert ch.current == pytest.approx(2e-9 * 1000.0 + 100.0 / 1e12)  # C dV/dt + V / R_leak
-    assert ChannelStatus.IS_VOLTAGE_RAMP in ch.status and ChannelStatus.IS_ON in ch.status
+    assert ChannelStatus.IS_VOLTAGE_RAMP in channel_status(ch) and ChannelStatus.IS_ON in channel_status(ch)
 
 
 def test_switched_off_the_load_discharges_through_the_bleeder():
@@ -79,9 +79,9 @@ def test_volt_off_ramps_the_output_down_at_the_device_ramp():
     ch.switch_off(0.0, emergency=False)
     ch.step(0.5, 0.5)
     assert ch.voltage == pytest.approx(1800.0)
-    assert ChannelStatus.IS_VOLTAGE_RAMP in ch.status and ChannelStatus.IS_ON not in ch.status
+    assert ChannelStatus.IS_VOLTAGE_RAMP in channel_status(ch) and ChannelStatus.IS_ON not in channel_status(ch)
     ch.step(2.5, 2.0)
-    assert ch.voltage == 0.0 and ChannelStatus.IS_VOLTAGE_RAMP not in ch.status
+    assert ch.voltage == 0.0 and ChannelStatus.IS_VOLTAGE_RAMP not in channel_status(ch)
     ch.step(3.0, 0.5)
     assert ch.voltage == 0.0
 
@@ -116,7 +116,7 @@ def test_device_current_trip_switches_off_after_the_trip_time():
     ch.step(0.06, 0.04)
     assert ch.output_on
     ch.step(0.075, 0.015)
-    assert not ch.output_on and ChannelStatus.IS_CURRENT_TRIP in ch.status
+    assert not ch.output_on and ChannelStatus.IS_CURRENT_TRIP in channel_status(ch)
     assert not ch.switch_on()  # refused until the events are cleared
 
 

@@ -57,6 +57,7 @@ FINGER_SETS = {  # paper Figure 5: blocks per finger, top blocks forced stiff
     "back": {"num_blocks": 5, "num_stiff_top": 3},
 }
 SERVICE_TIMEOUT = 60.0  # [s] first calls wait for the nodes to start on a loaded machine
+FINGER_TIME_BUDGET = 1.0  # [s] per finger pair: the best design found by then, certified if the search ended
 FAULT_CHANNEL, FAULT = "front", "over_current"
 RESET_CURRENT = 1e-6  # [A] the fault drill resets only once the readback shows no arc current
 
@@ -117,7 +118,8 @@ def design_gripper(client: DemoClient, object_name: str) -> tuple[dict, dict]:
     for finger_set, constraints in FINGER_SETS.items():
         request = DesignFingers.Request(
             image_path=str(OBJECTS_CATALOG.parent / catalog["file"]), pixel_size=float(catalog["pixel_size_m"]),
-            min_stiff_rod_diameter=DEFAULT_MIN_STIFF_ROD_DIAMETER, method="exact", time_budget=60.0, **constraints)
+            min_stiff_rod_diameter=DEFAULT_MIN_STIFF_ROD_DIAMETER, method="exact", time_budget=FINGER_TIME_BUDGET,
+            **constraints)
         response = call_service(client.design_fingers, request, timeout=SERVICE_TIMEOUT + 60.0)
         if not response.success:
             raise ClientError(f"planner could not design the {finger_set} fingers: {response.message}")

@@ -63,7 +63,7 @@ def diagnostics_msg(snapshot: SupplySnapshot, node_name: str, backend: str, stam
             level, message = DiagnosticStatus.WARN, f"link: {snapshot.link_error}"
         else:
             level, message = DiagnosticStatus.OK, "output on" if c.output_enabled else "output off"
-        values = {"port": snapshot.port, "backend": backend, "channel_index": c.index,
+        values = {"port": c.port, "backend": backend, "channel_index": c.index,
                   "setpoint_v": c.setpoint, "measured_voltage_v": c.measured_voltage,
                   "measured_current_a": c.measured_current, "ceiling_v": c.ceiling,
                   "output_enabled": c.output_enabled, "faults": int(c.faults), "estop": snapshot.estop,

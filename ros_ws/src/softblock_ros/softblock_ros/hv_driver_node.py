@@ -1,9 +1,10 @@
 """HV driver node (lifecycle): the safety-supervised HV supply behind ROS topics, services and an action.
 
-configure = open the supply (backend ``sim``: a simulated 4-channel supply in a process of its own;
-``serial``: the ``port`` parameter) and identify it; activate = outputs on at 0 V; deactivate = ramp to 0 V
+configure = open the supplies of the ``dialect`` (backend ``sim``: simulated ones in a process of their own, one per
+supply the channels name; ``serial``: the ``ports`` parameter, one per supply) and identify them; activate = outputs on at 0 V; deactivate = ramp to 0 V
 and off; cleanup / shutdown = close (outputs off); error = outputs off at once. Only the client holding
-control (hv/claim_control) may ramp and feed the heartbeat watchdog; hv/estop is open to everyone.
+control (hv/claim_control) may ramp (hv/ramp), run pulse trains (hv/pulse: on the device where it switches itself,
+else in the driver's loop) and feed the heartbeat watchdog; hv/estop is open to everyone.
 """
 from __future__ import annotations
 
@@ -15,17 +16,18 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallb
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from softblock_interfaces.action import RampChannel
+from softblock_interfaces.action import PulseChannels, RampChannel
 from softblock_interfaces.msg import HvHeartbeat, HvState
 from softblock_interfaces.srv import ClaimControl, InjectFault, ReleaseControl
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
-from hv_driver import HvError, HvSupply
+from hv_driver import HvError, HvSupply, dialect
 from sim_fallback.hv_supply_process import SimulatedSupplyProcess
 
 from .hv_conversions import diagnostics_msg, hv_state_msg
-from .hv_parameters import PARAMETERS, channel_configs
+from .hv_parameters import PARAMETERS, channel_configs, device_count
+from .hv_pulse_goal import execute_pulse_goal
 from .hv_ramp_goal import execute_ramp_goal
 from .log_forwarding import forward_logging, stop_forwarding
 from .parameters import ParameterError, declare
@@ -41,7 +43,7 @@ HEARTBEAT_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
 STATE_HISTORY_S = 8.0  # [s]
 SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
 SIM_ERRORS = (RuntimeError, ValueError, OSError)  # the simulated supply's process: not started, unknown fault
-SIM_CHANNELS = 4  # the simulated supply models a 4-channel module; configured indices must exist on it
+SIM_CHANNELS = 4  # a simulated multi-channel supply models a 4-channel module; configured indices must exist on it
 REFUSAL_LOG_PERIOD = 5.0  # [s] at most one log line per kind of ignored heartbeat
 
 
@@ -50,8 +52,11 @@ class HvDriverNode(LifecycleNode):
         super().__init__("hv_driver", **kwargs)
         self._settings = declare(self, PARAMETERS)
         self._channels = channel_configs(self._settings)
-        if self._settings["backend"] == "serial" and not self._settings["port"]:
-            raise ParameterError("parameter port='' refused: backend 'serial' needs a port, e.g. /dev/ttyUSB0")
+        self._devices = device_count(self._channels)
+        ports = self._settings["ports"]
+        if self._settings["backend"] == "serial" and len(ports) != self._devices:
+            raise ParameterError(f"parameter ports={ports} refused: backend 'serial' needs one port per supply the "
+                                 f"channels are on ({self._devices}), e.g. [/dev/ttyUSB0]")
         self._supply = self._sim = None
         self._entities = []
         self._active = False
@@ -63,15 +68,17 @@ class HvDriverNode(LifecycleNode):
 
     # --- lifecycle -------------------------------------------------------------------------------
     def on_configure(self, state) -> TransitionCallbackReturn:
-        backend, port, channels = self._param("backend"), self._param("port"), self._channels
+        backend, ports, channels = self._param("backend"), self._param("ports"), self._channels
         if not self._param("expected_identity"):
             self.get_logger().warning("expected_identity is empty: the supply's identity is not checked")
         try:
             if backend == "sim":
-                self._sim = SimulatedSupplyProcess(channels=SIM_CHANNELS).start()
-                port = self._sim.port
+                self._sim = SimulatedSupplyProcess(channels=SIM_CHANNELS, dialect=self._param("dialect"),
+                                                   devices=self._devices).start()
+                ports = self._sim.ports
             # A heartbeat_timeout_s of .inf (watchdog off) is warned by the driver itself at open.
-            self._supply = HvSupply(port, self._param("baudrate"), channels, loop_rate_hz=self._param("loop_rate_hz"),
+            self._supply = HvSupply(ports, self._param("baudrate") or None, channels,
+                                    dialect=dialect(self._param("dialect")), loop_rate_hz=self._param("loop_rate_hz"),
                                     link_timeout_s=self._param("link_timeout_s"),
                                     heartbeat_timeout_s=self._param("heartbeat_timeout_s"),
                                     expected_identity=self._param("expected_identity"), handle_signals=False).open()
@@ -79,7 +86,7 @@ class HvDriverNode(LifecycleNode):
             self.get_logger().fatal(f"configure failed: {error}")
             self._stop()
             return FAILURE
-        self._index = {c.name: c.index for c in channels}
+        self._index = {c.name: (c.index, c.device) for c in channels}
         self._published, self._diag_time = None, 0
         self._state_pub = self.create_publisher(
             HvState, "hv/state", math.ceil(STATE_HISTORY_S * self._param("publish_rate_hz")))
@@ -99,8 +106,10 @@ class HvDriverNode(LifecycleNode):
                                      callback_group=g),
             self.create_subscription(Float64, "assembly/safe_voltage", self._on_safe_voltage, LATCHED, callback_group=g),
             ActionServer(self, RampChannel, "hv/ramp", self._execute_ramp, callback_group=g,
+                         cancel_callback=lambda _: CancelResponse.ACCEPT),
+            ActionServer(self, PulseChannels, "hv/pulse", self._execute_pulse, callback_group=g,
                          cancel_callback=lambda _: CancelResponse.ACCEPT)]
-        self.get_logger().info(f"configured: {self._supply.device_id} on {port} ({backend})")
+        self.get_logger().info(f"configured: {self._supply.device_id} on {', '.join(ports)} ({backend})")
         return SUCCESS
 
     def on_activate(self, state) -> TransitionCallbackReturn:
@@ -217,10 +226,10 @@ class HvDriverNode(LifecycleNode):
             if request.fault == "clear":
                 self._sim.clear_faults()
             else:
-                channel = self._index.get(request.channel)
-                if request.channel and channel is None:
+                address = self._index.get(request.channel)
+                if request.channel and address is None:
                     raise ValueError(f"channel={request.channel!r}: unknown, configured are {sorted(self._index)}")
-                self._sim.inject(request.fault, channel)
+                self._sim.inject(request.fault, *(address or (None, None)))
             response.success, response.message = True, f"injected {request.fault} on {request.channel or 'the device'}"
         except SIM_ERRORS as error:
             response.success, response.message = False, str(error)
@@ -238,6 +247,12 @@ class HvDriverNode(LifecycleNode):
             goal_handle.abort()
             return RampChannel.Result(message="hv_driver is not active")
         return execute_ramp_goal(self._supply, goal_handle)
+
+    def _execute_pulse(self, goal_handle):
+        if not self._active:
+            goal_handle.abort()
+            return PulseChannels.Result(message="hv_driver is not active")
+        return execute_pulse_goal(self._supply, goal_handle)
 
 
 def main(args=None) -> int:

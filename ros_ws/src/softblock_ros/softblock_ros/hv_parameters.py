@@ -3,20 +3,25 @@ from __future__ import annotations
 
 import math
 
-from hv_driver import ChannelConfig, HvSupply, IsegEdcp
+from hv_driver import DIALECTS, ChannelConfig, HvSupply, IsegEdcp
 
 from .parameters import Param, ParameterError
 
 PARAMETERS = (
     Param("backend", "sim", "'sim' (simulated supply on a pty) or 'serial' (the port parameter); never swapped",
           kind=str, choices=("sim", "serial")),
-    Param("port", "", "serial device or pyserial URL of the supply (backend 'serial')", kind=str),
-    Param("baudrate", IsegEdcp.default_baudrate, "serial baud rate", low=1200, high=921600, kind=int),
+    Param("dialect", IsegEdcp.name, "the supply's command set and capabilities", kind=str, choices=tuple(DIALECTS)),
+    Param("ports", [], "serial devices or pyserial URLs, one per supply (backend 'serial'; 'sim' makes its own)",
+          kind=str, size=(0, 16)),
+    Param("baudrate", 0, "serial baud rate; 0 = the dialect's default (iseg 9600, Keithley 9600, PPV 115200)",
+          low=0, high=921600, kind=int),
     Param.of(HvSupply, "expected_identity", "text the supply's *IDN? answer must contain, checked at configure; "
              "empty = not checked (logged)"),
     Param("channel_names", ["front", "back"], "channel names", kind=str, size=(1, 16)),
-    Param("channel_indices", [0, 1], "channel numbers on the supply, one per name", low=0, high=63, kind=int,
-          size=(1, 16)),
+    Param("channel_indices", [0, 1], "channel numbers on their supply, one per name (0 on a single-channel supply)",
+          low=0, high=63, kind=int, size=(1, 16)),
+    Param("channel_devices", [], "which supply each channel is on: its position in ports (one per name); "
+          "empty = every channel on the first", low=0, high=15, kind=int, size=(0, 16)),
     Param.of(ChannelConfig, "max_voltage_v", "hard maximum of every channel", "V", 1.0, 10000.0),
     Param.of(ChannelConfig, "slew_rate_v_per_s", "maximum slew rate", "V/s", 1.0, 100000.0),
     Param.of(ChannelConfig, "current_trip_a", "over-current trip level", "A", 1e-9, 0.1),
@@ -40,13 +45,21 @@ PARAMETERS = (
 def channel_configs(values: dict) -> list[ChannelConfig]:
     """One ChannelConfig per configured channel; ParameterError naming the parameters when they do not fit."""
     names, indices = values["channel_names"], values["channel_indices"]
-    if len(names) != len(indices) or len(set(names)) != len(names) or len(set(indices)) != len(indices):
-        raise ParameterError(f"parameters channel_names={names} and channel_indices={indices} refused: "
-                             "give as many distinct indices as distinct names")
+    devices = values["channel_devices"] or [0] * len(names)
+    if len(names) != len(indices) or len(devices) != len(names) or len(set(names)) != len(names) \
+            or len(set(zip(devices, indices))) != len(indices):
+        raise ParameterError(f"parameters channel_names={names}, channel_indices={indices} and channel_devices="
+                             f"{values['channel_devices']} refused: give one index (and device) per distinct name, "
+                             "no two channels at the same index of the same supply")
     if (values["creep_voltage_v"] == 0.0) != (values["max_time_at_voltage_s"] == 0.0):
         raise ParameterError(f"parameters creep_voltage_v={values['creep_voltage_v']} and max_time_at_voltage_s="
                              f"{values['max_time_at_voltage_s']} refused: set both (creep guard) or neither")
     limits = {name: values[name] for name in ("max_voltage_v", "slew_rate_v_per_s", "current_trip_a",
                                               "mismatch_tolerance_v", "mismatch_time_s")}
     limits.update({name: values[name] or None for name in ("creep_voltage_v", "max_time_at_voltage_s")})  # 0 = off
-    return [ChannelConfig(name, index, **limits) for name, index in zip(names, indices)]
+    return [ChannelConfig(name, index, device=device, **limits) for name, index, device in zip(names, indices, devices)]
+
+
+def device_count(channels: list[ChannelConfig]) -> int:
+    """Supplies the channels are spread over (ports needed)."""
+    return max(c.device for c in channels) + 1

@@ -28,9 +28,14 @@ def execute_ramp_goal(supply: HvSupply, goal_handle) -> RampChannel.Result:
             setpoint=channel.setpoint, measured_voltage=channel.measured_voltage,
             progress=1.0 if span == 0 else min(1.0, max(0.0, (channel.setpoint - start) / span))))
     result.final_voltage = supply.snapshot().channel(goal.channel).measured_voltage
-    result.success, result.message = handle.succeeded, handle.message
+    return end_goal(goal_handle, result, handle, canceled, f"canceled: {handle.message}")
+
+
+def end_goal(goal_handle, result, handle, canceled: bool, canceled_message: str):
+    """Set the goal's final status from how the driver's ``handle`` ended (success, message)."""
+    result.success, result.message = handle.succeeded and not canceled, handle.message
     if canceled:
-        result.success, result.message = False, f"canceled: {handle.message}"
+        result.message = canceled_message
         goal_handle.canceled()
     elif result.success:
         goal_handle.succeed()

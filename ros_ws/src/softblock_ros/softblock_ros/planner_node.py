@@ -2,12 +2,15 @@
 
 Optimizations run in the service callbacks on a reentrant group of a MultiThreadedExecutor, so other
 requests, parameter services and shutdown are served meanwhile. A bad request gets success=false and the
-core's message; the node carries on. Shutting down cancels running optimizations.
+core's message; the node carries on. Shutting down cancels running optimizations. At start, a background
+thread loads the finger search's compiled kernels and lookahead fields (planner.design.prepare_finger_search),
+so the first request is as fast as later ones.
 """
 from __future__ import annotations
 
 import sys
 import threading
+import time
 from functools import partial
 
 from rclpy.callback_groups import ReentrantCallbackGroup
@@ -49,6 +52,19 @@ class PlannerNode(Node):
         self.create_service(DesignPath, "planner/design_path", partial(self._serve, self._design_path),
                             callback_group=group)
         self.get_logger().info(f"ready, table of {len(self._table.ids)} designs")
+        self.prepared = threading.Event()  # set once the finger search is prepared (or preparing it failed)
+        threading.Thread(target=self._prepare_finger_search, name="prepare_finger_search", daemon=True).start()
+
+    def _prepare_finger_search(self) -> None:
+        started = time.perf_counter()
+        try:
+            design.prepare_finger_search(table=self._table)
+            self.get_logger().info(f"finger search prepared in {time.perf_counter() - started:.1f} s")
+        except Exception as error:  # noqa: BLE001 - requests still work, they load what they need themselves
+            self.get_logger().error(f"preparing the finger search failed: {type(error).__name__}: {error} "
+                                    f"(at {where(error)})")
+        finally:
+            self.prepared.set()
 
     def destroy_node(self):
         self._stopping.set()
@@ -97,7 +113,8 @@ class PlannerNode(Node):
         result = design.design_fingers(
             mask, request.pixel_size, request.num_blocks, num_stiff_top=request.num_stiff_top,
             min_stiff_rod_diameter=request.min_stiff_rod_diameter or design.DEFAULT_MIN_STIFF_ROD_DIAMETER,
-            inventory=inventory_from_lists(request.inventory_ids, request.inventory_counts), **options)
+            inventory=inventory_from_lists(request.inventory_ids, request.inventory_counts),
+            contact_tolerance_m=request.contact_tolerance, **options)
         response.success, response.message = result.success, result.message
         response.optimal, response.solve_time = result.optimal, result.solve_time
         for side in ("left", "right"):
@@ -109,6 +126,8 @@ class PlannerNode(Node):
                                                            base_orientation=FINGER_BASE_ORIENTATION[side]))
                 setattr(response, f"{side}_cost", float(finger.cost))
                 setattr(response, f"{side}_collision", bool(finger.collision))
+                setattr(response, f"{side}_min_clearance", float(finger.min_clearance_m))
+                setattr(response, f"{side}_lower_bound", float(finger.lower_bound_m))
         self.get_logger().info(f"design_fingers: {result.message} ({result.solve_time:.2f} s)")
 
     def _design_path(self, request, response) -> None:

@@ -1,4 +1,4 @@
-"""The sequencing engine's `Robot` on ROS: `arm/move` and `hv/ramp` action clients, `hv/state`, `hv/estop`,
+"""The sequencing engine's `Robot` on ROS: `arm/move`, `hv/ramp` and `hv/pulse` action clients, `hv/state`, `hv/estop`,
 and control of the HV driver (`HvControl`: claimed for a sequence, heartbeats while held).
 
 Nothing here blocks on the executor: goals are sent with futures whose callbacks set a
@@ -13,7 +13,7 @@ from action_msgs.msg import GoalStatus
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
-from softblock_interfaces.action import MoveArm, RampChannel
+from softblock_interfaces.action import MoveArm, PulseChannels, RampChannel
 from softblock_interfaces.msg import HvChannelState, HvState
 from std_srvs.srv import Trigger
 
@@ -71,6 +71,15 @@ def _ramp_outcome(status: int, result: RampChannel.Result) -> Outcome:
     return Outcome(status == GoalStatus.STATUS_SUCCEEDED and result.success, result.message, result.final_voltage)
 
 
+def _pulse_outcome(status: int, result: PulseChannels.Result) -> Outcome:
+    success = status == GoalStatus.STATUS_SUCCEEDED and result.success
+    how = f"{result.cycles_done} cycles at {result.frequency:g} Hz, switched by the {result.generated_by}"
+    return Outcome(success, how if success else result.message)
+
+
+PULSE_EDGES = {"smooth": PulseChannels.Goal.EDGE_SMOOTH, "square": PulseChannels.Goal.EDGE_SQUARE}
+
+
 def _move_outcome(status: int, result: MoveArm.Result) -> Outcome:
     return Outcome(status == GoalStatus.STATUS_SUCCEEDED and result.success, result.message)
 
@@ -83,6 +92,7 @@ class RosRobot:
         self._server_timeout, self._state_timeout = server_timeout, state_timeout
         self._control = HvControl(node, node.get_name(), heartbeat_rate_hz, callback_group, server_timeout)
         self._ramp = ActionClient(node, RampChannel, "hv/ramp", callback_group=callback_group)
+        self._pulse = ActionClient(node, PulseChannels, "hv/pulse", callback_group=callback_group)
         self._move = ActionClient(node, MoveArm, "arm/move", callback_group=callback_group)
         self._estop = node.create_client(Trigger, "hv/estop", callback_group=callback_group)
         self._lock = threading.Lock()
@@ -135,6 +145,14 @@ class RosRobot:
         goal = RampChannel.Goal(channel=channel, target=float(target), slew_rate=float(slew_rate),
                                 token=self._control.token)
         return ActionMotion(self._ramp, goal, _ramp_outcome)
+
+    def pulse(self, channels, voltage: float, frequency: float, duty: float, phase: float, cycles: int, edge: str,
+              slew_rate: float) -> ActionMotion:
+        self._ready(self._pulse, "hv/pulse")
+        goal = PulseChannels.Goal(channels=list(channels), amplitude=float(voltage), frequency=float(frequency),
+                                  duty=float(duty), phase=float(phase), cycles=int(cycles), edge=PULSE_EDGES[edge],
+                                  slew_rate=float(slew_rate), token=self._control.token)
+        return ActionMotion(self._pulse, goal, _pulse_outcome)
 
     def channel_states(self) -> dict[str, ChannelReading]:
         """Latest hv/state; a driver silent for longer than the state timeout (stopped, or the network to it

@@ -1,0 +1,546 @@
+"""Certified finger design: depth-first branch and bound over (base, block 1, ..., block N), compiled.
+
+A finger is built from its base. Once blocks 1..k are placed, their centerline samples are fixed and so
+is each contour point's distance ``a`` to them. In piecewise constant curvature, the next block and every
+suffix after it have a shape in the frame of the prefix's end that does not depend on the prefix. So for
+each block position and each shape the next block may take, ``LookaheadFields`` hold, once per design
+space, lower bounds on the distance from any point of that frame to (the next block's samples and every
+suffix that can follow it) and to (the tip periphery points any such suffix can end at), on a grid
+whose error is accounted for. With ``b`` that bound for a contour point, the point's final distance is at
+least min(a, b), so its term |d - r| is at least max(min(a, b) - r, 0); the tip term is bounded by the
+tip field. Summed, this bounds every finger that continues the prefix with that next block, for all next
+blocks in one vectorised pass per node; a complete finger is bounded by its objective. A third field, the
+cover, is an upper bound on the distance to the continuous centerline of *every* such finger: a contour point
+``g`` from the object and closer to the node than the collision threshold minus ``g`` proves that all of
+them collide, and the next block is dropped (this prunes the fingers that would have to pass through the
+object long before a block of theirs touches it).
+
+The search visits children in the order of their bounds and drops every child whose bound reaches the
+best collision-free finger found, so when it ends that finger is the optimum (``Status.CERTIFIED``). The
+first finger comes from two beams over the same tree (16 prefixes per level, always run to the end, then
+``beam_width`` while the budget allows) improved by local search; should they find none, rounds search
+below a cost ceiling that grows by ``ceiling_growth`` until a finger is found under it (a round without one
+proves the optimum is at least the smallest bound it cut).
+Collision is the exact rule of ``planner.clearance``, checked for a block when the search enters it.
+Stopped early (time budget, callback), the run returns the best finger so far and a proven lower bound:
+the smallest bound of the children not yet visited.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from planner.clearance import RESOLUTION, block_min_distance
+from planner.objectives import COLLISION_PENALTY, ShapeTarget
+from planner.optimize.lookahead import SAMPLES_PER_BLOCK, block_shapes, lookahead_fields
+from planner.optimize.local_search import polish
+from planner.optimize.pso import design_costs
+from planner.optimize.result import DesignOptimizeResult, RunControl, Status, Stop, make_result
+from planner.optimize.space import DesignSpace
+
+DEFAULT_OPTIONS = {
+    "field_spacing": 5e-4,  # grid step of the lookahead fields [m] (half of it for the last block's)
+    "region_spacing": 2e-4,  # grid step of the suffix regions they are built from [m]
+    "expansions_per_check": 2000,  # nodes expanded between time-budget / callback checks
+    "ceiling_growth": 1.3,  # factor between the cost ceilings of successive rounds
+    "beam_width": 128,  # collision-free prefixes per level of the second beam (the first keeps 16)
+    "polish": True,  # improve the beam's finger by block-by-block local search before the search starts
+}
+FIRST_BEAM_WIDTH = 16  # the beam that always runs to the end, so that every run returns a finger
+
+
+# ------------------------------------------------------------------------------------------ search
+@njit(cache=True, nogil=True)
+def _place(pose, x, z):
+    cos, sin = np.cos(pose[2]), np.sin(pose[2])
+    return pose[0] + x * cos + z * sin, pose[1] - x * sin + z * cos
+
+
+@njit(cache=True, nogil=True)
+def _lookahead(problem, depth, pose, alpha, acc):
+    """acc[k] = lower bound on every collision-free finger continuing this node with next shape
+    choices[depth, k]; infinite when a contour point proves that every such finger collides (the cover
+    field: all of them pass closer to that point than the collision threshold minus its distance to the
+    object)."""
+    contour, end_point, radius, n_choices = problem[0], problem[1], problem[2], problem[4]
+    body, tip, layout, discs, threshold, gap, cover = (problem[8], problem[9], problem[10], problem[11], problem[18],
+                                                       problem[23], problem[24])
+    count = n_choices[depth]
+    spacing = layout[depth, 6]
+    offset, rows, cols, x0, z0 = (int(layout[depth, 0]), int(layout[depth, 1]), int(layout[depth, 2]),
+                                  layout[depth, 3], layout[depth, 4])
+    cos, sin = np.cos(pose[2]), np.sin(pose[2])
+    acc[:count] = 0.0
+    for q in range(contour.shape[0] + 1):
+        if q < contour.shape[0]:
+            dx, dz = contour[q, 0] - pose[0], contour[q, 1] - pose[1]
+            own = alpha[q]
+        else:  # the tip term's target
+            dx, dz = end_point[0] - pose[0], end_point[1] - pose[1]
+            own = np.inf
+        x, z = dx * cos - dz * sin, dx * sin + dz * cos
+        b = int(np.round((x - x0) / spacing))
+        a = int(np.round((z - z0) / spacing))
+        if a < 0 or b < 0 or a >= rows or b >= cols:  # beyond the grid: bounds from each next block's discs
+            if own <= radius:  # the term's bound is 0 whatever comes next
+                continue
+            for k in range(count):
+                nearest = min(np.hypot(x - discs[depth, k, 0], z - discs[depth, k, 1]) - discs[depth, k, 2],
+                              np.hypot(x - discs[depth, k, 3], z - discs[depth, k, 4]) - discs[depth, k, 5])
+                if q < contour.shape[0]:
+                    value = min(own, nearest) - radius
+                else:  # the tip periphery point: exact after the last block
+                    value = np.hypot(x - discs[depth, k, 6], z - discs[depth, k, 7]) - discs[depth, k, 8]
+                if value > 0.0:
+                    acc[k] += value
+            continue
+        node_offset = np.hypot(x - (x0 + b * spacing), z - (z0 + a * spacing))
+        start = offset + (a * cols + b) * count
+        if q < contour.shape[0]:
+            doom = threshold - 2.0 * RESOLUTION - gap[q] - node_offset  # a cover below this proves a collision
+            for k in range(count):
+                if cover[start + k] < doom:
+                    acc[k] = np.inf
+                value = min(own, body[start + k] - node_offset) - radius
+                if value > 0.0:
+                    acc[k] += value
+        else:
+            for k in range(count):
+                value = tip[start + k] - node_offset
+                if value > 0.0:
+                    acc[k] += value
+
+
+@njit(cache=True, nogil=True)
+def _leaf_bounds(problem, depth, pose, alpha, cutoff, acc):
+    """acc[k] = lower bound on the objective of the complete finger with last block choices[depth, k], or a
+    partial sum once it reaches ``cutoff`` (still a lower bound: every term is >= 0). The children are
+    checked exactly, so no cover here; contour points already within r of the prefix add nothing; each
+    child's sum stops as soon as it reaches the cutoff, the points farthest from the prefix first."""
+    contour, end_point, radius, n_choices = problem[0], problem[1], problem[2], problem[4]
+    body, tip, layout, discs = problem[8], problem[9], problem[10], problem[11]
+    count = n_choices[depth]
+    spacing = layout[depth, 6]
+    offset, rows, cols, x0, z0 = (int(layout[depth, 0]), int(layout[depth, 1]), int(layout[depth, 2]),
+                                  layout[depth, 3], layout[depth, 4])
+    cos, sin = np.cos(pose[2]), np.sin(pose[2])
+    dx, dz = end_point[0] - pose[0], end_point[1] - pose[1]
+    x, z = dx * cos - dz * sin, dx * sin + dz * cos
+    b, a = int(np.round((x - x0) / spacing)), int(np.round((z - z0) / spacing))
+    if a < 0 or b < 0 or a >= rows or b >= cols:  # the tip periphery point is exact after the last block
+        for k in range(count):
+            acc[k] = max(np.hypot(x - discs[depth, k, 6], z - discs[depth, k, 7]) - discs[depth, k, 8], 0.0)
+    else:
+        node_offset = np.hypot(x - (x0 + b * spacing), z - (z0 + a * spacing))
+        start = offset + (a * cols + b) * count
+        for k in range(count):
+            acc[k] = max(tip[start + k] - node_offset, 0.0)
+    starts = np.empty(contour.shape[0], np.int64)
+    offsets = np.empty(contour.shape[0])
+    owns = np.empty(contour.shape[0])
+    m = 0
+    for q in range(contour.shape[0]):
+        own = alpha[q]
+        if own <= radius:
+            continue
+        dx, dz = contour[q, 0] - pose[0], contour[q, 1] - pose[1]
+        x, z = dx * cos - dz * sin, dx * sin + dz * cos
+        b, a = int(np.round((x - x0) / spacing)), int(np.round((z - z0) / spacing))
+        if a < 0 or b < 0 or a >= rows or b >= cols:  # beyond the grid: bounds from the blocks' discs
+            for k in range(count):
+                nearest = np.hypot(x - discs[depth, k, 0], z - discs[depth, k, 1]) - discs[depth, k, 2]
+                acc[k] += max(min(own, nearest) - radius, 0.0)
+            continue
+        starts[m] = offset + (a * cols + b) * count
+        offsets[m] = np.hypot(x - (x0 + b * spacing), z - (z0 + a * spacing))
+        owns[m] = own
+        m += 1
+    order = np.argsort(-owns[:m])
+    for k in range(count):
+        total = acc[k]
+        for j in order:
+            if total >= cutoff:
+                break
+            value = min(owns[j], body[starts[j] + k] - offsets[j]) - radius
+            if value > 0.0:
+                total += value
+        acc[k] = total
+
+
+@njit(cache=True, nogil=True)
+def _block_update(problem, pose, alpha, s, out):
+    """out = contour distances after adding block s at pose (alpha: before). Points farther from the
+    block's sample disc than their current distance are skipped; squared distances inside."""
+    contour, samples, disc = problem[0], problem[5], problem[7]
+    cos, sin = np.cos(pose[2]), np.sin(pose[2])
+    count = samples.shape[1]
+    world = np.empty((count, 2))
+    for m in range(count):
+        world[m, 0] = pose[0] + samples[s, m, 0] * cos + samples[s, m, 1] * sin
+        world[m, 1] = pose[1] - samples[s, m, 0] * sin + samples[s, m, 1] * cos
+    centre_x = pose[0] + disc[s, 0] * cos + disc[s, 1] * sin
+    centre_z = pose[1] - disc[s, 0] * sin + disc[s, 1] * cos
+    radius = disc[s, 2]
+    out[:] = alpha
+    for q in range(contour.shape[0]):
+        qx, qz = contour[q, 0], contour[q, 1]
+        reach = out[q] + radius
+        dx, dz = qx - centre_x, qz - centre_z
+        if dx * dx + dz * dz >= reach * reach:
+            continue
+        nearest = out[q] * out[q]
+        for m in range(count):
+            ex, ez = qx - world[m, 0], qz - world[m, 1]
+            squared = ex * ex + ez * ez
+            if squared < nearest:
+                nearest = squared
+        out[q] = np.sqrt(nearest)
+
+
+@njit(cache=True, nogil=True)
+def _too_close(problem, alpha):
+    """True when a centerline sample is provably closer to the object than the collision threshold: within
+    ``threshold - gap`` of a contour point that lies ``gap`` from the object (a quick, exact reject)."""
+    gap, threshold = problem[23], problem[18]
+    for q in range(alpha.shape[0]):
+        if alpha[q] + gap[q] < threshold - RESOLUTION:
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True)
+def _expand(problem, depth, pose, alpha, best, limits, out_bound, out_shape, out_base, out_pose, start, base, path,
+            counts, acc, scratch):
+    """Children of a node with ``depth`` blocks placed whose bound is below min(best, ceiling limits[0]),
+    from index ``start`` of the out arrays; returns the new end index. Complete fingers get their objective.
+    The smallest bound cut by the ceiling alone goes to limits[1]."""
+    contour, end_point, radius, choices, n_choices, samples, ends = problem[:7]
+    stock, stiff_stock, stiff_positions, limited = problem[12], problem[13], problem[14], problem[15]
+    blocks = choices.shape[0]
+    cutoff = min(best, limits[0])
+    if depth + 1 == blocks:
+        _leaf_bounds(problem, depth, pose, alpha, cutoff, acc)
+    else:
+        _lookahead(problem, depth, pose, alpha, acc)
+    n = start
+    for k in range(n_choices[depth]):
+        if acc[k] >= cutoff:
+            if acc[k] < best:
+                limits[1] = min(limits[1], acc[k])
+            continue
+        s = choices[depth, k]
+        if limited:
+            if counts[s] >= stock[s]:
+                continue
+            if stiff_positions[depth]:
+                stiff_used = 0
+                for j in range(depth):
+                    if stiff_positions[j] and path[j + 1] == s:
+                        stiff_used += 1
+                if stiff_used >= stiff_stock[s]:
+                    continue
+        ex, ez = _place(pose, ends[s, 0], ends[s, 1])
+        eh = pose[2] + ends[s, 2]
+        bound = acc[k]
+        if depth + 1 == blocks:  # a complete finger: its objective
+            _block_update(problem, pose, alpha, s, scratch)
+            if _too_close(problem, scratch):
+                continue
+            bound = np.hypot(ex + radius * np.cos(eh) - end_point[0], ez - radius * np.sin(eh) - end_point[1])
+            for q in range(contour.shape[0]):
+                bound += abs(scratch[q] - radius)
+            if bound >= cutoff:
+                if bound < best:
+                    limits[1] = min(limits[1], bound)
+                continue
+        out_bound[n] = bound
+        out_shape[n] = s
+        out_base[n] = base
+        out_pose[n, 0], out_pose[n, 1], out_pose[n, 2] = ex, ez, eh
+        n += 1
+    return n
+
+
+@njit(cache=True, nogil=True)
+def _search(problem, state, max_expansions):
+    """Run the depth-first search from ``state`` for at most ``max_expansions`` node expansions.
+
+    Returns 1 when the round is complete, 0 when interrupted.
+    """
+    choices = problem[3]
+    field, frame, threshold, cap, theta, length, base_x = problem[16:23]
+    (depth_box, pointer, count, order, bound, shape, base, pose, node_pose, node_alpha, path, counts, best,
+     best_path, stats, limits, acc, scratch) = state
+    blocks = choices.shape[0]
+    expansions = 0
+    while True:
+        depth = depth_box[0]
+        if pointer[depth] >= count[depth]:
+            if depth == 0:
+                return 1
+            counts[path[depth]] -= 1  # leave the block placed at this depth
+            path[depth] = -1
+            depth_box[0] = depth - 1
+            continue
+        i = order[depth, pointer[depth]]
+        pointer[depth] += 1
+        if bound[depth, i] >= min(best[0], limits[0]):  # children are sorted: the rest are no better
+            if bound[depth, i] < best[0]:  # cut by the round's ceiling, not by a finger: remember the bound
+                limits[1] = min(limits[1], bound[depth, i])
+            pointer[depth] = count[depth]
+            continue
+        s = shape[depth, i]
+        if depth == 0:
+            node_pose[0, 0], node_pose[0, 1], node_pose[0, 2] = base_x[base[0, i]], 0.0, 0.0
+            for q in range(node_alpha.shape[1]):
+                node_alpha[0, q] = np.hypot(problem[0][q, 0] - base_x[base[0, i]], problem[0][q, 1])
+        leaf = depth + 1 == blocks
+        if not leaf:  # (a complete finger passed this test when it was generated)
+            _block_update(problem, node_pose[depth], node_alpha[depth], s, node_alpha[depth + 1])
+            if _too_close(problem, node_alpha[depth + 1]):
+                continue
+        stats[0] += 1
+        clearance = block_min_distance(field, frame, node_pose[depth, 0], node_pose[depth, 1], node_pose[depth, 2],
+                                       theta[s], length[s], cap, threshold, False)
+        if clearance < threshold - RESOLUTION:
+            continue
+        if leaf:  # the best finger below this node (children sorted, the rest is no better)
+            best[0] = bound[depth, i]
+            best_path[:] = path
+            if depth == 0:
+                best_path[0] = base[0, i]
+            best_path[blocks] = s
+            pointer[depth] = count[depth]
+            continue
+        if depth == 0:
+            path[0] = base[0, i]
+        path[depth + 1] = s
+        counts[s] += 1
+        node_pose[depth + 1, :] = pose[depth, i]
+        depth_box[0] = depth + 1
+        end = _expand(problem, depth + 1, node_pose[depth + 1], node_alpha[depth + 1], best[0], limits,
+                      bound[depth + 1], shape[depth + 1], base[depth + 1], pose[depth + 1], 0, path[0], path, counts,
+                      acc, scratch)
+        count[depth + 1] = end
+        pointer[depth + 1] = 0
+        stats[1] += problem[4][depth + 1]
+        order[depth + 1, :end] = np.argsort(bound[depth + 1, :end], kind="mergesort")
+        expansions += 1
+        if expansions >= max_expansions:
+            return 0
+
+
+@njit(cache=True, nogil=True)
+def _start(problem, state):
+    """Root children: every base with every first block, below the ceiling."""
+    contour, base_x = problem[0], problem[22]
+    (depth_box, pointer, count, order, bound, shape, base, pose, node_pose, node_alpha, path, counts, best,
+     best_path, stats, limits, acc, scratch) = state
+    path[:] = -1
+    counts[:] = 0
+    limits[1] = np.inf
+    n = 0
+    root_alpha = np.empty(contour.shape[0])
+    root_pose = np.zeros(3)
+    for b in range(base_x.shape[0]):
+        for q in range(contour.shape[0]):
+            root_alpha[q] = np.hypot(contour[q, 0] - base_x[b], contour[q, 1])
+        root_pose[0] = base_x[b]
+        n = _expand(problem, 0, root_pose, root_alpha, best[0], limits, bound[0], shape[0], base[0], pose[0], n, b, path,
+                    counts, acc, scratch)
+        stats[1] += problem[4][0]
+    count[0] = n
+    pointer[0] = 0
+    depth_box[0] = 0
+    order[0, :n] = np.argsort(bound[0, :n], kind="mergesort")
+
+
+def _lower_bound(state) -> float:
+    """Smallest bound among the children not yet visited or cut by the round's ceiling (and the best
+    finger): a proven lower bound for this round."""
+    depth_box, pointer, count, order, bound = state[:5]
+    lowest = min(state[12][0], state[15][1])
+    for level in range(depth_box[0] + 1):
+        if pointer[level] < count[level]:
+            lowest = min(lowest, float(bound[level, order[level, pointer[level]]]))
+    return lowest
+
+
+def _fraction(state) -> float:
+    pointer, count = state[1], state[2]
+    if count[0] == 0:
+        return 1.0
+    inner = pointer[1] / count[1] if state[0][0] >= 1 and count[1] else 0.0
+    return min((max(pointer[0] - 1, 0) + inner) / count[0], 1.0)
+
+
+def _collides(problem, pose, s) -> bool:
+    field, frame, threshold, cap, theta, length = problem[16:22]
+    distance = block_min_distance(field, frame, pose[0], pose[1], pose[2], theta[s], length[s], cap, threshold, False)
+    return distance < threshold - RESOLUTION
+
+
+def _moved(problem, pose, s) -> np.ndarray:
+    x, z = _place(pose, problem[6][s, 0], problem[6][s, 1])
+    return np.array([x, z, pose[2] + problem[6][s, 2]])
+
+
+def _beam(problem, space: DesignSpace, width: int, control: RunControl, timed: bool):
+    """A good collision-free finger to start from (cost, [base, shapes...]) or None: a beam over the same
+    tree that keeps, per level, the ``width`` collision-free children with the lowest bounds, those whose
+    straightest completion also stays clear first. The callback hears from it once per level; ``timed``
+    False: it runs to the end whatever the time budget."""
+    contour, choices, n_choices, base_x = problem[0], problem[3], problem[4], problem[22]
+    blocks = space.num_blocks
+    straightest = [int(c[np.argmin(np.abs(space.theta[c]))]) for c in space.choices]
+    size = max(len(base_x) * n_choices[0], n_choices.max())
+    out_bound, out_shape, out_base = np.zeros(size), np.zeros(size, np.int64), np.zeros(size, np.int64)
+    out_pose, acc, scratch = np.zeros((size, 3)), np.zeros(n_choices.max()), np.zeros(len(contour))
+    limits = np.array([np.inf, np.inf])
+    beam = [(np.array([x, 0.0, 0.0]), np.hypot(contour[:, 0] - x, contour[:, 1]), [b]) for b, x in enumerate(base_x)]
+    for depth in range(blocks):
+        control.report(0.0, np.inf, 0, timed=timed)
+        candidates = []
+        for pose, alpha, path in beam:
+            path_array = np.array(path + [-1] * (blocks + 1 - len(path)), dtype=np.int64)
+            counts = np.bincount(path_array[1:][path_array[1:] >= 0], minlength=len(space.theta)).astype(np.int64)
+            n = _expand(problem, depth, pose, alpha, np.inf, limits, out_bound, out_shape, out_base, out_pose, 0,
+                        path[0], path_array, counts, acc, scratch)
+            candidates += [(out_bound[j], int(out_shape[j]), pose, alpha, path) for j in range(n)]
+        candidates.sort(key=lambda c: c[0])
+        kept, clear = [], 0
+        for bound, s, pose, alpha, path in candidates:
+            child_alpha = np.empty(len(contour))
+            _block_update(problem, pose, alpha, s, child_alpha)
+            if _too_close(problem, child_alpha) or _collides(problem, pose, s):
+                continue
+            tail_pose, doomed = _moved(problem, pose, s), False
+            for t in straightest[depth + 1:]:
+                if _collides(problem, tail_pose, t):
+                    doomed = True
+                    break
+                tail_pose = _moved(problem, tail_pose, t)
+            kept.append((doomed, bound, _moved(problem, pose, s), child_alpha, path + [s]))
+            clear += not doomed
+            if clear >= width:
+                break
+        if not kept:
+            return None
+        kept.sort(key=lambda k: (k[0], k[1]))
+        beam = [(pose, alpha, path) for _, _, pose, alpha, path in kept[:width]]
+        if depth == blocks - 1:
+            return kept[0][1], kept[0][4]
+    return None
+
+
+def _check_options(options) -> dict:
+    unknown = set(options or {}) - set(DEFAULT_OPTIONS)
+    if unknown:
+        raise ValueError(f"options: unknown keys {sorted(unknown)}; known: {sorted(DEFAULT_OPTIONS)}")
+    settings = DEFAULT_OPTIONS | (options or {})
+    for key in ("field_spacing", "region_spacing"):
+        if not (np.isfinite(settings[key]) and 0 < settings[key] <= 5e-3):
+            raise ValueError(f"options[{key!r}] must be a length in (0, 0.005] m, got {settings[key]!r}")
+    if not (isinstance(settings["expansions_per_check"], (int, np.integer)) and settings["expansions_per_check"] >= 1):
+        raise ValueError("options['expansions_per_check'] must be an integer >= 1")
+    if not (np.isfinite(settings["ceiling_growth"]) and settings["ceiling_growth"] > 1):
+        raise ValueError("options['ceiling_growth'] must be > 1")
+    if not (isinstance(settings["beam_width"], (int, np.integer)) and settings["beam_width"] >= 1):
+        raise ValueError("options['beam_width'] must be an integer >= 1")
+    return settings
+
+
+def search_problem(target: ShapeTarget, space: DesignSpace, settings: dict | None = None) -> tuple:
+    """Everything the compiled search reads, as one tuple (see the kernels for the order)."""
+    settings = settings or DEFAULT_OPTIONS
+    body = target.body
+    shapes = block_shapes(space, body.cap_length)
+    fields = lookahead_fields(shapes, space, body.radius, settings["field_spacing"], settings["region_spacing"])
+    choices = np.full((space.num_blocks, max(len(c) for c in space.choices)), -1, dtype=np.int64)
+    for k, c in enumerate(space.choices):
+        choices[k, : len(c)] = c
+    n_choices = np.array([len(c) for c in space.choices], dtype=np.int64)
+    contour = np.ascontiguousarray(target.points[:, [0, 2]])
+    limited = space.stock is not None
+    stock = np.asarray(space.stock if limited else np.zeros(len(space.theta)), np.int64)
+    stiff_stock = np.asarray(space.stiff_stock if limited else stock, np.int64)
+    return (
+        contour, np.asarray(target.end_point[[0, 2]], float), float(body.radius), choices, n_choices,
+        shapes.samples, shapes.ends, shapes.disc, fields.body, fields.tip, fields.layout, fields.discs,
+        stock, stiff_stock, np.asarray(space.stiff_positions, bool), limited,
+        body.distance.kernel_args, body.frame, float(body.threshold), float(body.cap_length), shapes.theta,
+        shapes.length, np.ascontiguousarray(target.bases[:, 0]), body.distance.exact(body.to_object(contour)),
+        fields.cover,
+    )
+
+
+def solve_finger(target: ShapeTarget, space: DesignSpace, *, options: dict | None = None, time_budget=None,
+                 callback=None) -> DesignOptimizeResult:
+    """Minimise the finger objective of ``target`` (eq. 3, with a body) over the planar ``space``; certified
+    unless the time budget or the callback stops it first (then ``lower_bound`` is proven)."""
+    settings = _check_options(options)
+    if target.body is None:
+        raise ValueError("solve_finger needs a finger target (with a body); use solve_exact for paths")
+    if space.rotations != 1:
+        raise ValueError("finger designs are planar: the design space must not allow rotations")
+    control = RunControl(time_budget, callback)
+    problem = search_problem(target, space, settings)
+    blocks, contour, n_choices, base_x = space.num_blocks, problem[0], problem[4], problem[22]
+    width = max(len(base_x) * n_choices[0], n_choices.max())
+    # depth, then per depth: next child, child count, child order, child bounds, shapes, bases, end poses;
+    # the current node's pose and contour distances per depth; the path (base, shapes), shapes used; best
+    # cost and path; counters (collision checks, block placements evaluated); ceiling and smallest bound it
+    # cut; scratch for the lookahead sums and contour distances
+    state = (
+        np.zeros(1, np.int64), np.zeros(blocks, np.int64), np.zeros(blocks, np.int64),
+        np.zeros((blocks, width), np.int64), np.zeros((blocks, width)), np.zeros((blocks, width), np.int64),
+        np.zeros((blocks, width), np.int64), np.zeros((blocks, width, 3)), np.zeros((blocks, 3)),
+        np.zeros((blocks, len(contour))), np.full(blocks + 1, -1, np.int64), np.zeros(len(space.theta), np.int64),
+        np.array([np.inf]), np.full(blocks + 1, -1, np.int64), np.zeros(2, np.int64), np.array([np.inf, np.inf]),
+        np.zeros(n_choices.max()), np.zeros(len(contour)),
+    )
+    best, limits, stats = state[12], state[15], state[14]
+    status, nit, proven, searching = Status.FINISHED, 0, 0.0, False  # every objective is >= 0
+    try:
+        found = None
+        for width, timed in ((FIRST_BEAM_WIDTH, False), (settings["beam_width"], True)):  # narrow: a finger
+            beam = _beam(problem, space, width, control, timed)  # at once; wide: a better one if time allows
+            if beam is not None and beam[0] < best[0]:
+                found = beam
+                best[0], state[13][:] = beam[0], beam[1]
+        if found is not None:
+            if settings["polish"]:
+                shapes_, _, bases_, costs_, _ = polish(target, space, np.array([found[1][1:]]),
+                                                      np.zeros((1, blocks), np.int64), np.array([found[1][0]]),
+                                                      control, SAMPLES_PER_BLOCK)
+                if costs_[0] < best[0]:
+                    best[0], state[13][:] = costs_[0], [bases_[0], *shapes_[0]]
+        _start(problem, state)  # with a finger in hand the ceiling stays off; without, it starts low and grows
+        searching = True
+        if found is None:
+            limits[0] = state[4][0, state[3][0, 0]] * settings["ceiling_growth"] if state[2][0] else np.inf
+        while True:
+            nit += 1
+            done = _search(problem, state, settings["expansions_per_check"])
+            control.report(_fraction(state), best[0], int(stats[1]))
+            if done and (best[0] < np.inf or limits[1] == np.inf):  # optimum found, or nothing left
+                status = Status.CERTIFIED
+                break
+            if done:  # no finger below the ceiling: every finger costs at least the smallest bound cut
+                proven = limits[1]
+                limits[0] = max(limits[1], limits[0]) * settings["ceiling_growth"]
+                _start(problem, state)
+    except Stop as stop:
+        status = stop.status
+    cost, best_path = float(best[0]), state[13]
+    lower_bound = cost if status == Status.CERTIFIED else max(proven, _lower_bound(state) if searching else 0.0)
+    if not np.isfinite(cost):  # nothing collision-free: report the least bad first-choice finger
+        chosen, base_index = np.array([c[0] for c in space.choices]), 0
+        cost = float(design_costs(target, space, chosen[None], np.zeros((1, blocks), np.int64),
+                                  np.zeros(1, np.int64))[0])
+        if status == Status.CERTIFIED:  # the search ended: every finger collides
+            lower_bound = COLLISION_PENALTY
+    else:
+        chosen, base_index = best_path[1:].copy(), int(best_path[0])
+    return make_result(space, chosen, np.zeros(blocks, np.int64), cost, status, base=base_index, nit=nit,
+                       nfev=int(stats[1]), lower_bound=min(lower_bound, cost), control=control)

@@ -1,0 +1,116 @@
+"""The same fault matrix for every dialect: HvSupply against each simulated supply over real ptys, two channels
+(one two-channel iseg module; two single-channel Keithley units; two PPV boards, i.e. two ports behind one driver).
+Every injected fault ends with the outputs off and the fault each device's capabilities let the driver name."""
+import pytest
+
+from dialect_rig import Rig
+
+from hv_driver import Fault, FaultLatchedError
+from hv_driver.dialects import DIALECTS
+
+FAST = dict(max_voltage_v=3000.0, slew_rate_v_per_s=8000.0, mismatch_tolerance_v=150.0, mismatch_time_s=0.2)
+
+# fault -> dialect -> expected fault
+MATRIX = {
+    "over_current": {"iseg-edcp": Fault.OVER_CURRENT, "keithley-2290": Fault.OVER_CURRENT, "ppv": Fault.BREAKDOWN},
+    "no_reply": dict.fromkeys(DIALECTS, Fault.LINK),
+    "garbled": dict.fromkeys(DIALECTS, Fault.LINK),
+    "partial": dict.fromkeys(DIALECTS, Fault.LINK),
+    "disconnect": dict.fromkeys(DIALECTS, Fault.LINK),
+    "device_reset": dict.fromkeys(DIALECTS, Fault.DEVICE),
+    "readback_drift": dict.fromkeys(DIALECTS, Fault.READBACK_MISMATCH),
+    # Ten times the capacitance draws ten times the charging current: above the trip where current is read; the
+    # PPV cannot see the current, only its output lagging the host's ramp by more than the tolerance.
+    "load_change": {"iseg-edcp": Fault.OVER_CURRENT, "keithley-2290": Fault.OVER_CURRENT,
+                    "ppv": Fault.READBACK_MISMATCH},
+}
+
+
+@pytest.fixture(params=list(DIALECTS))
+def rig(request):
+    made = Rig(request.param, FAST, link_timeout_s=0.5)
+    yield request.param, made
+    made.close()
+
+
+def test_every_dialect_identifies_configures_and_ramps_both_channels(rig, wait_until):
+    name, made = rig
+    handles = made.ramp(2400.0)
+    assert all(h.succeeded for h in handles), [h.message for h in handles]
+    assert wait_until(lambda: all(abs(made.plant(c).voltage - 2400.0) < 5.0 for c in "ab"))
+    snapshot = made.supply.snapshot()
+    assert not any(c.faults for c in snapshot.channels)
+    if name == "ppv":  # no current readback: shown as NaN, never as a made-up 0 A
+        assert all(c.measured_current != c.measured_current for c in snapshot.channels)
+    else:
+        assert all(abs(c.measured_current) < 1e-5 for c in snapshot.channels)
+    for handle in [made.supply.ramp_to(c, 0.0, token=made.token) for c in "ab"]:
+        assert handle.wait(5.0) and handle.succeeded
+
+
+@pytest.mark.parametrize("fault", list(MATRIX))
+def test_fault_matrix(rig, fault, wait_until):
+    name, made = rig
+    expected = MATRIX[fault][name]
+    channel = "b" if fault in ("over_current", "readback_drift", "load_change") else None
+    if fault == "load_change":
+        made.inject(fault, channel)
+        for name_ in "ab":
+            made.supply.enable(name_)
+        # A long ramp: the PPV shows the larger load only as its output lagging the ramp (slew x time constant);
+        # the lag must last past mismatch_time_s of observed loop time also when the loop runs late.
+        made.supply.ramp_to("b", 2900.0, token=made.token).wait(5.0)
+    else:
+        made.ramp(1500.0)
+        made.inject(fault, channel)
+    tripped = [channel] if channel else ["a", "b"]
+    reachable = fault != "disconnect"  # a pulled cable: no device here has a watchdog, its output stays
+
+    def tripped_and_off():
+        snap = made.supply.snapshot()
+        return all(expected in snap.channel(c).faults for c in tripped) and all(
+            not (reachable and made.plant(c).output_on) for c in tripped)
+    assert wait_until(tripped_and_off, 5.0), made.supply.snapshot()
+    snap = made.supply.snapshot()
+    for c in tripped:
+        assert (snap.channel(c).setpoint, snap.channel(c).output_enabled) == (0.0, False)
+        assert expected.name.lower() in snap.channel(c).fault_text
+    with pytest.raises(FaultLatchedError):
+        made.supply.enable(tripped[0])
+    if channel and fault != "load_change":  # the other channel (another supply on single-channel dialects) is untouched
+        assert not snap.channel("a").faults and made.plant("a").output_on
+
+
+def test_a_supply_that_stops_answering_trips_only_its_own_channels():
+    made = Rig("ppv", FAST, link_timeout_s=0.5)
+    try:
+        made.ramp(800.0)
+        made.sims[1].inject("no_reply")
+        assert made.supply.wait_cycles(1, 5.0)
+        deadline_cycles = 200
+        while Fault.LINK not in made.supply.snapshot().channel("b").faults and deadline_cycles:
+            made.supply.wait_cycles(1, 1.0)
+            deadline_cycles -= 1
+        snap = made.supply.snapshot()
+        assert Fault.LINK in snap.channel("b").faults and not snap.channel("a").faults
+        assert made.plant("a").output_on and made.plant("a").voltage == pytest.approx(800.0, abs=5.0)
+    finally:
+        made.close()
+
+
+def test_a_reset_clears_a_breakdown_and_the_board_comes_back_at_0_v(wait_until):
+    made = Rig("ppv", FAST, link_timeout_s=0.5)
+    try:
+        made.ramp(1200.0)
+        made.inject("over_current", "a")
+        assert wait_until(lambda: Fault.BREAKDOWN in made.supply.snapshot().channel("a").faults)
+        made.sims[0].clear_faults()
+        assert made.supply.reset_faults() == ["a"]
+        made.supply.enable("a")
+        made.supply.wait_cycles(5)
+        assert made.plant("a").output_on and made.plant("a").voltage_set == 0.0
+        assert made.supply.ramp_to("a", 600.0, token=made.token).wait(5.0)
+        made.supply.wait_cycles(10)
+        assert not made.supply.snapshot().channel("a").faults
+    finally:
+        made.close()
