@@ -107,6 +107,9 @@ def _lost_samples(channels, numbered: dict, origin: int) -> dict:
             report[channel.topic] = {"checked": False, "reason": reason}
             continue
         found = find_gaps(numbered.get(channel.topic, []))
+        if found["interleaved"]:
+            report[channel.topic] = {"checked": False, "reason": "the numbers interleave (a publisher joined later)"}
+            continue
         gaps = [{"after": g["after"], "before": g["before"], "lost": g["lost"],
                  "from": (g["after_time_ns"] - origin) / 1e9, "to": (g["before_time_ns"] - origin) / 1e9}
                 for g in found["gaps"]]

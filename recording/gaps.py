@@ -29,15 +29,19 @@ def find_gaps(samples: Iterable[tuple[int, int]]) -> dict:
 
     Returns ``received``, ``lost`` (samples missing between the first and last of each run) and ``gaps``:
     for each, the numbers ``after`` and ``before`` it, the publish times around it [ns] and ``lost``.
-    Samples without a number (0) are counted as received and otherwise ignored."""
-    received, gaps = 0, []
+    Samples without a number (0) are counted as received and otherwise ignored. ``interleaved`` is True when
+    the numbers fall back to anything but a new run from 1: a second publisher that joined after the
+    recorder subscribed, whose counter interleaves with the first's (its gaps are then meaningless)."""
+    received, gaps, interleaved = 0, [], False
     previous: tuple[int, int] | None = None
     for sequence, publish_time in samples:
         received += 1
         if not sequence:
             continue
+        if previous is not None and sequence < previous[0] and sequence != 1:
+            interleaved = True
         if previous is not None and sequence > previous[0] + 1:
             gaps.append({"after": previous[0], "before": sequence, "lost": sequence - previous[0] - 1,
                          "after_time_ns": previous[1], "before_time_ns": publish_time})
         previous = (sequence, publish_time)
-    return {"received": received, "lost": sum(gap["lost"] for gap in gaps), "gaps": gaps}
+    return {"received": received, "lost": sum(gap["lost"] for gap in gaps), "gaps": gaps, "interleaved": interleaved}

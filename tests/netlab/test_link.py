@@ -46,10 +46,14 @@ class Bench:
             index, sent = FRAME.unpack(data)
             received.append((index, time.monotonic() - sent))
 
-    def settle(self) -> None:
-        """Wait until nothing is in flight (liveness only: bounded generously)."""
+    def settle(self, received: int = 0) -> None:
+        """Wait until the link has read at least ``received`` frames (both ways) and nothing is in flight
+        (liveness only: bounded generously). Frames just sent may not have been read yet."""
         deadline = time.monotonic() + 30.0
-        while any(d["in_flight"] for d in self.link.stats().values()) and time.monotonic() < deadline:
+        while time.monotonic() < deadline:
+            stats = self.link.stats().values()
+            if sum(d["received"] for d in stats) >= received and not any(d["in_flight"] for d in stats):
+                return
             time.sleep(0.01)
 
     def close(self) -> None:
@@ -164,10 +168,10 @@ def test_a_far_end_that_refuses_frames_is_counted_not_fatal(bench):
     lab = bench(Conditions())
     lab.b.close()  # B's application is gone: writes toward it fail
     lab.send(lab.a, 5, period_s=0.0)
-    lab.settle()
+    lab.settle(received=5)
     assert lab.link.stats()["a_to_b"]["send_errors"] == 5
     lab.send(lab.a, 1, period_s=0.0)  # the link still runs
-    lab.settle()
+    lab.settle(received=6)
     assert lab.link.stats()["a_to_b"]["received"] == 6
 
 
