@@ -9,7 +9,8 @@ demo: setup
 	scripts/with_env.sh python -m softblock_ros.demo --out out/demo
 
 test: setup
-	scripts/with_env.sh python -m pytest -n 2 --dist loadfile tests
+	scripts/with_env.sh python -m pytest -n 2 --dist loadfile -m "not serial" tests
+	scripts/with_env.sh python -m pytest -m serial tests
 
 bench: setup
 	scripts/with_env.sh bash benchmarks/run_all.sh

@@ -24,7 +24,9 @@ from netlab.stack import (SEQUENCER_SERVER_TIMEOUT_S, SEQUENCER_STATE_TIMEOUT_S,
 from recording.analysis import load
 
 reason = unavailable_reason()
-pytestmark = pytest.mark.skipif(reason is not None, reason=f"two emulated hosts: {reason}")
+# serial: `make test` runs these alone, after the parallel part, so their niceness -20 rig cannot starve
+# another test's processes (nor another test theirs)
+pytestmark = [pytest.mark.skipif(reason is not None, reason=f"two emulated hosts: {reason}"), pytest.mark.serial]
 
 STARTUP_TIMEOUT = 120.0  # [s] two launchers and six nodes on two loaded cores
 GRASP_TIMEOUT = 240.0    # [s] the grasp takes about 50 s
