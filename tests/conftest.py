@@ -12,6 +12,8 @@ from processes import adopt_orphans, descendants, kill_tree, reap
 
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("MPLBACKEND", "Agg")
+# Message setters check field types (as the nodes do, see softblock_ros/__init__.py); read at message import.
+os.environ.setdefault("ROS_PYTHON_CHECK_FIELDS", "1")
 
 # Parallel runs never cross-talk: worker w of an n-worker pytest-xdist run gives its m-th module the
 # domain slot w + n*m, counted from an offset derived from the run's id (a plain run: from its pid).

@@ -113,6 +113,7 @@ def make_result(space, shapes, rotations, cost, status: Status, *, base, nit, nf
     """Assemble a result; the message adds the numbers. ``success``: a usable design (collision-free, within
     the inventory) is returned, also when the time budget ended the run; ``optimal`` says whether it is
     proven best."""
+    cost = float(cost)  # a numpy scalar would make ``success`` a numpy bool, which ROS messages reject
     shapes = np.asarray(shapes, dtype=np.int64)
     ids = space.design_ids(shapes)
     x = np.stack([np.array(ids, dtype=np.int64), np.asarray(rotations, dtype=np.int64)], axis=1)
@@ -125,7 +126,7 @@ def make_result(space, shapes, rotations, cost, status: Status, *, base, nit, nf
     message += ")"
     return DesignOptimizeResult(
         x=x,
-        fun=float(cost),
+        fun=cost,
         success=status in (Status.CERTIFIED, Status.FINISHED) or status == Status.TIME_BUDGET and cost < COLLISION_PENALTY,
         status=status,
         message=message,

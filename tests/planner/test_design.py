@@ -110,6 +110,17 @@ def test_cancel_and_time_budget_give_unsuccessful_results(table):
     assert not late.success and "time budget" in late.message
 
 
+@pytest.mark.parametrize("method", ["exact", "pso"])
+def test_result_flags_and_numbers_are_plain_python_types(table, method):
+    """ROS message fields take Python bool/float only: a numpy bool from a comparison aborted the planner
+    node in the C conversion of its response."""
+    for budget in (1e-9, None):
+        result = design.design_path(np.array([[0, 0, 0], [0.01, 0, 0.03]]), 2, method=method, table=table,
+                                    time_budget=budget)
+        assert type(result.success) is bool and type(result.optimal) is bool
+        assert type(result.cost) is float and type(result.lower_bound) is float
+
+
 @pytest.mark.parametrize(
     "call, problem",
     [

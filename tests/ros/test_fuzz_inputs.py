@@ -90,7 +90,8 @@ def next_message(inbox: Inbox):
 
 
 def one_line_reason(message: str) -> bool:
-    return bool(message) and "\n" not in message and len(message) < 500
+    """A short reason, and not "request failed" (the planner's answer when its own code raised: a bug)."""
+    return bool(message) and "\n" not in message and len(message) < 500 and not message.startswith("request failed")
 
 
 def finite(*values) -> bool:
