@@ -10,6 +10,9 @@ from .errors import HvError
 
 # Longest line the driver accepts; anything longer is garbage.
 MAX_LINE = 256
+# After a failed exchange the line must fall quiet within this many reply timeouts, or the link fails.
+RESYNC_WINDOWS = 4
+RESYNC_POLL = 0.002  # [s]
 
 
 class LinkError(HvError, ConnectionError):
@@ -19,8 +22,11 @@ class LinkError(HvError, ConnectionError):
 class Link:
     """One command/answer exchange at a time over a pyserial-like port.
 
-    After any failed exchange the next one first discards what is buffered, so a late or garbled
-    answer is never taken for the answer to a later command.
+    After any failed exchange the next one first resynchronises: it discards what is buffered and whatever
+    still arrives until the line has been quiet for one reply timeout, so an answer that came late (a
+    device or host descheduled past the timeout) is not taken for the answer to the next command. A dialect
+    without echo has no other way to tell answers apart. An answer later than that window is not caught
+    here; the dialect's decoding and the echo (where there is one) still refuse most mismatches.
     """
 
     def __init__(self, port, dialect: Dialect, reply_timeout: float):
@@ -42,8 +48,7 @@ class Link:
 
     def _exchange(self, line: str, answered: bool) -> str | None:
         if self._stale:
-            self._buffer.clear()
-            self._call(self.port.reset_input_buffer)
+            self._resync(line)
             self._stale = False
         self._call(self.port.write, line.encode("ascii") + self.dialect.command_terminator)
         deadline = time.monotonic() + self.reply_timeout
@@ -52,6 +57,21 @@ class Link:
             if echo != line:
                 raise ProtocolError(f"wrong echo {echo!r} for {line!r}")
         return self._read_line(deadline, line) if answered else None
+
+    def _resync(self, line: str) -> None:
+        self._buffer.clear()
+        self._call(self.port.reset_input_buffer)
+        start = quiet_since = time.monotonic()
+        while (now := time.monotonic()) - quiet_since < self.reply_timeout:
+            if now - start > RESYNC_WINDOWS * self.reply_timeout:
+                raise LinkError(f"the device kept sending for {now - start:.3g} s after a failed exchange; "
+                                f"{line!r} not sent")
+            waiting = self._call(lambda: self.port.in_waiting)
+            if waiting:
+                self._call(self.port.read, waiting)
+                quiet_since = time.monotonic()
+            else:
+                time.sleep(RESYNC_POLL)
 
     def _read_line(self, deadline: float, line: str) -> str:
         terminator = self.dialect.reply_terminator

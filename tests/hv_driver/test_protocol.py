@@ -5,7 +5,7 @@ import pytest
 import serial
 
 from hv_driver import IsegEdcp, LinkError, ProtocolError
-from hv_driver.dialects import Command, Dialect
+from hv_driver.dialects import Command, Dialect, Keithley2290
 from hv_driver.dialects.iseg_edcp import ChannelEvent, ChannelStatus
 from hv_driver.link import Link
 
@@ -167,3 +167,66 @@ def test_port_failure_is_a_link_error(scripted_port):
     port = scripted_port([(b"*IDN?\r\n", serial.SerialException("device disconnected"))])
     with pytest.raises(LinkError, match="device disconnected"):
         link_for(port).query("identify")
+
+
+class LatePort:
+    """A port whose device answers a write marked late only after the host gave up on it and flushed its
+    input (as a device descheduled past the reply timeout would), the others at once; ``noisy``: the line
+    never falls quiet after that flush."""
+
+    def __init__(self, exchanges, noisy=False):
+        self.exchanges = list(exchanges)  # (sent, reply, late)
+        self.held = bytearray()
+        self.buffer = bytearray()
+        self.flushed = False
+        self.noisy = noisy
+
+    def write(self, data: bytes) -> int:
+        sent, reply, late = self.exchanges.pop(0)
+        assert data == sent, f"wrote {data!r}, script expects {sent!r}"
+        (self.held if late else self.buffer).extend(reply)
+        return len(data)
+
+    @property
+    def in_waiting(self) -> int:
+        if self.flushed:
+            self.buffer[:0], self.held = self.held, bytearray()  # the late answer comes before anything newer
+            if self.noisy:
+                self.buffer += b"noise\n"
+        return len(self.buffer)
+
+    def read(self, size: int = 1) -> bytes:
+        chunk = bytes(self.buffer[:size])
+        del self.buffer[:size]
+        return chunk
+
+    def reset_input_buffer(self) -> None:
+        self.buffer.clear()
+        self.flushed = True
+
+
+@pytest.mark.parametrize("dialect, first, second, late_answer, answer", [
+    (Keithley2290(), b"VOUT?\n", b"IOUT?\n", b"+2400.0\n", b"2.0e-06\n"),
+    (EDCP, b":MEAS:VOLT? (@0)\r\n", b":MEAS:CURR? (@0)\r\n", echoed(":MEAS:VOLT? (@0)", "2.4E+03V"),
+     echoed(":MEAS:CURR? (@0)", "2.0E-6A")),
+])
+def test_an_answer_that_comes_after_the_timeout_is_not_taken_for_the_next_commands(dialect, first, second,
+                                                                                     late_answer, answer):
+    """The late answer to a voltage query arrives after the host gave up and moved on: without
+    resynchronising, a device without echo had its 2400 V read as 2400 A (and one with echo failed on the
+    echo, a false link fault)."""
+    port = LatePort([(first, late_answer, True), (second, answer, False)])
+    link = Link(port, dialect, 0.02)
+    with pytest.raises(LinkError, match="no reply"):
+        link.query("measure_voltage", [0])
+    assert link.query("measure_current", [0]) == [2e-6]
+    assert not port.held and not port.buffer
+
+
+def test_a_device_that_keeps_sending_after_a_failure_is_a_link_error():
+    port = LatePort([(b"VOUT?\n", b"", True)], noisy=True)
+    link = Link(port, Keithley2290(), 0.02)
+    with pytest.raises(LinkError, match="no reply"):
+        link.query("measure_voltage", [0])
+    with pytest.raises(LinkError, match="kept sending"):
+        link.query("measure_current", [0])
