@@ -4,6 +4,7 @@ answered while a long optimization runs."""
 import io
 import math
 import threading
+from collections import OrderedDict
 
 import numpy as np
 import pytest
@@ -16,6 +17,7 @@ from softblock_interfaces.srv import DesignFingers, DesignPath
 
 import planner.design
 from planner.kinematics import chain_shape
+from planner.optimize import lookahead
 from planner.table import load_table
 from softblock_ros.conversions import BLOCK_DESIGN_FIELDS, image_msg
 from softblock_ros.launcher import Stack
@@ -106,6 +108,20 @@ def test_gripper_designs_arrive_within_their_timeout(client):
             assert getattr(reply, f"{side}_min_clearance") >= -2e-6
             assert getattr(reply, f"{side}_lower_bound") <= getattr(reply, f"{side}_cost")
         assert reply.optimal or "lower bound" in reply.message
+
+
+@pytest.mark.parametrize("max_blocks, prepare, loaded", [(4, True, 2), (2, True, 1), (4, False, 0)])
+def test_the_node_prepares_the_finger_search_before_it_serves(ros_context, monkeypatch, max_blocks, prepare, loaded):
+    """Once the node is up, the lookahead fields of the small problem that compiles the search and of the
+    gripper's configurations within max_blocks (4 blocks: only (4, 2)) are in memory, so the first request
+    does not load them (seconds)."""
+    monkeypatch.setattr(lookahead, "_LOADED", OrderedDict())
+    node = PlannerNode(context=ros_context, parameter_overrides=[
+        Parameter("max_blocks", value=max_blocks), Parameter("prepare_finger_search", value=prepare)])
+    try:
+        assert len(lookahead._LOADED) == loaded
+    finally:
+        node.destroy_node()
 
 
 def test_contact_tolerance_lets_the_body_enter_the_object(client):

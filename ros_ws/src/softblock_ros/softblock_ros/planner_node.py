@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import sys
 import threading
+import time
 from functools import partial
 
 from rclpy.callback_groups import ReentrantCallbackGroup
@@ -33,6 +34,9 @@ PARAMETERS = (
     Param("max_blocks", 8, "largest number of blocks per finger or chain a request may ask for", low=1,
           high=design.MAX_BLOCKS, kind=int),
     Param("table_path", "", "look-up table file; empty = the planner's default table", kind=str),
+    Param("prepare_finger_search", True, "before serving, compile the finger search and load its lookahead fields "
+          "for the gripper's (blocks, stiff top) configurations within max_blocks, so that the first request "
+          "does not wait for them", kind=bool),
 )
 
 
@@ -42,6 +46,8 @@ class PlannerNode(Node):
         self._settings = declare(self, PARAMETERS)
         table_path = self._settings["table_path"]
         self._table = load_table(resolve_path(table_path)) if table_path else load_table()
+        if self._settings["prepare_finger_search"]:
+            self._prepare_finger_search()
         self._stopping = threading.Event()
         group = ReentrantCallbackGroup()
         self.create_service(DesignFingers, "planner/design_fingers", partial(self._serve, self._design_fingers),
@@ -49,6 +55,13 @@ class PlannerNode(Node):
         self.create_service(DesignPath, "planner/design_path", partial(self._serve, self._design_path),
                             callback_group=group)
         self.get_logger().info(f"ready, table of {len(self._table.ids)} designs")
+
+    def _prepare_finger_search(self) -> None:
+        configurations = [c for c in design.PREPARED_CONFIGURATIONS if c[0] <= self._settings["max_blocks"]]
+        started = time.perf_counter()
+        design.prepare_finger_search(configurations, table=self._table)
+        self.get_logger().info(f"finger search prepared for (blocks, stiff top) {configurations} "
+                               f"({time.perf_counter() - started:.1f} s)")
 
     def destroy_node(self):
         self._stopping.set()
