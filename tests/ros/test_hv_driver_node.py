@@ -134,8 +134,9 @@ def test_ramp_action_to_2400_volts_and_back(active):
     assert result.final_voltage == pytest.approx(2400.0, abs=100.0)  # readback of the final setpoint's cycle
     assert feedback and max(f.measured_voltage for f in feedback) > 0.0
     assert all(0.0 <= f.progress <= 1.0 for f in feedback)
-    front = active.latest_state().channels[0]
-    assert front.setpoint == 2400.0 and front.measured_voltage == pytest.approx(2400.0, abs=5.0)
+    # The supply's own ramp may still be settling when the goal ends (seen under load: 2341 V read back).
+    front = active.latest_state(lambda s: abs(s.channels[0].measured_voltage - 2400.0) <= 5.0).channels[0]
+    assert front.setpoint == 2400.0 and not front.ramping and not front.faults
     assert active.ramp_result("front", 0.0).success
     assert active.latest_state().channels[0].setpoint == 0.0
 
