@@ -58,10 +58,10 @@ def test_open_sends_the_documented_sequence(sim, supply):
 def test_ramp_to_2400_and_back_follows_on_both_channels(sim, supply, token, wait_until):
     ramp_both(supply, token, 2400.0)
     assert all(ch.output_on and ch.voltage_set == 2400.0 for ch in sim.plant)  # sent before "done"
-    supply.wait_cycles(2)  # the device ramp (1.2 x the slew limit) ends within a cycle
-    for ch, snap in zip(sim.plant, supply.snapshot().channels):
-        assert ch.voltage == pytest.approx(2400.0, abs=1.0)
-        assert snap.measured_voltage == pytest.approx(2400.0, abs=1.0) and not snap.faults
+    # The device ramp (1.2 x the slew limit) ends about a cycle later; a loaded machine may take longer.
+    assert wait_until(lambda: all(abs(ch.voltage - 2400.0) <= 1.0 and abs(snap.measured_voltage - 2400.0) <= 1.0
+                                  for ch, snap in zip(sim.plant, supply.snapshot().channels)))
+    assert not any(snap.faults for snap in supply.snapshot().channels)
     handles = [supply.ramp_to(name, 0.0, token=token) for name in ("front", "back")]
     assert all(h.wait(5.0) and h.succeeded for h in handles)
     assert all(ch.voltage_set == 0.0 for ch in sim.plant)
