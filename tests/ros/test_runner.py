@@ -21,6 +21,9 @@ PROBE = textwrap.dedent("""
         deadline = time.monotonic() + 20.0
         while rclpy.ok() and time.monotonic() < deadline:
             time.sleep(0.01)  # Python code running when the signal lands: KeyboardInterrupt would hit here
+        # rclpy passes SIGINT on to Python's handler from its own thread, which may shut the context down
+        # first and end the loop: the interrupt then lands here, still inside the try
+        time.sleep(1.0)
     except KeyboardInterrupt:
         print("KeyboardInterrupt")
         sys.exit(3)
