@@ -14,6 +14,8 @@ from std_msgs.msg import Int32
 PROBE = textwrap.dedent("""
     import os, signal, sys, time
     import rclpy
+    # as in a process started from a shell: a test runner's worker may ignore SIGINT, and its children inherit that
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     from softblock_ros.runner import init
     init()
     try:
