@@ -6,6 +6,7 @@ terminators, acknowledgement) and the decoding of the supply's status. The drive
 names below and chooses what to send from the capabilities; everything device-specific lives in the dialect
 module. The table must hold every operation the declared capabilities need (checked when the class is defined).
 """
+import re
 from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -18,6 +19,10 @@ BASE_OPERATIONS = ("identify", "set_voltage", "output_on", "output_off", "measur
 # Operations a table may hold; the driver uses them when present: set_voltage_limit (a device-side voltage limit
 # set to the channel's hard maximum), reset (device defaults), clear_events (clears latched device trips/events).
 OPTIONAL_OPERATIONS = ("set_voltage_limit", "reset", "clear_events")
+
+
+# A decimal number as the supplies write it (a dialect may narrow it with `Dialect.number_pattern`).
+DECIMAL_NUMBER = re.compile(r"[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?")
 
 
 class ProtocolError(HvError, ConnectionError):
@@ -126,6 +131,7 @@ class Dialect(ABC):
     echo: bool                 # the device echoes every character of the command line
     default_baudrate: int
     commands: Mapping[str, Command]
+    number_pattern: re.Pattern = DECIMAL_NUMBER  # how the device writes a number (without its unit)
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
@@ -198,8 +204,24 @@ class Dialect(ABC):
     @abstractmethod
     def format_number(self, value: float) -> str: ...
 
-    @abstractmethod
-    def parse_number(self, field: str, command: Command, operation: str) -> float | int: ...
+    def parse_number(self, field: str, command: Command, operation: str) -> float | int:
+        """One number of a reply (or of a sent line, to compare with a "value" reply): an int for "integer"
+        replies, else a float written as `number_pattern` with the unit rule of `without_unit`."""
+        text = field.strip()
+        if command.reply == "integer":
+            if not text.isdigit():
+                raise ProtocolError(f"{operation}: expected an integer, got {field!r}")
+            return int(text)
+        number = self.without_unit(text, command.unit)
+        if number is None or not self.number_pattern.fullmatch(number):
+            unit = f" in {command.unit}" if command.unit else ""
+            raise ProtocolError(f"{operation}: expected a number{unit}, got {field!r}")
+        return float(number)
+
+    def without_unit(self, text: str, unit: str) -> str | None:
+        """``text`` without the unit the device appends (None: the unit is missing). By default the device
+        appends it always, right after the digits."""
+        return text[: len(text) - len(unit)] if text.endswith(unit) else None
 
     @abstractmethod
     def status_report(self, *values: int) -> StatusReport:

@@ -13,11 +13,10 @@ Capabilities: several channels per module (``:READ:MOD:CHAN?``); a device ramp (
 host's check; a latched emergency off; no host watchdog (wire the INHIBIT input to an external interlock); no
 device-side switching.
 """
-import re
 from collections.abc import Sequence
 from enum import IntFlag
 
-from .base import Capabilities, Command, CurrentSensing, Dialect, ProtocolError, StatusReport
+from .base import Capabilities, Command, CurrentSensing, Dialect, StatusReport
 
 
 class ChannelStatus(IntFlag):
@@ -76,7 +75,6 @@ TRIP_ACTION_OFF_WITHOUT_RAMP = 2
 # Delay of the device's own current trip: it acts only if the host's check (every control cycle) did not.
 DEVICE_TRIP_TIME_MS = 100.0
 
-_NUMBER = re.compile(r"[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?")
 
 
 class IsegEdcp(Dialect):
@@ -127,16 +125,6 @@ class IsegEdcp(Dialect):
 
     def format_channels(self, channels: Sequence[int]) -> str:
         return "(@" + ",".join(str(int(c)) for c in channels) + ")"
-
-    def parse_number(self, field: str, command: Command, operation: str) -> float | int:
-        text = field.strip()
-        if command.reply == "integer":
-            if not text.isdigit():
-                raise ProtocolError(f"{operation}: expected a register value, got {field!r}")
-            return int(text)
-        if not text.endswith(command.unit) or not _NUMBER.fullmatch(text[: len(text) - len(command.unit)]):
-            raise ProtocolError(f"{operation}: expected a number in {command.unit}, got {field!r}")
-        return float(text[: len(text) - len(command.unit)])
 
     def status_report(self, status: int, events: int) -> StatusReport:
         state = ChannelStatus(status & sum(ChannelStatus))

@@ -20,10 +20,9 @@ taken as 9600; ``ITRP`` (a separate trip level in the ISIS file) is not used; wh
 the rear-panel HV enable is off (the ISIS emulator's behaviour) shows here as the output not coming on, a
 DEVICE fault.
 """
-import re
 from enum import IntFlag
 
-from .base import Capabilities, Command, CurrentSensing, Dialect, ProtocolError, StatusReport
+from .base import Capabilities, Command, CurrentSensing, Dialect, StatusReport
 
 
 class StatusByte(IntFlag):
@@ -39,7 +38,6 @@ class StatusByte(IntFlag):
     HV_ON = 1 << 7
 
 
-_NUMBER = re.compile(r"[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?")
 
 
 class Keithley2290(Dialect):
@@ -71,17 +69,11 @@ class Keithley2290(Dialect):
     def format_number(self, value: float) -> str:
         return format(value, ".6g")
 
-    def parse_number(self, field: str, command: Command, operation: str) -> float | int:
-        text = field.strip()
-        if command.reply == "integer":
-            if not text.isdigit():
-                raise ProtocolError(f"{operation}: expected a status byte, got {field!r}")
-            return int(text)
-        if command.unit and text.upper().endswith(command.unit):
-            text = text[: -len(command.unit)].rstrip()
-        if not _NUMBER.fullmatch(text):
-            raise ProtocolError(f"{operation}: expected a number in {command.unit}, got {field!r}")
-        return float(text)
+    def without_unit(self, text: str, unit: str) -> str:
+        """The unit may follow the number, in either case and after spaces, or be left out."""
+        if unit and text.upper().endswith(unit.upper()):
+            return text[: -len(unit)].rstrip()
+        return text
 
     def status_report(self, status: int) -> StatusReport:
         byte = StatusByte(status & 0xFF)

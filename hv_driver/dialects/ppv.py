@@ -31,13 +31,12 @@ of other firmware versions.
 """
 import re
 
-from .base import Capabilities, Command, CurrentSensing, DeviceSwitching, Dialect, ProtocolError, StatusReport
+from .base import Capabilities, Command, CurrentSensing, DeviceSwitching, Dialect, StatusReport
 
 MODE_OFF, MODE_DC, MODE_SWITCHING, MODE_WAVEFORM = 0, 1, 2, 3
 SWITCHING_SOURCE_TIMER = 0
 VOLTAGE_MODE_REGULATED = 0
 
-_NUMBER = re.compile(r"[+-]?(\d+(\.\d*)?|\.\d+)")
 
 
 class PetaPicoVoltron(Dialect):
@@ -50,6 +49,7 @@ class PetaPicoVoltron(Dialect):
     reply_terminator = b"\r\n"
     echo = False
     default_baudrate = 115200
+    number_pattern = re.compile(r"[+-]?(\d+(\.\d*)?|\.\d+)")  # the board writes no exponent
     commands = {
         "identify": Command("QVer", "text"),
         "set_voltage": Command("SVset {value}", "value", fmt=".0f"),
@@ -77,16 +77,6 @@ class PetaPicoVoltron(Dialect):
 
     def format_number(self, value: float) -> str:
         return format(value, ".0f")
-
-    def parse_number(self, field: str, command: Command, operation: str) -> float | int:
-        text = field.strip()
-        if command.reply == "integer":
-            if not text.isdigit():
-                raise ProtocolError(f"{operation}: expected an integer, got {field!r}")
-            return int(text)
-        if not _NUMBER.fullmatch(text):
-            raise ProtocolError(f"{operation}: expected a number, got {field!r}")
-        return float(text)
 
     def status_report(self, mode: int) -> StatusReport:
         return StatusReport(output_on=mode in (MODE_DC, MODE_SWITCHING), ramping=False, over_current=False,

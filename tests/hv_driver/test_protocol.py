@@ -47,8 +47,8 @@ def test_several_channels_answer_comma_separated():
     ("measure_voltage", "V", 1, "number in V"),
     ("measure_voltage", "1.2E3V", 2, "expected 2 value"),     # one channel missing
     ("measure_current", "1e-6A,,2e-6A", 2, "expected 2 value"),
-    ("read_status", "13x", 1, "register"),
-    ("read_status", "-1", 1, "register"),
+    ("read_status", "13x", 1, "integer"),
+    ("read_status", "-1", 1, "integer"),
     ("set_voltage", "?", 1, "acknowledgement"),
     ("set_voltage", "", 1, "acknowledgement"),
     ("identify", "", 1, "unreadable"),

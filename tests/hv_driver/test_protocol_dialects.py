@@ -5,7 +5,7 @@ import pytest
 
 from hv_driver import ChannelConfig, LinkError, ProtocolError
 from hv_driver.device import ConfigurationError, Device
-from hv_driver.dialects import Keithley2290, PetaPicoVoltron
+from hv_driver.dialects import IsegEdcp, Keithley2290, PetaPicoVoltron
 from hv_driver.link import Link
 
 KEITHLEY, PPV = Keithley2290(), PetaPicoVoltron()
@@ -46,6 +46,29 @@ def test_keithley_cut_is_output_off_then_zero_and_readback_decodes_the_status_by
     reading = device.read()["leg"]
     assert (reading.voltage, reading.current) == (12.5, 2e-3)
     assert reading.report.over_current and reading.report.output_on
+
+
+@pytest.mark.parametrize("dialect, operation, field, expected", [
+    (IsegEdcp(), "measure_voltage", "1.2E3V", 1200.0),       # iseg: the unit always follows the digits
+    (IsegEdcp(), "measure_voltage", "1.2E3", None),
+    (IsegEdcp(), "measure_voltage", "1.2E3 V", None),
+    (KEITHLEY, "measure_voltage", "+12.5V", 12.5),           # Keithley: the unit may follow, in either case,
+    (KEITHLEY, "measure_voltage", "+12.5 v", 12.5),          # after spaces, or be left out
+    (KEITHLEY, "measure_current", "2.0e-03", 2e-3),
+    (KEITHLEY, "measure_current", "2.0e-03V", None),
+    (PPV, "set_voltage", "600", 600.0),                      # PPV: plain decimals, no exponent, no unit
+    (PPV, "set_voltage", "6e2", None),
+    (KEITHLEY, "read_status", "132", 132),                   # registers are non-negative integers everywhere
+    (PPV, "read_switching_mode", "-1", None),
+])
+def test_each_dialect_reads_numbers_by_its_own_unit_and_digit_rules(dialect, operation, field, expected):
+    command = dialect.commands[operation]
+    if expected is None:
+        with pytest.raises(ProtocolError, match=operation):
+            dialect.parse_number(field, command, operation)
+    else:
+        value = dialect.parse_number(field, command, operation)
+        assert value == expected and type(value) is type(expected)
 
 
 @pytest.mark.parametrize("reply, problem", [(b"ERR\n", "number in V"), (b"1.2.3\n", "number in V"),
