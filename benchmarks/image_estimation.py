@@ -320,15 +320,15 @@ def plot(results: dict, path: Path) -> None:
     ax.legend(fontsize="small")
     ax = axes[1, 0]
     records = results["mistakes"]["records"]
-    edges = [0, 1, 2, 4, 8, 16, math.inf]
-    labels = ["<1", "1-2", "2-4", "4-8", "8-16", ">16"]
+    edges = [0, 1, 2, 4, 8, 16, math.inf]  # bins (lo, hi], so that the goal's "> 2 px" starts a bin
+    labels = ["<=1", "1-2", "2-4", "4-8", "8-16", ">16"]
     for condition, style in zip(CONDITIONS, ("-", "--")):
         for group, kinds, colour in (("wrong design", ("wrong design",), "tab:blue"),
                                      ("wrong rotation", ("flip (180 deg)", "out of plane"), "tab:orange")):
             rows = [r for r in records if r["condition"] == condition and r["kind"] in kinds]
             difference = np.array([r["block_difference_px"] for r in rows])
             found = np.array([r["found"] for r in rows], dtype=float)
-            which = np.digitize(difference, edges) - 1
+            which = np.digitize(difference, edges, right=True) - 1
             rate = [found[which == i].mean() if np.any(which == i) else np.nan for i in range(len(labels))]
             counts = [int(np.sum(which == i)) for i in range(len(labels))]
             ax.plot(range(len(labels)), rate, style, marker="o", color=colour,
@@ -338,7 +338,7 @@ def plot(results: dict, path: Path) -> None:
     ax.set_xticks(range(len(labels)), labels)
     ax.set(xlabel="believed and built block differ by [pixels] (Hausdorff, side view)", ylabel="found at the right block",
            ylim=(-0.05, 1.05), title="one mistake per chain, 0.25 mm/px")
-    ax.legend(fontsize="x-small", loc="center right")
+    ax.legend(fontsize="x-small", loc="lower right")
     ax = axes[1, 1]
     rows = results["time"]["rows"]
     ax.plot([r["blocks"] for r in rows], [1e3 * r["median_cpu_s"] for r in rows], "o-", label="as built: median CPU")
@@ -374,7 +374,7 @@ def main() -> None:
         "resolution": ("angle accuracy against resolution",
                        lambda: resolution_study(table, rng(0), count(40), [0.1e-3, 0.25e-3, 0.5e-3, 1.0e-3])),
         "faults": ("image faults", lambda: fault_study(table, rng(1), count(30))),
-        "mistakes": ("assembly mistakes", lambda: mistake_study(table, rng(2), count(40))),
+        "mistakes": ("assembly mistakes", lambda: mistake_study(table, rng(2), count(100))),
         "time": ("time per image", lambda: time_study(table, rng(3), count(20))),
     }
     folder = QUICK_OUTPUT if args.quick else FIGURES
