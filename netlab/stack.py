@@ -39,8 +39,12 @@ RIG_NICENESS = -20
 # The sequencer's timeouts, widened from their defaults (0.5 s, 2 s): with both hosts on shared cores the driver
 # was seen to stall for up to 1.3 s (a gap in its stamps on its own host's console, not a loss on the link), and
 # across a lossy link a lost request or reply is repaired only at the writer's next periodic heartbeat (Fast
-# DDS: every 3 s), so a 2 s service wait can end before an answer that is on its way.
-SEQUENCER_STATE_TIMEOUT_S, SEQUENCER_SERVER_TIMEOUT_S = 2.0, 5.0
+# DDS: every DDS_REPAIR_PERIOD_S). A service wait must cover three repairs: a lost request, a lost repair (or
+# its heartbeat or acknowledgement) and a lost reply. With 5 s (one repair and a half) one lossy grasp in about
+# twenty timed out waiting for hv/claim_control; a call needs four losses in a row to outlast 10 s.
+DDS_REPAIR_PERIOD_S = 3.0
+SEQUENCER_STATE_TIMEOUT_S = 2.0
+SEQUENCER_SERVER_TIMEOUT_S = 3 * DDS_REPAIR_PERIOD_S + 1.0
 SEQUENCER_PARAMETERS = {"state_timeout_s": SEQUENCER_STATE_TIMEOUT_S, "server_timeout_s": SEQUENCER_SERVER_TIMEOUT_S}
 
 

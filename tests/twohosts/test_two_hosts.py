@@ -19,8 +19,8 @@ from mcap.reader import make_reader
 
 from hv_driver.ramp import MIN_JERK_PEAK_RATE
 from netlab import Conditions, EmulatedHosts, unavailable_reason
-from netlab.stack import (SEQUENCER_SERVER_TIMEOUT_S, SEQUENCER_STATE_TIMEOUT_S, TwoHostStack, channels_below,
-                          driver_lost_logged, step_durations)
+from netlab.stack import (DDS_REPAIR_PERIOD_S, SEQUENCER_SERVER_TIMEOUT_S, SEQUENCER_STATE_TIMEOUT_S, TwoHostStack,
+                          channels_below, driver_lost_logged, step_durations)
 from recording.analysis import load
 
 reason = unavailable_reason()
@@ -38,7 +38,7 @@ SAFE_V = 50.0
 # A recorder that has subscribed still has to be matched by the driver's writer across the link (one discovery
 # exchange, milliseconds on a clean link); the tests check that it was, from the recording.
 RECORDER_MATCH_S = 2.0
-WRITER_HEARTBEAT_PERIOD_S = 3.0  # [s] Fast DDS's default: a reliable writer's repairs follow its heartbeats
+WRITER_HEARTBEAT_PERIOD_S = DDS_REPAIR_PERIOD_S  # a reliable writer's repairs follow its heartbeats
 # The sequencer's own timeouts (config/sequencer.yaml): hv/state older than state_timeout_s is a lost driver;
 # then its safe stop waits up to safe_stop_timeout_s for the ramps down, an e-stop and the release of
 # control up to server_timeout_s each for the service and for the reply.
