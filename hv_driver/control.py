@@ -13,6 +13,11 @@ from .errors import HvError, SettingError
 
 MAX_CLIENT_NAME = 64  # [characters] names appear in refusals and /diagnostics
 TOKEN_BYTES = 16
+# A new session's first sign of life follows the claim's reply across the network; on a lossy link a lost reply
+# is resent only at the transport's next periodic heartbeat (Fast DDS: every 3 s), so the client may learn its
+# token seconds after the claim. Until it shows it, nothing is energised under the session (every ramp carries
+# the token), so the longer wait costs only the time another client waits to claim.
+FIRST_SIGN_OF_LIFE_S = 10.0
 
 
 class ControlError(HvError, RuntimeError):
@@ -39,15 +44,21 @@ class ControlClaim:
         self.owner: str | None = None
         self._token: str | None = None
         self._last_heartbeat = -math.inf
+        self._confirmed = False  # the owner has shown its token since the claim
         self.ended = ""  # why the last control session ended, e.g. "control released by 'demo'"
 
     def heartbeat_age(self, now: float) -> float | None:
         """Seconds since the owner's last sign of life (None without an owner)."""
         return None if self.owner is None else max(0.0, now - self._last_heartbeat)
 
+    @property
+    def allowed_silence_s(self) -> float:
+        """How long the owner may stay silent: the timeout, or FIRST_SIGN_OF_LIFE_S if longer until its first sign."""
+        return self.timeout_s if self._confirmed else max(self.timeout_s, FIRST_SIGN_OF_LIFE_S)
+
     def silent(self, now: float) -> bool:
-        """True when the owner's heartbeat is older than the timeout."""
-        return self.owner is not None and now - self._last_heartbeat > self.timeout_s
+        """True when the owner's heartbeat is older than it may be."""
+        return self.owner is not None and now - self._last_heartbeat > self.allowed_silence_s
 
     def claim(self, client: str, now: float) -> str:
         """Take control as ``client``; returns the session token. Refused while another session is live."""
@@ -57,11 +68,12 @@ class ControlClaim:
             raise ControlError(f"control is held by {self.owner!r} (last heartbeat {self.heartbeat_age(now):.1f} s "
                                f"ago); it must release it first{self._lapse_hint()}")
         self.owner, self._token, self._last_heartbeat = client, self._new_token(), now
+        self._confirmed = False
         self.ended = ""
         return self._token
 
     def _lapse_hint(self) -> str:
-        return "" if math.isinf(self.timeout_s) else f" or stay silent for {self.timeout_s:g} s"
+        return "" if math.isinf(self.timeout_s) else f" or stay silent for {self.allowed_silence_s:g} s"
 
     def confirm(self, token, now: float) -> None:
         """A command carrying ``token``: accepted as the owner's sign of life, else ControlError naming the owner."""
@@ -69,6 +81,7 @@ class ControlClaim:
         if not self._is_live(token):
             raise ControlError(self._refusal())
         self._last_heartbeat = max(self._last_heartbeat, now)
+        self._confirmed = True
 
     def release(self, token, now: float) -> str:
         """End the session of ``token``; returns the name of the client that released."""
@@ -83,8 +96,8 @@ class ControlClaim:
         """End a session whose heartbeat stopped; returns the lapsed owner's name."""
         if not self.silent(now):
             return None
-        owner = self.owner
-        self.end(f"control of {owner!r} lapsed: no heartbeat for more than {self.timeout_s:g} s")
+        owner, silence = self.owner, self.allowed_silence_s
+        self.end(f"control of {owner!r} lapsed: no heartbeat for more than {silence:g} s")
         return owner
 
     def end(self, reason: str) -> None:

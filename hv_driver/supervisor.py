@@ -436,8 +436,11 @@ class Supervisor:
 
     # --- who may command ---------------------------------------------------------------------
     def claim_control(self, client: str, now: float) -> str:
-        """Take control as ``client``; returns the session token (ControlError while another holds it)."""
-        return self.control.claim(client, self._now(now))
+        """Take control as ``client``; returns the session token (ControlError while another holds it). What a
+        lapsed session left energised trips first: a new client never inherits outputs it did not raise."""
+        now = self._now(now)
+        self._watch_control(now)
+        return self.control.claim(client, now)
 
     def release_control(self, token: str, now: float) -> str:
         """End the session of ``token``; every output it left energised ramps to 0 V (no client watches it)."""
@@ -511,11 +514,15 @@ class Supervisor:
                     if channel.config.device == device:
                         channel.trip(Fault.LINK, f"no valid reply from the supply for more than "
                                                  f"{self.link_timeout_s:g} s")
+        self._watch_control(now)
+        return {name: channel.step(now) for name, channel in self.channels.items()}
+
+    def _watch_control(self, now: float) -> None:
+        """End a silent session; without a live client, trip every output held or raised above 0 V (one on its
+        way to 0 V needs no client)."""
         self.control.lapse_if_silent(now)
         if not self.heartbeat_watchdog_off and self.control.owner is None:
-            # Only an output held or raised above 0 V needs a live client; one on its way to 0 V does not.
             reason = self.control.ended or "no client holds control"
             for channel in self.channels.values():
                 if channel.output_enabled and channel.target > 0.0:
                     channel.trip(Fault.HEARTBEAT, reason)
-        return {name: channel.step(now) for name, channel in self.channels.items()}

@@ -460,8 +460,8 @@ class SupervisorMachine(RuleBasedStateMachine):
                 assert self.allowed_on[name]
             else:
                 self.allowed_on[name] = False
-            if not self.sup.heartbeat_watchdog_off and self.sup.control.owner is None:
-                assert not (channel.output_enabled and channel.target > 0.0), "energised without a client"
+            if not self.sup.heartbeat_watchdog_off and (self.sup.control.owner is None or not self.sup.control._confirmed):
+                assert not (channel.output_enabled and channel.target > 0.0), "energised without a client showing life"
             self.exempt_fall[name] = False
             self.last[name] = (command.setpoint, command.output_on)
 
