@@ -76,7 +76,6 @@ TRIP_ACTION_OFF_WITHOUT_RAMP = 2
 DEVICE_TRIP_TIME_MS = 100.0
 
 
-
 class IsegEdcp(Dialect):
     name = "iseg-edcp"
     capabilities = Capabilities(channels_per_device=None, device_ramp=True, current=CurrentSensing.DEVICE_TRIP,

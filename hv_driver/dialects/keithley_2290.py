@@ -38,8 +38,6 @@ class StatusByte(IntFlag):
     HV_ON = 1 << 7
 
 
-
-
 class Keithley2290(Dialect):
     name = "keithley-2290"
     capabilities = Capabilities(channels_per_device=1, device_ramp=False, current=CurrentSensing.DEVICE_TRIP,

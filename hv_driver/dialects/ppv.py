@@ -38,7 +38,6 @@ SWITCHING_SOURCE_TIMER = 0
 VOLTAGE_MODE_REGULATED = 0
 
 
-
 class PetaPicoVoltron(Dialect):
     name = "ppv"
     capabilities = Capabilities(
