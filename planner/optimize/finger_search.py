@@ -57,6 +57,29 @@ def _place(pose, x, z):
 
 
 @njit(cache=True, nogil=True)
+def _beyond_grid(discs, reach, radius, x, z, own, count, acc):
+    """Add to acc[:count] the bound of one term whose point (x, z), in the frame of the next block's start,
+    lies beyond the grid: from each next block's discs (``discs``: that position's rows of the fields'
+    discs). ``own``: the point's distance to the prefix; infinite for the tip term. Square roots rather
+    than hypot, so that the loops vectorise."""
+    if own <= radius:  # the term's bound is 0 whatever comes next
+        return
+    if own < np.inf and own <= np.sqrt(x * x + z * z) - reach:  # every later sample lies within reach of
+        for k in range(count):  # the frame's origin: the prefix stays the nearest, whatever comes next
+            acc[k] += own - radius
+        return
+    for k in range(count):
+        if own == np.inf:  # the tip periphery point: exact after the last block
+            value = np.sqrt((x - discs[k, 6]) ** 2 + (z - discs[k, 7]) ** 2) - discs[k, 8]
+        else:
+            nearest = min(np.sqrt((x - discs[k, 0]) ** 2 + (z - discs[k, 1]) ** 2) - discs[k, 2],
+                          np.sqrt((x - discs[k, 3]) ** 2 + (z - discs[k, 4]) ** 2) - discs[k, 5])
+            value = min(own, nearest) - radius
+        if value > 0.0:
+            acc[k] += value
+
+
+@njit(cache=True, nogil=True)
 def _lookahead(problem, depth, pose, alpha, acc):
     """acc[k] = lower bound on every collision-free finger continuing this node with next shape
     choices[depth, k]; infinite when a contour point proves that every such finger collides (the cover
@@ -81,18 +104,8 @@ def _lookahead(problem, depth, pose, alpha, acc):
         x, z = dx * cos - dz * sin, dx * sin + dz * cos
         b = int(np.round((x - x0) / spacing))
         a = int(np.round((z - z0) / spacing))
-        if a < 0 or b < 0 or a >= rows or b >= cols:  # beyond the grid: bounds from each next block's discs
-            if own <= radius:  # the term's bound is 0 whatever comes next
-                continue
-            for k in range(count):
-                nearest = min(np.hypot(x - discs[depth, k, 0], z - discs[depth, k, 1]) - discs[depth, k, 2],
-                              np.hypot(x - discs[depth, k, 3], z - discs[depth, k, 4]) - discs[depth, k, 5])
-                if q < contour.shape[0]:
-                    value = min(own, nearest) - radius
-                else:  # the tip periphery point: exact after the last block
-                    value = np.hypot(x - discs[depth, k, 6], z - discs[depth, k, 7]) - discs[depth, k, 8]
-                if value > 0.0:
-                    acc[k] += value
+        if a < 0 or b < 0 or a >= rows or b >= cols:
+            _beyond_grid(discs[depth], layout[depth, 5], radius, x, z, own, count, acc)
             continue
         node_offset = np.hypot(x - (x0 + b * spacing), z - (z0 + a * spacing))
         start = offset + (a * cols + b) * count
@@ -112,11 +125,10 @@ def _lookahead(problem, depth, pose, alpha, acc):
 
 
 @njit(cache=True, nogil=True)
-def _leaf_bounds(problem, depth, pose, alpha, cutoff, acc):
-    """acc[k] = lower bound on the objective of the complete finger with last block choices[depth, k], or a
-    partial sum once it reaches ``cutoff`` (still a lower bound: every term is >= 0). The children are
-    checked exactly, so no cover here; contour points already within r of the prefix add nothing; each
-    child's sum stops as soon as it reaches the cutoff, the points farthest from the prefix first."""
+def _leaf_bounds(problem, depth, pose, alpha, acc):
+    """acc[k] = lower bound on the objective of the complete finger with last block choices[depth, k]. The
+    children are checked exactly, so no cover here; contour points already within r of the prefix add
+    nothing. Points outer, blocks inner: the inner loop runs over contiguous field values."""
     contour, end_point, radius, n_choices = problem[0], problem[1], problem[2], problem[4]
     body, tip, layout, discs = problem[8], problem[9], problem[10], problem[11]
     count = n_choices[depth]
@@ -127,18 +139,14 @@ def _leaf_bounds(problem, depth, pose, alpha, cutoff, acc):
     dx, dz = end_point[0] - pose[0], end_point[1] - pose[1]
     x, z = dx * cos - dz * sin, dx * sin + dz * cos
     b, a = int(np.round((x - x0) / spacing)), int(np.round((z - z0) / spacing))
-    if a < 0 or b < 0 or a >= rows or b >= cols:  # the tip periphery point is exact after the last block
-        for k in range(count):
-            acc[k] = max(np.hypot(x - discs[depth, k, 6], z - discs[depth, k, 7]) - discs[depth, k, 8], 0.0)
+    acc[:count] = 0.0
+    if a < 0 or b < 0 or a >= rows or b >= cols:
+        _beyond_grid(discs[depth], layout[depth, 5], radius, x, z, np.inf, count, acc)
     else:
         node_offset = np.hypot(x - (x0 + b * spacing), z - (z0 + a * spacing))
         start = offset + (a * cols + b) * count
         for k in range(count):
             acc[k] = max(tip[start + k] - node_offset, 0.0)
-    starts = np.empty(contour.shape[0], np.int64)
-    offsets = np.empty(contour.shape[0])
-    owns = np.empty(contour.shape[0])
-    m = 0
     for q in range(contour.shape[0]):
         own = alpha[q]
         if own <= radius:
@@ -146,25 +154,55 @@ def _leaf_bounds(problem, depth, pose, alpha, cutoff, acc):
         dx, dz = contour[q, 0] - pose[0], contour[q, 1] - pose[1]
         x, z = dx * cos - dz * sin, dx * sin + dz * cos
         b, a = int(np.round((x - x0) / spacing)), int(np.round((z - z0) / spacing))
-        if a < 0 or b < 0 or a >= rows or b >= cols:  # beyond the grid: bounds from the blocks' discs
-            for k in range(count):
-                nearest = np.hypot(x - discs[depth, k, 0], z - discs[depth, k, 1]) - discs[depth, k, 2]
-                acc[k] += max(min(own, nearest) - radius, 0.0)
+        if a < 0 or b < 0 or a >= rows or b >= cols:
+            _beyond_grid(discs[depth], layout[depth, 5], radius, x, z, own, count, acc)
             continue
-        starts[m] = offset + (a * cols + b) * count
-        offsets[m] = np.hypot(x - (x0 + b * spacing), z - (z0 + a * spacing))
-        owns[m] = own
-        m += 1
-    order = np.argsort(-owns[:m])
-    for k in range(count):
-        total = acc[k]
-        for j in order:
-            if total >= cutoff:
-                break
-            value = min(owns[j], body[starts[j] + k] - offsets[j]) - radius
-            if value > 0.0:
-                total += value
-        acc[k] = total
+        start = offset + (a * cols + b) * count
+        shift = np.hypot(x - (x0 + b * spacing), z - (z0 + a * spacing)) + radius
+        most = own - radius
+        for k in range(count):
+            acc[k] += max(min(most, body[start + k] - shift), 0.0)
+
+
+@njit(cache=True, nogil=True)
+def _leaf_cost(problem, pose, alpha, s, cutoff):
+    """Objective of the complete finger ending with block s at ``pose`` (alpha: the prefix's contour
+    distances); -1 when a sample is provably closer to the object than the collision threshold (as
+    ``_too_close``). One pass that stops as soon as either is decided: a partial sum that reaches
+    ``cutoff`` is returned as it is (still a lower bound: every term is >= 0)."""
+    contour, end_point, radius, samples, ends, disc = problem[0], problem[1], problem[2], problem[5], problem[6], \
+        problem[7]
+    gap, threshold = problem[23], problem[18]
+    cos, sin = np.cos(pose[2]), np.sin(pose[2])
+    ex, ez = _place(pose, ends[s, 0], ends[s, 1])
+    eh = pose[2] + ends[s, 2]
+    total = np.hypot(ex + radius * np.cos(eh) - end_point[0], ez - radius * np.sin(eh) - end_point[1])
+    count = samples.shape[1]
+    world = np.empty((count, 2))
+    for m in range(count):
+        world[m, 0] = pose[0] + samples[s, m, 0] * cos + samples[s, m, 1] * sin
+        world[m, 1] = pose[1] - samples[s, m, 0] * sin + samples[s, m, 1] * cos
+    centre_x = pose[0] + disc[s, 0] * cos + disc[s, 1] * sin
+    centre_z = pose[1] - disc[s, 0] * sin + disc[s, 1] * cos
+    for q in range(contour.shape[0]):
+        qx, qz = contour[q, 0], contour[q, 1]
+        distance = alpha[q]
+        reach = distance + disc[s, 2]
+        dx, dz = qx - centre_x, qz - centre_z
+        if dx * dx + dz * dz < reach * reach:
+            nearest = distance * distance
+            for m in range(count):
+                ex, ez = qx - world[m, 0], qz - world[m, 1]
+                squared = ex * ex + ez * ez
+                if squared < nearest:
+                    nearest = squared
+            distance = np.sqrt(nearest)
+            if distance + gap[q] < threshold - RESOLUTION:
+                return -1.0
+        total += abs(distance - radius)
+        if total >= cutoff:
+            return total
+    return total
 
 
 @njit(cache=True, nogil=True)
@@ -210,16 +248,16 @@ def _too_close(problem, alpha):
 
 @njit(cache=True, nogil=True)
 def _expand(problem, depth, pose, alpha, best, limits, out_bound, out_shape, out_base, out_pose, start, base, path,
-            counts, acc, scratch):
+            counts, acc):
     """Children of a node with ``depth`` blocks placed whose bound is below min(best, ceiling limits[0]),
     from index ``start`` of the out arrays; returns the new end index. Complete fingers get their objective.
     The smallest bound cut by the ceiling alone goes to limits[1]."""
-    contour, end_point, radius, choices, n_choices, samples, ends = problem[:7]
+    choices, n_choices, ends = problem[3], problem[4], problem[6]
     stock, stiff_stock, stiff_positions, limited = problem[12], problem[13], problem[14], problem[15]
     blocks = choices.shape[0]
     cutoff = min(best, limits[0])
     if depth + 1 == blocks:
-        _leaf_bounds(problem, depth, pose, alpha, cutoff, acc)
+        _leaf_bounds(problem, depth, pose, alpha, acc)
     else:
         _lookahead(problem, depth, pose, alpha, acc)
     n = start
@@ -243,12 +281,9 @@ def _expand(problem, depth, pose, alpha, best, limits, out_bound, out_shape, out
         eh = pose[2] + ends[s, 2]
         bound = acc[k]
         if depth + 1 == blocks:  # a complete finger: its objective
-            _block_update(problem, pose, alpha, s, scratch)
-            if _too_close(problem, scratch):
+            bound = _leaf_cost(problem, pose, alpha, s, cutoff)
+            if bound < 0.0:  # too close to the object
                 continue
-            bound = np.hypot(ex + radius * np.cos(eh) - end_point[0], ez - radius * np.sin(eh) - end_point[1])
-            for q in range(contour.shape[0]):
-                bound += abs(scratch[q] - radius)
             if bound >= cutoff:
                 if bound < best:
                     limits[1] = min(limits[1], bound)
@@ -270,7 +305,7 @@ def _search(problem, state, max_expansions):
     choices = problem[3]
     field, frame, threshold, cap, theta, length, base_x = problem[16:23]
     (depth_box, pointer, count, order, bound, shape, base, pose, node_pose, node_alpha, path, counts, best,
-     best_path, stats, limits, acc, scratch) = state
+     best_path, stats, limits, acc) = state
     blocks = choices.shape[0]
     expansions = 0
     while True:
@@ -320,7 +355,7 @@ def _search(problem, state, max_expansions):
         depth_box[0] = depth + 1
         end = _expand(problem, depth + 1, node_pose[depth + 1], node_alpha[depth + 1], best[0], limits,
                       bound[depth + 1], shape[depth + 1], base[depth + 1], pose[depth + 1], 0, path[0], path, counts,
-                      acc, scratch)
+                      acc)
         count[depth + 1] = end
         pointer[depth + 1] = 0
         stats[1] += problem[4][depth + 1]
@@ -335,7 +370,7 @@ def _start(problem, state):
     """Root children: every base with every first block, below the ceiling."""
     contour, base_x = problem[0], problem[22]
     (depth_box, pointer, count, order, bound, shape, base, pose, node_pose, node_alpha, path, counts, best,
-     best_path, stats, limits, acc, scratch) = state
+     best_path, stats, limits, acc) = state
     path[:] = -1
     counts[:] = 0
     limits[1] = np.inf
@@ -347,7 +382,7 @@ def _start(problem, state):
             root_alpha[q] = np.hypot(contour[q, 0] - base_x[b], contour[q, 1])
         root_pose[0] = base_x[b]
         n = _expand(problem, 0, root_pose, root_alpha, best[0], limits, bound[0], shape[0], base[0], pose[0], n, b, path,
-                    counts, acc, scratch)
+                    counts, acc)
         stats[1] += problem[4][0]
     count[0] = n
     pointer[0] = 0
@@ -395,7 +430,7 @@ def _beam(problem, space: DesignSpace, width: int, control: RunControl, timed: b
     straightest = [int(c[np.argmin(np.abs(space.theta[c]))]) for c in space.choices]
     size = max(len(base_x) * n_choices[0], n_choices.max())
     out_bound, out_shape, out_base = np.zeros(size), np.zeros(size, np.int64), np.zeros(size, np.int64)
-    out_pose, acc, scratch = np.zeros((size, 3)), np.zeros(n_choices.max()), np.zeros(len(contour))
+    out_pose, acc = np.zeros((size, 3)), np.zeros(n_choices.max())
     limits = np.array([np.inf, np.inf])
     beam = [(np.array([x, 0.0, 0.0]), np.hypot(contour[:, 0] - x, contour[:, 1]), [b]) for b, x in enumerate(base_x)]
     for depth in range(blocks):
@@ -405,7 +440,7 @@ def _beam(problem, space: DesignSpace, width: int, control: RunControl, timed: b
             path_array = np.array(path + [-1] * (blocks + 1 - len(path)), dtype=np.int64)
             counts = np.bincount(path_array[1:][path_array[1:] >= 0], minlength=len(space.theta)).astype(np.int64)
             n = _expand(problem, depth, pose, alpha, np.inf, limits, out_bound, out_shape, out_base, out_pose, 0,
-                        path[0], path_array, counts, acc, scratch)
+                        path[0], path_array, counts, acc)
             candidates += [(out_bound[j], int(out_shape[j]), pose, alpha, path) for j in range(n)]
         candidates.sort(key=lambda c: c[0])
         kept, clear = [], 0
@@ -490,14 +525,14 @@ def solve_finger(target: ShapeTarget, space: DesignSpace, *, options: dict | Non
     # depth, then per depth: next child, child count, child order, child bounds, shapes, bases, end poses;
     # the current node's pose and contour distances per depth; the path (base, shapes), shapes used; best
     # cost and path; counters (collision checks, block placements evaluated); ceiling and smallest bound it
-    # cut; scratch for the lookahead sums and contour distances
+    # cut; scratch for the lookahead sums
     state = (
         np.zeros(1, np.int64), np.zeros(blocks, np.int64), np.zeros(blocks, np.int64),
         np.zeros((blocks, width), np.int64), np.zeros((blocks, width)), np.zeros((blocks, width), np.int64),
         np.zeros((blocks, width), np.int64), np.zeros((blocks, width, 3)), np.zeros((blocks, 3)),
         np.zeros((blocks, len(contour))), np.full(blocks + 1, -1, np.int64), np.zeros(len(space.theta), np.int64),
         np.array([np.inf]), np.full(blocks + 1, -1, np.int64), np.zeros(2, np.int64), np.array([np.inf, np.inf]),
-        np.zeros(n_choices.max()), np.zeros(len(contour)),
+        np.zeros(n_choices.max()),
     )
     best, limits, stats = state[12], state[15], state[14]
     status, nit, proven, searching = Status.FINISHED, 0, 0.0, False  # every objective is >= 0
