@@ -11,7 +11,9 @@ from planner import design
 from planner.contours import extract_contours, load_catalog_object
 from planner.generated_objects import PIXEL_SIZE, lumpy_object
 from planner.kinematics import chain_shape, design_parameters
+from planner.objectives import COLLISION_PENALTY
 from planner.optimize import Status, design_costs, design_space, solve_finger
+from planner.optimize.finger_search import _block_update, _leaf_bounds, _leaf_cost, _moved, search_problem
 from planner.table import load_table
 
 TABLE = load_table()
@@ -47,6 +49,42 @@ def test_certified_search_equals_brute_force(name, seed, blocks, stiff):
         assert result.fun == pytest.approx(cost, abs=1e-9), side
         assert result.design_ids == space.design_ids(shapes) and result.base == base, side
         assert result.lower_bound == pytest.approx(result.fun, abs=1e-9)
+
+
+FRONT_FINGER = design_space(TABLE, 4, stiff_positions=range(2))  # every design; its fields are prepared at set-up
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 40), side=st.sampled_from(["left", "right"]), base=st.integers(0, 12),
+       picks=st.lists(st.integers(0, 10**6), min_size=3, max_size=3))
+def test_last_block_bounds_and_costs_match_the_objective(seed, side, base, picks):
+    """The search's complete-finger kernels against the objective, for every last block after a drawn
+    prefix: the bound never exceeds the objective, the one-pass cost equals it, and a finger that pass
+    rejects as too close is one the objective finds colliding."""
+    target = design.finger_problems(extract_contours(lumpy_object(seed), PIXEL_SIZE))[side][0]
+    problem = search_problem(target, FRONT_FINGER)
+    prefix = [int(choices[pick % len(choices)]) for choices, pick in zip(FRONT_FINGER.choices, picks)]
+    contour, x = problem[0], target.bases[base, 0]
+    pose, alpha = np.array([x, 0.0, 0.0]), np.hypot(contour[:, 0] - x, contour[:, 1])
+    for shape in prefix:
+        after = np.empty_like(alpha)
+        _block_update(problem, pose, alpha, shape, after)
+        pose, alpha = _moved(problem, pose, shape), after
+    last = FRONT_FINGER.choices[3]
+    bounds = np.empty(len(last))
+    _leaf_bounds(problem, 3, pose, alpha, bounds)
+    shapes = np.array([prefix + [int(s)] for s in last])
+    objective = design_costs(target, FRONT_FINGER, shapes, np.zeros_like(shapes), np.full(len(last), base))
+    for k, shape in enumerate(last):
+        cost = _leaf_cost(problem, pose, alpha, int(shape), np.inf)
+        if cost < 0.0:
+            assert objective[k] >= COLLISION_PENALTY, (prefix, int(shape))
+            continue
+        assert bounds[k] <= cost + 1e-9, (prefix, int(shape))
+        if objective[k] < COLLISION_PENALTY:
+            assert cost == pytest.approx(objective[k], abs=1e-9), (prefix, int(shape))
+        cut = _leaf_cost(problem, pose, alpha, int(shape), 0.5 * cost)  # stops once the sum reaches the cutoff
+        assert 0.5 * cost <= cut <= cost + 1e-12
 
 
 def test_stopped_search_reports_a_proven_lower_bound():
