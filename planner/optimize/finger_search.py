@@ -128,9 +128,10 @@ def _lookahead(problem, depth, pose, alpha, acc):
 def _leaf_bounds(problem, depth, pose, alpha, acc):
     """acc[k] = lower bound on the objective of the complete finger with last block choices[depth, k]. The
     children are checked exactly, so no cover here; contour points already within r of the prefix add
-    nothing. Points outer, blocks inner: the inner loop runs over contiguous field values."""
+    nothing, and a point nearer to the prefix than to any last block adds the same to all (``last_nearest``
+    of the fields). Points outer, blocks inner: the inner loop runs over contiguous field values."""
     contour, end_point, radius, n_choices = problem[0], problem[1], problem[2], problem[4]
-    body, tip, layout, discs = problem[8], problem[9], problem[10], problem[11]
+    body, tip, layout, discs, nearest_any = problem[8], problem[9], problem[10], problem[11], problem[25]
     count = n_choices[depth]
     spacing = layout[depth, 6]
     offset, rows, cols, x0, z0 = (int(layout[depth, 0]), int(layout[depth, 1]), int(layout[depth, 2]),
@@ -147,6 +148,7 @@ def _leaf_bounds(problem, depth, pose, alpha, acc):
         start = offset + (a * cols + b) * count
         for k in range(count):
             acc[k] = max(tip[start + k] - node_offset, 0.0)
+    common = 0.0  # the terms that are the same for every last block
     for q in range(contour.shape[0]):
         own = alpha[q]
         if own <= radius:
@@ -157,11 +159,17 @@ def _leaf_bounds(problem, depth, pose, alpha, acc):
         if a < 0 or b < 0 or a >= rows or b >= cols:
             _beyond_grid(discs[depth], layout[depth, 5], radius, x, z, own, count, acc)
             continue
+        node_offset = np.hypot(x - (x0 + b * spacing), z - (z0 + a * spacing))
+        if own <= nearest_any[a * cols + b] - node_offset:  # no last block comes nearer than the prefix
+            common += own - radius
+            continue
         start = offset + (a * cols + b) * count
-        shift = np.hypot(x - (x0 + b * spacing), z - (z0 + a * spacing)) + radius
+        shift = node_offset + radius
         most = own - radius
         for k in range(count):
             acc[k] += max(min(most, body[start + k] - shift), 0.0)
+    for k in range(count):
+        acc[k] += common
 
 
 @njit(cache=True, nogil=True)
@@ -505,7 +513,7 @@ def search_problem(target: ShapeTarget, space: DesignSpace, settings: dict | Non
         stock, stiff_stock, np.asarray(space.stiff_positions, bool), limited,
         body.distance.kernel_args, body.frame, float(body.threshold), float(body.cap_length), shapes.theta,
         shapes.length, np.ascontiguousarray(target.bases[:, 0]), body.distance.exact(body.to_object(contour)),
-        fields.cover,
+        fields.cover, fields.last_nearest,
     )
 
 

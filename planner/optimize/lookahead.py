@@ -24,6 +24,7 @@ from __future__ import annotations
 import threading
 from collections import OrderedDict
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numba import njit
@@ -88,6 +89,13 @@ class LookaheadFields:
     discs: np.ndarray  # (N, C, 9): per next shape, a disc (x, z, radius) holding its samples, its end (x, z),
     # the reach of the blocks after it, and a point (x, z) and radius holding the tip periphery set
     layout: np.ndarray  # (N, 7) float64: offset, rows, cols, x0, z0, reach of the samples that follow, spacing
+
+    @cached_property
+    def last_nearest(self) -> np.ndarray:
+        """Per node of the last position's grid (flat), the smallest ``body`` bound over its blocks: a
+        contour point nearer than that to the prefix keeps the prefix as its nearest whatever the last block."""
+        offset, rows, cols = (int(v) for v in self.layout[-1, :3])
+        return self.body[offset:].reshape(rows * cols, -1).min(axis=1)
 
 
 def lookahead_fields(shapes: BlockShapes, space: DesignSpace, radius: float, field_spacing: float,
