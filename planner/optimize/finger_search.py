@@ -21,11 +21,16 @@ first finger comes from two beams over the same tree (16 prefixes per level, alw
 ``beam_width`` while the budget allows) improved by local search; should they find none, rounds search
 below a cost ceiling that grows by ``ceiling_growth`` until a finger is found under it (a round without one
 proves the optimum is at least the smallest bound it cut).
-Collision is the exact rule of ``planner.clearance``, checked for a block when the search enters it.
+With a first finger in hand, the first level's children are dealt out to ``workers`` threads that share
+only the lowest cost found. Collision is the exact rule of ``planner.clearance``, checked for a block when
+the search enters it.
 Stopped early (time budget, callback), the run returns the best finger so far and a proven lower bound:
 the smallest bound of the children not yet visited.
 """
 from __future__ import annotations
+
+import threading
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from numba import njit
@@ -45,6 +50,7 @@ DEFAULT_OPTIONS = {
     "ceiling_growth": 1.3,  # factor between the cost ceilings of successive rounds
     "beam_width": 128,  # collision-free prefixes per level of the second beam (the first keeps 16)
     "polish": True,  # improve the beam's finger by block-by-block local search before the search starts
+    "workers": 2,  # threads that share the search once a first finger is in hand (the first level is split)
 }
 FIRST_BEAM_WIDTH = 16  # the beam that always runs to the end, so that every run returns a finger
 
@@ -313,7 +319,7 @@ def _search(problem, state, max_expansions):
     choices = problem[3]
     field, frame, threshold, cap, theta, length, base_x = problem[16:23]
     (depth_box, pointer, count, order, bound, shape, base, pose, node_pose, node_alpha, path, counts, best,
-     best_path, stats, limits, acc) = state
+     best_path, stats, limits, acc, incumbent) = state
     blocks = choices.shape[0]
     expansions = 0
     while True:
@@ -327,8 +333,8 @@ def _search(problem, state, max_expansions):
             continue
         i = order[depth, pointer[depth]]
         pointer[depth] += 1
-        if bound[depth, i] >= min(best[0], limits[0]):  # children are sorted: the rest are no better
-            if bound[depth, i] < best[0]:  # cut by the round's ceiling, not by a finger: remember the bound
+        if bound[depth, i] >= min(best[0], incumbent[0], limits[0]):  # sorted: the rest are no better
+            if bound[depth, i] < min(best[0], incumbent[0]):  # cut by the round's ceiling: remember the bound
                 limits[1] = min(limits[1], bound[depth, i])
             pointer[depth] = count[depth]
             continue
@@ -349,6 +355,7 @@ def _search(problem, state, max_expansions):
             continue
         if leaf:  # the best finger below this node (children sorted, the rest is no better)
             best[0] = bound[depth, i]
+            incumbent[0] = min(incumbent[0], best[0])  # a race between workers leaves some finger's cost
             best_path[:] = path
             if depth == 0:
                 best_path[0] = base[0, i]
@@ -361,9 +368,9 @@ def _search(problem, state, max_expansions):
         counts[s] += 1
         node_pose[depth + 1, :] = pose[depth, i]
         depth_box[0] = depth + 1
-        end = _expand(problem, depth + 1, node_pose[depth + 1], node_alpha[depth + 1], best[0], limits,
-                      bound[depth + 1], shape[depth + 1], base[depth + 1], pose[depth + 1], 0, path[0], path, counts,
-                      acc)
+        end = _expand(problem, depth + 1, node_pose[depth + 1], node_alpha[depth + 1], min(best[0], incumbent[0]),
+                      limits, bound[depth + 1], shape[depth + 1], base[depth + 1], pose[depth + 1], 0, path[0], path,
+                      counts, acc)
         count[depth + 1] = end
         pointer[depth + 1] = 0
         stats[1] += problem[4][depth + 1]
@@ -378,7 +385,7 @@ def _start(problem, state):
     """Root children: every base with every first block, below the ceiling."""
     contour, base_x = problem[0], problem[22]
     (depth_box, pointer, count, order, bound, shape, base, pose, node_pose, node_alpha, path, counts, best,
-     best_path, stats, limits, acc) = state
+     best_path, stats, limits, acc, incumbent) = state
     path[:] = -1
     counts[:] = 0
     limits[1] = np.inf
@@ -398,23 +405,72 @@ def _start(problem, state):
     order[0, :n] = np.argsort(bound[0, :n], kind="mergesort")
 
 
-def _lower_bound(state) -> float:
+def _lower_bound(states) -> float:
     """Smallest bound among the children not yet visited or cut by the round's ceiling (and the best
-    finger): a proven lower bound for this round."""
-    depth_box, pointer, count, order, bound = state[:5]
-    lowest = min(state[12][0], state[15][1])
-    for level in range(depth_box[0] + 1):
-        if pointer[level] < count[level]:
-            lowest = min(lowest, float(bound[level, order[level, pointer[level]]]))
+    finger), over the workers' states: a proven lower bound for this round."""
+    lowest = np.inf
+    for state in states:
+        depth_box, pointer, count, order, bound = state[:5]
+        lowest = min(lowest, state[12][0], state[15][1])
+        for level in range(depth_box[0] + 1):
+            if pointer[level] < count[level]:
+                lowest = min(lowest, float(bound[level, order[level, pointer[level]]]))
     return lowest
 
 
-def _fraction(state) -> float:
-    pointer, count = state[1], state[2]
-    if count[0] == 0:
-        return 1.0
-    inner = pointer[1] / count[1] if state[0][0] >= 1 and count[1] else 0.0
-    return min((max(pointer[0] - 1, 0) + inner) / count[0], 1.0)
+def _fraction(states) -> float:
+    done = []
+    for state in states:
+        pointer, count = state[1], state[2]
+        inner = pointer[1] / count[1] if state[0][0] >= 1 and count[1] else 0.0
+        done.append(min((max(pointer[0] - 1, 0) + inner) / count[0], 1.0) if count[0] else 1.0)
+    return float(np.mean(done))
+
+
+def _split(state, workers: int) -> list[tuple]:
+    """The root's children dealt out in turn to ``workers`` copies of a started state (so each gets a share
+    of every bound range); the copies share the incumbent, nothing else."""
+    workers = min(workers, int(state[2][0]))
+    if workers < 2:
+        return [state]
+    shares = []
+    for w in range(workers):
+        share = tuple(a if a is state[17] else a.copy() for a in state)
+        mine = state[3][0, w:state[2][0]:workers]
+        share[3][0, : len(mine)] = mine
+        share[2][0] = len(mine)
+        if w:
+            share[14][:] = 0  # the root's counts stay with the first share
+        shares.append(share)
+    return shares
+
+
+def _search_shares(problem, shares, chunk: int, control: RunControl) -> tuple[Status | None, int]:
+    """Run the search of every share in its own thread (the compiled search releases the GIL) until all are
+    complete or the control stops them; returns the stop status (None: complete) and the checks made."""
+    lock, stopped, checks = threading.Lock(), [], [0]
+
+    def check() -> bool:  # between chunks: one report for all shares; True when the run must end
+        with lock:
+            checks[0] += 1
+            if not stopped:
+                try:
+                    control.report(_fraction(shares), min(s[12][0] for s in shares), sum(int(s[14][1]) for s in shares))
+                except Stop as stop:
+                    stopped.append(stop.status)
+            return bool(stopped)
+
+    def run(share) -> None:
+        while not _search(problem, share, chunk):
+            if check():
+                return
+
+    with ThreadPoolExecutor(max_workers=len(shares)) as pool:
+        for future in [pool.submit(run, share) for share in shares]:
+            future.result()
+    if not stopped:
+        check()  # the last report; a stop now still ends the run as stopped
+    return (stopped[0] if stopped else None), checks[0]
 
 
 def _collides(problem, pose, s) -> bool:
@@ -488,8 +544,9 @@ def _check_options(options) -> dict:
         raise ValueError("options['expansions_per_check'] must be an integer >= 1")
     if not (np.isfinite(settings["ceiling_growth"]) and settings["ceiling_growth"] > 1):
         raise ValueError("options['ceiling_growth'] must be > 1")
-    if not (isinstance(settings["beam_width"], (int, np.integer)) and settings["beam_width"] >= 1):
-        raise ValueError("options['beam_width'] must be an integer >= 1")
+    for key in ("beam_width", "workers"):
+        if not (isinstance(settings[key], (int, np.integer)) and settings[key] >= 1):
+            raise ValueError(f"options[{key!r}] must be an integer >= 1, got {settings[key]!r}")
     return settings
 
 
@@ -517,6 +574,24 @@ def search_problem(target: ShapeTarget, space: DesignSpace, settings: dict | Non
     )
 
 
+def new_state(problem, space: DesignSpace) -> tuple:
+    """The compiled search's working arrays for ``problem`` (from ``search_problem``) over ``space``."""
+    blocks, contour, n_choices, base_x = space.num_blocks, problem[0], problem[4], problem[22]
+    width = max(len(base_x) * n_choices[0], n_choices.max())
+    # depth, then per depth: next child, child count, child order, child bounds, shapes, bases, end poses;
+    # the current node's pose and contour distances per depth; the path (base, shapes), shapes used; best
+    # cost and path; counters (collision checks, block placements evaluated); ceiling and smallest bound it
+    # cut; scratch for the lookahead sums; the lowest cost any worker has found (shared by split workers)
+    return (
+        np.zeros(1, np.int64), np.zeros(blocks, np.int64), np.zeros(blocks, np.int64),
+        np.zeros((blocks, width), np.int64), np.zeros((blocks, width)), np.zeros((blocks, width), np.int64),
+        np.zeros((blocks, width), np.int64), np.zeros((blocks, width, 3)), np.zeros((blocks, 3)),
+        np.zeros((blocks, len(contour))), np.full(blocks + 1, -1, np.int64), np.zeros(len(space.theta), np.int64),
+        np.array([np.inf]), np.full(blocks + 1, -1, np.int64), np.zeros(2, np.int64), np.array([np.inf, np.inf]),
+        np.zeros(n_choices.max()), np.array([np.inf]),
+    )
+
+
 def solve_finger(target: ShapeTarget, space: DesignSpace, *, options: dict | None = None, time_budget=None,
                  callback=None) -> DesignOptimizeResult:
     """Minimise the finger objective of ``target`` (eq. 3, with a body) over the planar ``space``; certified
@@ -528,21 +603,10 @@ def solve_finger(target: ShapeTarget, space: DesignSpace, *, options: dict | Non
         raise ValueError("finger designs are planar: the design space must not allow rotations")
     control = RunControl(time_budget, callback)
     problem = search_problem(target, space, settings)
-    blocks, contour, n_choices, base_x = space.num_blocks, problem[0], problem[4], problem[22]
-    width = max(len(base_x) * n_choices[0], n_choices.max())
-    # depth, then per depth: next child, child count, child order, child bounds, shapes, bases, end poses;
-    # the current node's pose and contour distances per depth; the path (base, shapes), shapes used; best
-    # cost and path; counters (collision checks, block placements evaluated); ceiling and smallest bound it
-    # cut; scratch for the lookahead sums
-    state = (
-        np.zeros(1, np.int64), np.zeros(blocks, np.int64), np.zeros(blocks, np.int64),
-        np.zeros((blocks, width), np.int64), np.zeros((blocks, width)), np.zeros((blocks, width), np.int64),
-        np.zeros((blocks, width), np.int64), np.zeros((blocks, width, 3)), np.zeros((blocks, 3)),
-        np.zeros((blocks, len(contour))), np.full(blocks + 1, -1, np.int64), np.zeros(len(space.theta), np.int64),
-        np.array([np.inf]), np.full(blocks + 1, -1, np.int64), np.zeros(2, np.int64), np.array([np.inf, np.inf]),
-        np.zeros(n_choices.max()),
-    )
-    best, limits, stats = state[12], state[15], state[14]
+    blocks = space.num_blocks
+    state = new_state(problem, space)
+    best, limits, stats, incumbent = state[12], state[15], state[14], state[17]
+    shares = [state]
     status, nit, proven, searching = Status.FINISHED, 0, 0.0, False  # every objective is >= 0
     try:
         found = None
@@ -558,14 +622,21 @@ def solve_finger(target: ShapeTarget, space: DesignSpace, *, options: dict | Non
                                                       control, SAMPLES_PER_BLOCK)
                 if costs_[0] < best[0]:
                     best[0], state[13][:] = costs_[0], [bases_[0], *shapes_[0]]
+        incumbent[0] = best[0]
         _start(problem, state)  # with a finger in hand the ceiling stays off; without, it starts low and grows
         searching = True
+        if found is not None and settings["workers"] > 1:
+            shares = _split(state, settings["workers"])
+            stop, nit = _search_shares(problem, shares, settings["expansions_per_check"], control)
+            if stop is not None:
+                raise Stop(stop)
+            status = Status.CERTIFIED
         if found is None:
             limits[0] = state[4][0, state[3][0, 0]] * settings["ceiling_growth"] if state[2][0] else np.inf
-        while True:
+        while status != Status.CERTIFIED:
             nit += 1
             done = _search(problem, state, settings["expansions_per_check"])
-            control.report(_fraction(state), best[0], int(stats[1]))
+            control.report(_fraction(shares), best[0], int(stats[1]))
             if done and (best[0] < np.inf or limits[1] == np.inf):  # optimum found, or nothing left
                 status = Status.CERTIFIED
                 break
@@ -575,8 +646,9 @@ def solve_finger(target: ShapeTarget, space: DesignSpace, *, options: dict | Non
                 _start(problem, state)
     except Stop as stop:
         status = stop.status
-    cost, best_path = float(best[0]), state[13]
-    lower_bound = cost if status == Status.CERTIFIED else max(proven, _lower_bound(state) if searching else 0.0)
+    winner = min(shares, key=lambda share: share[12][0])
+    cost, best_path = float(winner[12][0]), winner[13]
+    lower_bound = cost if status == Status.CERTIFIED else max(proven, _lower_bound(shares) if searching else 0.0)
     if not np.isfinite(cost):  # nothing collision-free: report the least bad first-choice finger
         chosen, base_index = np.array([c[0] for c in space.choices]), 0
         cost = float(design_costs(target, space, chosen[None], np.zeros((1, blocks), np.int64),
@@ -586,4 +658,5 @@ def solve_finger(target: ShapeTarget, space: DesignSpace, *, options: dict | Non
     else:
         chosen, base_index = best_path[1:].copy(), int(best_path[0])
     return make_result(space, chosen, np.zeros(blocks, np.int64), cost, status, base=base_index, nit=nit,
-                       nfev=int(stats[1]), lower_bound=min(lower_bound, cost), control=control)
+                       nfev=sum(int(share[14][1]) for share in shares), lower_bound=min(lower_bound, cost),
+                       control=control)

@@ -13,7 +13,8 @@ from planner.generated_objects import PIXEL_SIZE, lumpy_object
 from planner.kinematics import chain_shape, design_parameters
 from planner.objectives import COLLISION_PENALTY
 from planner.optimize import Status, design_costs, design_space, solve_finger
-from planner.optimize.finger_search import _block_update, _leaf_bounds, _leaf_cost, _moved, search_problem
+from planner.optimize.finger_search import (_block_update, _leaf_bounds, _leaf_cost, _moved, _split, _start, new_state,
+                                            search_problem)
 from planner.table import load_table
 
 TABLE = load_table()
@@ -87,19 +88,49 @@ def test_last_block_bounds_and_costs_match_the_objective(seed, side, base, picks
         assert 0.5 * cost <= cut <= cost + 1e-12
 
 
-def test_stopped_search_reports_a_proven_lower_bound():
+@pytest.mark.parametrize("name, seed", [("gingerbread", None), ("generated", 4), ("generated", 9)])
+def test_split_search_agrees_with_one_worker(name, seed):
+    contours = load_catalog_object(name) if seed is None else extract_contours(lumpy_object(seed), PIXEL_SIZE)
+    space = design_space(TABLE, 3, stiff_positions=[0], inventory=SHELF)
+    for side, (target, _) in design.finger_problems(contours).items():
+        alone = solve_finger(target, space, options={"workers": 1})
+        shared = solve_finger(target, space, options={"workers": 2})
+        assert alone.optimal and shared.optimal, side
+        assert shared.fun == pytest.approx(alone.fun, abs=1e-12), side
+        assert shared.design_ids == alone.design_ids and shared.base == alone.base, side
+
+
+def test_split_deals_every_first_level_child_to_one_worker():
+    target = design.finger_problems(load_catalog_object("gingerbread"))["right"][0]
+    space = design_space(TABLE, 3, stiff_positions=[0], inventory=SHELF)
+    problem = search_problem(target, space)
+    state = new_state(problem, space)
+    _start(problem, state)
+    children = state[3][0, : state[2][0]]
+    assert len(children) > 3
+    shares = _split(state, 3)
+    dealt = np.concatenate([share[3][0, : share[2][0]] for share in shares])
+    assert sorted(dealt.tolist()) == sorted(children.tolist())
+    assert all(share[17] is state[17] for share in shares)  # the incumbent, and nothing else, is shared
+    assert all(share[12] is not state[12] and share[13] is not state[13] for share in shares)
+    assert sum(int(share[14][1]) for share in shares) == int(state[14][1])
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_stopped_search_reports_a_proven_lower_bound(workers):
     contours = extract_contours(lumpy_object(3), PIXEL_SIZE)
     target = design.finger_problems(contours, base_offsets=[0.0, 4e-3])["left"][0]
     space = design_space(TABLE, 3, inventory=SHELF)
     optimum = solve_finger(target, space).fun
     calls = []
 
-    def stop_early(progress):
-        calls.append(progress)
+    def stop_early(progress):  # in the search proper (the beams report no evaluations)
+        if progress.nfev:
+            calls.append(progress)
         if len(calls) == 2:
             raise StopIteration
 
-    stopped = solve_finger(target, space, callback=stop_early, options={"expansions_per_check": 1})
+    stopped = solve_finger(target, space, callback=stop_early, options={"expansions_per_check": 1, "workers": workers})
     assert stopped.status == Status.CANCELED and not stopped.optimal and not stopped.success
     assert stopped.lower_bound <= optimum + 1e-9 <= stopped.fun + 2e-9
     assert "lower bound" in stopped.message
@@ -113,6 +144,8 @@ def test_bad_options_and_targets_are_refused():
         solve_finger(target, space, options={"width": 3})
     with pytest.raises(ValueError, match="field_spacing"):
         solve_finger(target, space, options={"field_spacing": 0.0})
+    with pytest.raises(ValueError, match="workers"):
+        solve_finger(target, space, options={"workers": 0})
     with pytest.raises(ValueError, match="planar"):
         solve_finger(target, design_space(TABLE, 2, allow_rotation=True))
 
