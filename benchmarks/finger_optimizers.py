@@ -129,11 +129,11 @@ def kernel_throughput(table, repeats: int = 7):
     width = len(options)
     buffers = (np.zeros(width), np.zeros(width, np.int64), np.zeros(width, np.int64), np.zeros((width, 3)))
     path, counts = np.full(5, -1, np.int64), np.zeros(len(space.theta), np.int64)
-    acc, scratch, limits = np.zeros(width), np.zeros(len(contour)), np.array([np.inf, np.inf])
+    acc, limits = np.zeros(width), np.array([np.inf, np.inf])
 
     def compiled_pass():
         for pose, alpha in nodes:
-            finger_search._expand(problem, 2, pose, alpha, np.inf, limits, *buffers, 0, 0, path, counts, acc, scratch)
+            finger_search._expand(problem, 2, pose, alpha, np.inf, limits, *buffers, 0, 0, path, counts, acc)
 
     compiled_pass()
     result = {}
