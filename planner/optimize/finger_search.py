@@ -132,12 +132,15 @@ def _lookahead(problem, depth, pose, alpha, acc):
 
 @njit(cache=True, nogil=True)
 def _leaf_bounds(problem, depth, pose, alpha, acc):
-    """acc[k] = lower bound on the objective of the complete finger with last block choices[depth, k]. The
-    children are checked exactly, so no cover here; contour points already within r of the prefix add
-    nothing, and a point nearer to the prefix than to any last block adds the same to all (``last_nearest``
-    of the fields). Points outer, blocks inner: the inner loop runs over contiguous field values."""
+    """acc[k] = lower bound on the objective of the complete finger with last block choices[depth, k];
+    infinite when the cover proves that it collides (as in ``_lookahead``): most children that pass through
+    the object are dropped here, not by their exact evaluation. Contour points already within r of the
+    prefix add nothing, and a point nearer to the prefix than to any last block adds the same to all
+    (``last_nearest`` of the fields; its cover is not consulted, which can only cost an exact evaluation).
+    Points outer, blocks inner: the inner loop runs over contiguous field values."""
     contour, end_point, radius, n_choices = problem[0], problem[1], problem[2], problem[4]
     body, tip, layout, discs, nearest_any = problem[8], problem[9], problem[10], problem[11], problem[25]
+    threshold, gap, cover = problem[18], problem[23], problem[24]
     count = n_choices[depth]
     spacing = layout[depth, 6]
     offset, rows, cols, x0, z0 = (int(layout[depth, 0]), int(layout[depth, 1]), int(layout[depth, 2]),
@@ -172,8 +175,10 @@ def _leaf_bounds(problem, depth, pose, alpha, acc):
         start = offset + (a * cols + b) * count
         shift = node_offset + radius
         most = own - radius
+        doom = threshold - 2.0 * RESOLUTION - gap[q] - node_offset  # a cover below this proves a collision
         for k in range(count):
-            acc[k] += max(min(most, body[start + k] - shift), 0.0)
+            value = max(min(most, body[start + k] - shift), 0.0)
+            acc[k] += np.inf if cover[start + k] < doom else value
     for k in range(count):
         acc[k] += common
 

@@ -60,8 +60,9 @@ FRONT_FINGER = design_space(TABLE, 4, stiff_positions=range(2))  # every design;
        picks=st.lists(st.integers(0, 10**6), min_size=3, max_size=3))
 def test_last_block_bounds_and_costs_match_the_objective(seed, side, base, picks):
     """The search's complete-finger kernels against the objective, for every last block after a drawn
-    prefix: the bound never exceeds the objective, the one-pass cost equals it, and a finger that pass
-    rejects as too close is one the objective finds colliding."""
+    prefix: the bound never exceeds the objective of a collision-free finger and is infinite (a collision
+    proven by the cover) only for colliding ones, the one-pass cost equals the objective, and a finger that
+    pass rejects as too close is one the objective finds colliding."""
     target = design.finger_problems(extract_contours(lumpy_object(seed), PIXEL_SIZE))[side][0]
     problem = search_problem(target, FRONT_FINGER)
     prefix = [int(choices[pick % len(choices)]) for choices, pick in zip(FRONT_FINGER.choices, picks)]
@@ -77,12 +78,14 @@ def test_last_block_bounds_and_costs_match_the_objective(seed, side, base, picks
     shapes = np.array([prefix + [int(s)] for s in last])
     objective = design_costs(target, FRONT_FINGER, shapes, np.zeros_like(shapes), np.full(len(last), base))
     for k, shape in enumerate(last):
+        colliding = objective[k] >= COLLISION_PENALTY
+        assert colliding or np.isfinite(bounds[k]), (prefix, int(shape))
         cost = _leaf_cost(problem, pose, alpha, int(shape), np.inf)
         if cost < 0.0:
-            assert objective[k] >= COLLISION_PENALTY, (prefix, int(shape))
+            assert colliding, (prefix, int(shape))
             continue
-        assert bounds[k] <= cost + 1e-9, (prefix, int(shape))
-        if objective[k] < COLLISION_PENALTY:
+        if not colliding:
+            assert bounds[k] <= cost + 1e-9, (prefix, int(shape))
             assert cost == pytest.approx(objective[k], abs=1e-9), (prefix, int(shape))
         cut = _leaf_cost(problem, pose, alpha, int(shape), 0.5 * cost)  # stops once the sum reaches the cutoff
         assert 0.5 * cost <= cut <= cost + 1e-12
