@@ -90,16 +90,19 @@ def _lookahead(problem, depth, pose, alpha, acc):
     """acc[k] = lower bound on every collision-free finger continuing this node with next shape
     choices[depth, k]; infinite when a contour point proves that every such finger collides (the cover
     field: all of them pass closer to that point than the collision threshold minus its distance to the
-    object)."""
+    object). A contour point nearer to the prefix than to anything that can follow, and too far from the
+    object for any cover to prove a collision, adds the same to all (``node_minima`` of the fields)."""
     contour, end_point, radius, n_choices = problem[0], problem[1], problem[2], problem[4]
     body, tip, layout, discs, threshold, gap, cover = (problem[8], problem[9], problem[10], problem[11], problem[18],
                                                        problem[23], problem[24])
+    nearest_any, cover_least = problem[26][problem[25][depth]:], problem[27][problem[25][depth]:]
     count = n_choices[depth]
     spacing = layout[depth, 6]
     offset, rows, cols, x0, z0 = (int(layout[depth, 0]), int(layout[depth, 1]), int(layout[depth, 2]),
                                   layout[depth, 3], layout[depth, 4])
     cos, sin = np.cos(pose[2]), np.sin(pose[2])
     acc[:count] = 0.0
+    common = 0.0  # the terms that are the same for every next shape
     for q in range(contour.shape[0] + 1):
         if q < contour.shape[0]:
             dx, dz = contour[q, 0] - pose[0], contour[q, 1] - pose[1]
@@ -117,6 +120,10 @@ def _lookahead(problem, depth, pose, alpha, acc):
         start = offset + (a * cols + b) * count
         if q < contour.shape[0]:
             doom = threshold - 2.0 * RESOLUTION - gap[q] - node_offset  # a cover below this proves a collision
+            node = a * cols + b
+            if own <= nearest_any[node] - node_offset and cover_least[node] >= doom:
+                common += max(own - radius, 0.0)
+                continue
             for k in range(count):
                 if cover[start + k] < doom:
                     acc[k] = np.inf
@@ -128,6 +135,8 @@ def _lookahead(problem, depth, pose, alpha, acc):
                 value = tip[start + k] - node_offset
                 if value > 0.0:
                     acc[k] += value
+    for k in range(count):
+        acc[k] += common
 
 
 @njit(cache=True, nogil=True)
@@ -136,11 +145,11 @@ def _leaf_bounds(problem, depth, pose, alpha, acc):
     infinite when the cover proves that it collides (as in ``_lookahead``): most children that pass through
     the object are dropped here, not by their exact evaluation. Contour points already within r of the
     prefix add nothing, and a point nearer to the prefix than to any last block adds the same to all
-    (``last_nearest`` of the fields; its cover is not consulted, which can only cost an exact evaluation).
+    (``node_minima`` of the fields; its cover is not consulted, which can only cost an exact evaluation).
     Points outer, blocks inner: the inner loop runs over contiguous field values."""
     contour, end_point, radius, n_choices = problem[0], problem[1], problem[2], problem[4]
-    body, tip, layout, discs, nearest_any = problem[8], problem[9], problem[10], problem[11], problem[25]
-    threshold, gap, cover = problem[18], problem[23], problem[24]
+    body, tip, layout, discs = problem[8], problem[9], problem[10], problem[11]
+    threshold, gap, cover, nearest_any = problem[18], problem[23], problem[24], problem[26][problem[25][depth]:]
     count = n_choices[depth]
     spacing = layout[depth, 6]
     offset, rows, cols, x0, z0 = (int(layout[depth, 0]), int(layout[depth, 1]), int(layout[depth, 2]),
@@ -575,7 +584,7 @@ def search_problem(target: ShapeTarget, space: DesignSpace, settings: dict | Non
         stock, stiff_stock, np.asarray(space.stiff_positions, bool), limited,
         body.distance.kernel_args, body.frame, float(body.threshold), float(body.cap_length), shapes.theta,
         shapes.length, np.ascontiguousarray(target.bases[:, 0]), body.distance.exact(body.to_object(contour)),
-        fields.cover, fields.last_nearest,
+        fields.cover, *fields.node_minima,
     )
 
 

@@ -91,11 +91,18 @@ class LookaheadFields:
     layout: np.ndarray  # (N, 7) float64: offset, rows, cols, x0, z0, reach of the samples that follow, spacing
 
     @cached_property
-    def last_nearest(self) -> np.ndarray:
-        """Per node of the last position's grid (flat), the smallest ``body`` bound over its blocks: a
-        contour point nearer than that to the prefix keeps the prefix as its nearest whatever the last block."""
-        offset, rows, cols = (int(v) for v in self.layout[-1, :3])
-        return self.body[offset:].reshape(rows * cols, -1).min(axis=1)
+    def node_minima(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per grid node of every position (flat, position d's nodes from ``first[d]``), the smallest body
+        bound and the smallest cover over the position's next shapes: a contour point nearer to the prefix
+        than the first keeps the prefix as its nearest whatever follows, and one whose collision threshold
+        lies below the second can prove no collision. Returns (first, nearest, cover)."""
+        first, nearest, cover = [], [], []
+        ends = [int(v) for v in self.layout[1:, 0]] + [self.body.size]
+        for (offset, rows, cols), end in zip(self.layout[:, :3].astype(int), ends):
+            first.append(sum(len(n) for n in nearest))
+            nearest.append(self.body[offset:end].reshape(rows * cols, -1).min(axis=1))
+            cover.append(self.cover[offset:end].reshape(rows * cols, -1).min(axis=1))
+        return np.array(first, np.int64), np.concatenate(nearest), np.concatenate(cover)
 
 
 def lookahead_fields(shapes: BlockShapes, space: DesignSpace, radius: float, field_spacing: float,
