@@ -123,6 +123,7 @@ def lookahead_fields(shapes: BlockShapes, space: DesignSpace, radius: float, fie
             arrays = field_cache.load_or_build(
                 "lookahead", digest, lambda: _build(shapes, choices, float(radius), field_spacing, region_spacing))
             fields = LookaheadFields(**arrays)
+            fields.node_minima  # derived here, once, rather than in the first search that needs them
             with _LOCKS_LOCK:
                 _LOADED[digest] = fields
                 while len(_LOADED) > KEPT_IN_MEMORY:
