@@ -193,38 +193,46 @@ def _leaf_bounds(problem, depth, pose, alpha, acc):
 
 
 @njit(cache=True, nogil=True)
+def _placed_samples(problem, pose, s):
+    """Block s's samples and the centre of the disc that holds them, placed at ``pose``."""
+    samples, disc = problem[5], problem[7]
+    cos, sin = np.cos(pose[2]), np.sin(pose[2])
+    world = np.empty((samples.shape[1], 2))
+    for m in range(samples.shape[1]):
+        world[m, 0] = pose[0] + samples[s, m, 0] * cos + samples[s, m, 1] * sin
+        world[m, 1] = pose[1] - samples[s, m, 0] * sin + samples[s, m, 1] * cos
+    return world, pose[0] + disc[s, 0] * cos + disc[s, 1] * sin, pose[1] - disc[s, 0] * sin + disc[s, 1] * cos
+
+
+@njit(cache=True, nogil=True)
+def _nearer(qx, qz, world, distance):
+    """min(distance, distance from (qx, qz) to the nearest of the points ``world``); squares inside."""
+    nearest = distance * distance
+    for m in range(world.shape[0]):
+        ex, ez = qx - world[m, 0], qz - world[m, 1]
+        nearest = min(nearest, ex * ex + ez * ez)
+    return np.sqrt(nearest)
+
+
+@njit(cache=True, nogil=True)
 def _leaf_cost(problem, pose, alpha, s, cutoff):
     """Objective of the complete finger ending with block s at ``pose`` (alpha: the prefix's contour
     distances); -1 when a sample is provably closer to the object than the collision threshold (as
     ``_too_close``). One pass that stops as soon as either is decided: a partial sum that reaches
     ``cutoff`` is returned as it is (still a lower bound: every term is >= 0)."""
-    contour, end_point, radius, samples, ends, disc = problem[0], problem[1], problem[2], problem[5], problem[6], \
-        problem[7]
+    contour, end_point, radius, ends, disc = problem[0], problem[1], problem[2], problem[6], problem[7]
     gap, threshold = problem[23], problem[18]
-    cos, sin = np.cos(pose[2]), np.sin(pose[2])
     ex, ez = _place(pose, ends[s, 0], ends[s, 1])
     eh = pose[2] + ends[s, 2]
     total = np.hypot(ex + radius * np.cos(eh) - end_point[0], ez - radius * np.sin(eh) - end_point[1])
-    count = samples.shape[1]
-    world = np.empty((count, 2))
-    for m in range(count):
-        world[m, 0] = pose[0] + samples[s, m, 0] * cos + samples[s, m, 1] * sin
-        world[m, 1] = pose[1] - samples[s, m, 0] * sin + samples[s, m, 1] * cos
-    centre_x = pose[0] + disc[s, 0] * cos + disc[s, 1] * sin
-    centre_z = pose[1] - disc[s, 0] * sin + disc[s, 1] * cos
+    world, centre_x, centre_z = _placed_samples(problem, pose, s)
     for q in range(contour.shape[0]):
         qx, qz = contour[q, 0], contour[q, 1]
         distance = alpha[q]
         reach = distance + disc[s, 2]
         dx, dz = qx - centre_x, qz - centre_z
         if dx * dx + dz * dz < reach * reach:
-            nearest = distance * distance
-            for m in range(count):
-                ex, ez = qx - world[m, 0], qz - world[m, 1]
-                squared = ex * ex + ez * ez
-                if squared < nearest:
-                    nearest = squared
-            distance = np.sqrt(nearest)
+            distance = _nearer(qx, qz, world, distance)
             if distance + gap[q] < threshold - RESOLUTION:
                 return -1.0
         total += abs(distance - radius)
@@ -236,31 +244,16 @@ def _leaf_cost(problem, pose, alpha, s, cutoff):
 @njit(cache=True, nogil=True)
 def _block_update(problem, pose, alpha, s, out):
     """out = contour distances after adding block s at pose (alpha: before). Points farther from the
-    block's sample disc than their current distance are skipped; squared distances inside."""
-    contour, samples, disc = problem[0], problem[5], problem[7]
-    cos, sin = np.cos(pose[2]), np.sin(pose[2])
-    count = samples.shape[1]
-    world = np.empty((count, 2))
-    for m in range(count):
-        world[m, 0] = pose[0] + samples[s, m, 0] * cos + samples[s, m, 1] * sin
-        world[m, 1] = pose[1] - samples[s, m, 0] * sin + samples[s, m, 1] * cos
-    centre_x = pose[0] + disc[s, 0] * cos + disc[s, 1] * sin
-    centre_z = pose[1] - disc[s, 0] * sin + disc[s, 1] * cos
-    radius = disc[s, 2]
+    block's sample disc than their current distance are skipped."""
+    contour, disc = problem[0], problem[7]
+    world, centre_x, centre_z = _placed_samples(problem, pose, s)
     out[:] = alpha
     for q in range(contour.shape[0]):
         qx, qz = contour[q, 0], contour[q, 1]
-        reach = out[q] + radius
+        reach = out[q] + disc[s, 2]
         dx, dz = qx - centre_x, qz - centre_z
-        if dx * dx + dz * dz >= reach * reach:
-            continue
-        nearest = out[q] * out[q]
-        for m in range(count):
-            ex, ez = qx - world[m, 0], qz - world[m, 1]
-            squared = ex * ex + ez * ez
-            if squared < nearest:
-                nearest = squared
-        out[q] = np.sqrt(nearest)
+        if dx * dx + dz * dz < reach * reach:
+            out[q] = _nearer(qx, qz, world, out[q])
 
 
 @njit(cache=True, nogil=True)
