@@ -48,7 +48,7 @@ DEFAULT_OPTIONS = {
     "region_spacing": 2e-4,  # grid step of the suffix regions they are built from [m]
     "expansions_per_check": 2000,  # nodes expanded between time-budget / callback checks
     "ceiling_growth": 1.3,  # factor between the cost ceilings of successive rounds
-    "beam_width": 128,  # collision-free prefixes per level of the second beam (the first keeps 16)
+    "beam_width": 32,  # collision-free prefixes per level of the second beam (the first keeps 16)
     "polish": True,  # improve the beam's finger by block-by-block local search before the search starts
     "workers": 2,  # threads that share the search once a first finger is in hand (the first level is split)
 }
