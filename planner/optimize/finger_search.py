@@ -63,11 +63,11 @@ def _place(pose, x, z):
 
 
 @njit(cache=True, nogil=True)
-def _beyond_grid(discs, reach, radius, x, z, own, count, acc):
+def _beyond_grid(discs, reach, radius, x, z, own, count, acc, last):
     """Add to acc[:count] the bound of one term whose point (x, z), in the frame of the next block's start,
     lies beyond the grid: from each next block's discs (``discs``: that position's rows of the fields'
-    discs). ``own``: the point's distance to the prefix; infinite for the tip term. Square roots rather
-    than hypot, so that the loops vectorise."""
+    discs; ``last``: the last position, no blocks after). ``own``: the point's distance to the prefix;
+    infinite for the tip term. Square roots rather than hypot, so that the loops vectorise."""
     if own <= radius:  # the term's bound is 0 whatever comes next
         return
     if own < np.inf and own <= np.sqrt(x * x + z * z) - reach:  # every later sample lies within reach of
@@ -78,8 +78,9 @@ def _beyond_grid(discs, reach, radius, x, z, own, count, acc):
         if own == np.inf:  # the tip periphery point: exact after the last block
             value = np.sqrt((x - discs[k, 6]) ** 2 + (z - discs[k, 7]) ** 2) - discs[k, 8]
         else:
-            nearest = min(np.sqrt((x - discs[k, 0]) ** 2 + (z - discs[k, 1]) ** 2) - discs[k, 2],
-                          np.sqrt((x - discs[k, 3]) ** 2 + (z - discs[k, 4]) ** 2) - discs[k, 5])
+            nearest = np.sqrt((x - discs[k, 0]) ** 2 + (z - discs[k, 1]) ** 2) - discs[k, 2]
+            if not last:  # the blocks after it lie within their reach of its end
+                nearest = min(nearest, np.sqrt((x - discs[k, 3]) ** 2 + (z - discs[k, 4]) ** 2) - discs[k, 5])
             value = min(own, nearest) - radius
         if value > 0.0:
             acc[k] += value
@@ -114,7 +115,7 @@ def _lookahead(problem, depth, pose, alpha, acc):
         b = int(np.round((x - x0) / spacing))
         a = int(np.round((z - z0) / spacing))
         if a < 0 or b < 0 or a >= rows or b >= cols:
-            _beyond_grid(discs[depth], layout[depth, 5], radius, x, z, own, count, acc)
+            _beyond_grid(discs[depth], layout[depth, 5], radius, x, z, own, count, acc, False)
             continue
         node_offset = np.hypot(x - (x0 + b * spacing), z - (z0 + a * spacing))
         start = offset + (a * cols + b) * count
@@ -160,7 +161,7 @@ def _leaf_bounds(problem, depth, pose, alpha, acc):
     b, a = int(np.round((x - x0) / spacing)), int(np.round((z - z0) / spacing))
     acc[:count] = 0.0
     if a < 0 or b < 0 or a >= rows or b >= cols:
-        _beyond_grid(discs[depth], layout[depth, 5], radius, x, z, np.inf, count, acc)
+        _beyond_grid(discs[depth], layout[depth, 5], radius, x, z, np.inf, count, acc, True)
     else:
         node_offset = np.hypot(x - (x0 + b * spacing), z - (z0 + a * spacing))
         start = offset + (a * cols + b) * count
@@ -175,7 +176,7 @@ def _leaf_bounds(problem, depth, pose, alpha, acc):
         x, z = dx * cos - dz * sin, dx * sin + dz * cos
         b, a = int(np.round((x - x0) / spacing)), int(np.round((z - z0) / spacing))
         if a < 0 or b < 0 or a >= rows or b >= cols:
-            _beyond_grid(discs[depth], layout[depth, 5], radius, x, z, own, count, acc)
+            _beyond_grid(discs[depth], layout[depth, 5], radius, x, z, own, count, acc, True)
             continue
         node_offset = np.hypot(x - (x0 + b * spacing), z - (z0 + a * spacing))
         if own <= nearest_any[a * cols + b] - node_offset:  # no last block comes nearer than the prefix
