@@ -94,8 +94,9 @@ class LookaheadFields:
     def node_minima(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per grid node of every position (flat, position d's nodes from ``first[d]``), the smallest body
         bound and the smallest cover over the position's next shapes: a contour point nearer to the prefix
-        than the first keeps the prefix as its nearest whatever follows, and one whose collision threshold
-        lies below the second can prove no collision. Returns (first, nearest, cover)."""
+        than the first keeps the prefix as its nearest whatever follows, and a point whose collision
+        threshold (less its gap to the object) stays at or below the second proves no collision. Returns
+        (first, nearest, cover)."""
         first, nearest, cover = [], [], []
         ends = [int(v) for v in self.layout[1:, 0]] + [self.body.size]
         for (offset, rows, cols), end in zip(self.layout[:, :3].astype(int), ends):
