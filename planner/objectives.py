@@ -100,6 +100,15 @@ class Cost:
     collision: np.ndarray  # (...,) bool, C of eq. (2)
 
 
+def shape_error(target: ShapeTarget, samples: np.ndarray, tip_rotation: np.ndarray,
+                tip_position: np.ndarray) -> np.ndarray:
+    """(...,) E0 + Ef + sum En [m] of chains given their centerline samples (..., M, 3) and tip frames
+    (..., 3, 3)/(..., 3): the objective without its collision term."""
+    gaps = np.abs(nearest_distances(target.points, samples) - target.offset)
+    end_error = np.linalg.norm(tip_point(target, tip_rotation, tip_position) - target.end_point, axis=-1)
+    return target.start_error + end_error + gaps.sum(axis=-1)
+
+
 def evaluate(target: ShapeTarget, samples: np.ndarray, tip_rotation: np.ndarray, tip_position: np.ndarray,
              blocks=None) -> Cost:
     """Objective of chains given their centerline samples (..., M, 3) and tip frames (..., 3, 3)/(..., 3).
@@ -107,9 +116,7 @@ def evaluate(target: ShapeTarget, samples: np.ndarray, tip_rotation: np.ndarray,
     ``blocks`` = (theta, length, base_x): the planar chains' blocks (..., N) and base positions (...), which
     finger targets need for the collision term (None for paths).
     """
-    gaps = np.abs(nearest_distances(target.points, samples) - target.offset)
-    end_error = np.linalg.norm(tip_point(target, tip_rotation, tip_position) - target.end_point, axis=-1)
-    error = target.start_error + end_error + gaps.sum(axis=-1)
+    error = shape_error(target, samples, tip_rotation, tip_position)
     if target.body is None:
         collision = np.zeros(error.shape, dtype=bool)
     elif blocks is None:
