@@ -4,7 +4,7 @@ the paper's PSO over seeds (cost ratio to the optimum, collision rate), and the 
 against a plain numpy implementation of the same work.
 Writes docs/figures/finger_optimizers.{json,png}.
 
-    scripts/with_env.sh python benchmarks/finger_optimizers.py          # ~20 min on the 2-core machine
+    scripts/with_env.sh python benchmarks/finger_optimizers.py          # ~15 min on the 2-core machine
     scripts/with_env.sh python benchmarks/finger_optimizers.py --quick  # 2 and 4 blocks, 5 PSO seeds
     scripts/with_env.sh python benchmarks/finger_optimizers.py --blocks 2,4,5 --seeds 10
 
