@@ -9,17 +9,17 @@ import threading
 
 import pytest
 from processes import adopt_orphans, descendants, kill_tree, reap
+from ros_domains import domain_for
 
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("MPLBACKEND", "Agg")
 # Message setters check field types (as the nodes do, see softblock_ros/__init__.py); read at message import.
 os.environ.setdefault("ROS_PYTHON_CHECK_FIELDS", "1")
 
-# Parallel runs never cross-talk: worker w of an n-worker pytest-xdist run gives its m-th module the
-# domain slot w + n*m, counted from an offset derived from the run's id (a plain run: from its pid).
-# Slots: domains 10-99 by default, distinct while no worker runs more than 90/n modules. Suites that
-# run at the same time on one machine (two checkouts) each take their own range:
-# SOFTBLOCK_TEST_DOMAINS=100-160.
+# Parallel runs never cross-talk: each pytest-xdist worker owns a block of the domains (10-99 by default)
+# and gives each of its modules the next one, counted from an offset derived from the run's id (a plain
+# run: from its pid); see ros_domains.domain_for. Suites that run at the same time on one machine (two
+# checkouts) each take their own range: SOFTBLOCK_TEST_DOMAINS=100-160.
 _FIRST, _LAST = (int(bound) for bound in os.environ.get("SOFTBLOCK_TEST_DOMAINS", "10-99").split("-"))
 if not 0 <= _FIRST <= _LAST <= 232:
     raise ValueError(f"SOFTBLOCK_TEST_DOMAINS={_FIRST}-{_LAST}: a range within 0-232 (Fast DDS's port limit)")
@@ -31,7 +31,7 @@ _MODULES = itertools.count()
 
 
 def _domain(module_index: int) -> str:
-    return str(_FIRST + (_OFFSET + _WORKER + _WORKERS * module_index) % (_LAST - _FIRST + 1))
+    return str(domain_for(_FIRST, _LAST, _OFFSET, _WORKER, _WORKERS, module_index))
 
 
 os.environ["ROS_DOMAIN_ID"] = _domain(next(_MODULES))

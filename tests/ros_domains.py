@@ -1,0 +1,11 @@
+"""Which ROS domain a test module runs in, so that parallel test workers never cross-talk."""
+
+
+def domain_for(first: int, last: int, offset: int, worker: int, workers: int, module_index: int) -> int:
+    """Worker ``worker`` of ``workers`` owns its own block of the domains first..last and takes the next one
+    of it for each module, starting from ``offset``: two workers never share a domain, however many modules
+    each runs (a worker comes back to a domain of its own only after a whole block of modules)."""
+    block = (last - first + 1) // workers
+    if block < 1:
+        raise ValueError(f"SOFTBLOCK_TEST_DOMAINS={first}-{last}: fewer domains than the {workers} test workers")
+    return first + worker * block + (offset + module_index) % block
