@@ -175,10 +175,20 @@ def summarize(data: RecordingData) -> dict:
                         "median_minus_predicted": estimate_minus_prediction(data.angles.get(name), series)}
                  for name, series in sorted(data.estimated.items())}
     return {"duration": data.duration, "message_counts": dict(sorted(data.message_counts.items())),
-            "channels": channels, "steps": step_durations(data.events), "faults": data.faults,
+            "channels": channels, "hv_state_longest_silence": longest_silence(data.hv), "steps": step_durations(data.events), "faults": data.faults,
             "chains": chains, "estimated_chains": estimated,
             "lost_samples": {topic: report for topic, report in data.lost_samples.items()
                              if report["checked"] and report["lost"]}}
+
+
+def longest_silence(hv: dict) -> dict | None:
+    """The longest time between two hv/state messages (by the driver's stamps: how long it published nothing)
+    and when it began [s]; None with fewer than two messages."""
+    times = sorted({t for series in hv.values() for t in series["time"]})
+    if len(times) < 2:
+        return None
+    start = max(range(len(times) - 1), key=lambda i: times[i + 1] - times[i])
+    return {"seconds": times[start + 1] - times[start], "from": times[start]}
 
 
 def estimate_minus_prediction(predicted: dict | None, estimated: dict) -> list[float] | None:
@@ -208,6 +218,9 @@ def format_summary(summary: dict) -> str:
         lines.append(f"channel {name}: peak {channel['peak_voltage'] / 1e3:.3f} kV at "
                      f"{channel['peak_voltage_time']:.3f} s, peak current "
                      f"{channel['peak_current'] * 1e6:.2f} µA")
+    silence = summary["hv_state_longest_silence"]
+    if silence:
+        lines.append(f"hv/state: longest silence {silence['seconds']:.3f} s (from {silence['from']:.3f} s)")
     for step in summary["steps"]:
         duration = "-" if step["duration"] is None else f"{step['duration']:.3f} s"
         lines.append(f"step {step['step_index']} {step['step_name']}: {step['outcome']} "

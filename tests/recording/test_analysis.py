@@ -61,6 +61,7 @@ def test_summary_of_voltages_steps_faults_and_angles(grasp):
     assert (front["peak_voltage"], front["peak_voltage_time"]) == (3000.0, pytest.approx(0.4))
     assert front["peak_current"] == pytest.approx(3000.0e-8)
     assert (back["peak_voltage"], back["samples"]) == (1000.0, 11)
+    assert summary["hv_state_longest_silence"]["seconds"] == pytest.approx(0.1)  # one message per 0.1 s
     steps = [(s["step_name"], s["outcome"], s["duration"], s["message"])
              for s in summary["steps"]]
     assert steps == [("approach", "succeeded", pytest.approx(0.25), ""),
@@ -75,6 +76,17 @@ def test_summary_of_voltages_steps_faults_and_angles(grasp):
     assert chain["final_angles"] == pytest.approx([0.9, -1.8])
     assert chain["min_angles"] == pytest.approx([0.0, -1.8])
     assert chain["max_angles"] == pytest.approx([0.9, 0.0])
+
+
+def test_the_longest_silence_of_the_driver_is_found_by_its_stamps_not_by_arrival(tmp_path):
+    # Published at 0, 0.1, 0.2, then nothing until 0.9 s; the recorder received them in a burst at 1 s.
+    tenths = [0, 1, 2, 9, 10]
+    entries = [("/hv/state", stamp(at(t), hv_state({"front": 100.0 * t})), at(10) + i) for i, t in enumerate(tenths)]
+    summary = analyze(write_recording(str(tmp_path / "silence.mcap"), entries))
+    assert summary["hv_state_longest_silence"] == {"seconds": pytest.approx(0.7), "from": pytest.approx(0.2)}
+    assert "hv/state: longest silence 0.700 s (from 0.200 s)" in format_summary(summary)
+    one = analyze(write_recording(str(tmp_path / "one.mcap"), entries[:1]))
+    assert one["hv_state_longest_silence"] is None
 
 
 def test_fault_names_follow_the_bit_table():

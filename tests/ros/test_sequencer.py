@@ -31,7 +31,7 @@ def stack(ros_context, spin, tmp_path_factory):
         Parameter("sequences_dir", value=str(directory)), Parameter("settle_time_s", value=2.0),
         Parameter("safe_stop_timeout_s", value=5.0),
         # The fake driver publishes from this test process, which the other pytest worker can starve for
-        # more than the default 0.5 s (seen once in a fresh-clone run); these tests are about sequencing.
+        # more than 0.5 s (seen once in a fresh-clone run); these tests are about sequencing.
         Parameter("state_timeout_s", value=2.0)])
     arm = SimArmNode(context=ros_context, parameter_overrides=[
         Parameter("max_speed_m_per_s", value=2.0), Parameter("max_acceleration_m_per_s2", value=20.0),

@@ -271,6 +271,9 @@ def print_summary(report: dict, out: Path) -> None:
             print(f"  {step:<20} {duration:6.2f} s")
     for name, channel in report["recording"]["channels"].items():
         print(f"channel {name}: peak {channel['peak_voltage'] / 1e3:.3f} kV")
+    silence = report["recording"]["hv_state_longest_silence"]
+    if silence:  # to compare with the sequencer's state_timeout_s, after which it counts the driver as lost
+        print(f"hv/state: longest silence {1e3 * silence['seconds']:.0f} ms (from {silence['from']:.1f} s)")
     drill = report.get("fault_drill")
     if drill:
         print(f"fault drill: {drill['fault']} on {drill['channel']} -> '{drill['fault_text']}', output off "

@@ -45,7 +45,7 @@ PARAMETERS = (
     Param.of(RunOptions, "off_voltage_v", "a disabled output below this needs no ramp-down in a safe stop", "V",
              0.0, 1000.0),
     Param("server_timeout_s", 2.0, "wait for the arm/move, hv/ramp, hv/estop servers", "s", 0.1, 60.0),
-    Param("state_timeout_s", 0.5, "hv/state older than this counts as a link fault", "s", 0.05, 10.0),
+    Param("state_timeout_s", 1.0, "hv/state older than this counts as a link fault", "s", 0.05, 10.0),
 )
 
 
