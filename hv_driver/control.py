@@ -61,9 +61,16 @@ class ControlClaim:
         return self.owner is not None and now - self._last_heartbeat > self.allowed_silence_s
 
     def claim(self, client: str, now: float) -> str:
-        """Take control as ``client``; returns the session token. Refused while another session is live."""
+        """Take control as ``client``; returns the session token. Refused while another session is live.
+
+        A claim repeated under the owner's name before the session's first sign of life is answered with the
+        same token: the client may never have received the first reply (one written before the DDS discovery
+        between the two had finished is lost for good), and nothing has been commanded under it yet."""
         client = _valid_client_name(client)
         self.lapse_if_silent(now)
+        if self.owner == client and not self._confirmed:
+            self._last_heartbeat = now
+            return self._token
         if self.owner is not None:
             raise ControlError(f"control is held by {self.owner!r} (last heartbeat {self.heartbeat_age(now):.1f} s "
                                f"ago); it must release it first{self._lapse_hint()}")

@@ -72,6 +72,26 @@ def call_service(client, request, timeout: float):
     return _wait_future(client.call_async(request), timeout, f"the reply of {client.srv_name}")
 
 
+def call_repeatable(client, request, timeout: float, resend_s: float):
+    """Call a service whose request may safely arrive more than once, sending it again every ``resend_s``
+    without a reply; returns the first reply. A reply the server writes before its DDS discovery of this
+    client's reply reader has finished is lost for good, and only a new request gets another."""
+    if not client.wait_for_service(timeout_sec=timeout):
+        raise ClientError(f"service {client.srv_name} did not appear within {timeout:g} s")
+    answered, futures = threading.Event(), []
+    deadline = time.monotonic() + timeout
+    while True:
+        future = client.call_async(request)
+        future.add_done_callback(lambda _: answered.set())
+        futures.append(future)
+        remaining = deadline - time.monotonic()
+        if answered.wait(max(0.0, min(resend_s, remaining))):
+            return next(f.result() for f in futures if f.done())
+        if remaining <= resend_s:
+            raise ClientError(f"timed out after {timeout:g} s waiting for the reply of {client.srv_name} "
+                              f"({len(futures)} requests sent)")
+
+
 def run_action(client, goal, timeout: float, feedback: Callable | None = None, server_timeout: float = 10.0):
     """Send a goal, wait for its result; returns (GoalStatus code, result message)."""
     name = client._action_name

@@ -11,9 +11,10 @@ from rclpy.node import Node
 from softblock_interfaces.msg import HvHeartbeat
 from softblock_interfaces.srv import ClaimControl, ReleaseControl
 
-from .client import ClientError, call_service
+from .client import ClientError, call_repeatable, call_service
 
 HEARTBEATS_PER_TIMEOUT = 2  # at least this many heartbeats within the driver's timeout
+CLAIM_RESEND_S = 1.0  # a claim without a reply is sent again (the driver answers a repeat with the same session)
 
 
 class HvControl:
@@ -34,7 +35,8 @@ class HvControl:
 
     def claim(self) -> str:
         """Take control of the driver; ClientError naming the holder when it is refused."""
-        reply = call_service(self._claim, ClaimControl.Request(client=self.client), self.timeout_s)
+        reply = call_repeatable(self._claim, ClaimControl.Request(client=self.client), self.timeout_s,
+                                CLAIM_RESEND_S)
         if not reply.success:
             raise ClientError(f"hv/claim_control refused: {reply.message}")
         self.token = reply.token
