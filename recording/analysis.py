@@ -175,7 +175,8 @@ def summarize(data: RecordingData) -> dict:
                         "median_minus_predicted": estimate_minus_prediction(data.angles.get(name), series)}
                  for name, series in sorted(data.estimated.items())}
     return {"duration": data.duration, "message_counts": dict(sorted(data.message_counts.items())),
-            "channels": channels, "hv_state_longest_silence": longest_silence(data.hv), "steps": step_durations(data.events), "faults": data.faults,
+            "channels": channels, "hv_state_longest_silence": longest_silence(data.hv),
+            "steps": step_durations(data.events), "faults": data.faults,
             "chains": chains, "estimated_chains": estimated,
             "lost_samples": {topic: report for topic, report in data.lost_samples.items()
                              if report["checked"] and report["lost"]}}

@@ -65,10 +65,14 @@ def _wait_future(future, timeout: float, what: str):
     return future.result()
 
 
-def call_service(client, request, timeout: float):
-    """Call a service and return its response."""
+def _wait_for_service(client, timeout: float) -> None:
     if not client.wait_for_service(timeout_sec=timeout):
         raise ClientError(f"service {client.srv_name} did not appear within {timeout:g} s")
+
+
+def call_service(client, request, timeout: float):
+    """Call a service and return its response."""
+    _wait_for_service(client, timeout)
     return _wait_future(client.call_async(request), timeout, f"the reply of {client.srv_name}")
 
 
@@ -76,8 +80,7 @@ def call_repeatable(client, request, timeout: float, resend_s: float):
     """Call a service whose request may safely arrive more than once, sending it again every ``resend_s``
     without a reply; returns the first reply. A reply the server writes before its DDS discovery of this
     client's reply reader has finished is lost for good, and only a new request gets another."""
-    if not client.wait_for_service(timeout_sec=timeout):
-        raise ClientError(f"service {client.srv_name} did not appear within {timeout:g} s")
+    _wait_for_service(client, timeout)
     answered, futures = threading.Event(), []
     deadline = time.monotonic() + timeout
     while True:
