@@ -84,3 +84,34 @@ def test_a_failing_timer_callback_is_logged_and_the_node_keeps_running(ros_conte
     assert "a callback raised ValueError: theta must be finite (at <string>:16 in tick); the node keeps " \
            "running" in errors
     assert "Traceback" not in errors
+
+
+STOPPED_WHILE_STARTING = textwrap.dedent("""
+    import os, signal, time
+    import rclpy
+    from rclpy.node import Node
+    from softblock_ros.runner import run_node
+
+    class StoppedHalfWay(Node):
+        def __init__(self):
+            super().__init__("stopped_half_way")
+            # a launcher's SIGTERM lands after the node's first publisher, before its timer
+            os.kill(os.getpid(), signal.SIGTERM)
+            deadline = time.monotonic() + 20.0
+            while rclpy.ok() and time.monotonic() < deadline:
+                time.sleep(0.01)
+            self.create_timer(0.1, lambda: None)  # rclpy refuses: the context is shut down
+
+    raise SystemExit(run_node(StoppedHalfWay, "stopped_half_way"))
+""")
+
+
+def test_a_stop_signal_while_the_node_is_being_built_is_a_clean_stop():
+    """Seen in a fresh-clone run: the launcher stopped assembly_state right after its first (latched)
+    message, inside its constructor; create_timer raised RCLError on the shut-down context and the node
+    exited with status 1 and a traceback."""
+    probe = subprocess.run([sys.executable, "-c", STOPPED_WHILE_STARTING], capture_output=True, text=True,
+                           timeout=60)
+    assert probe.returncode == 0, probe.stderr
+    assert "Traceback" not in probe.stderr
+    assert "stopped while starting" in probe.stderr

@@ -67,8 +67,13 @@ def run_node(make_node: Callable[[], Node], name: str, executor: Callable[[], Ex
         spin_logging_errors(spinner, node.get_logger())
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except (ValueError, OSError) as error:
-        if node is not None:
+    except Exception as error:
+        if node is None and not rclpy.ok():
+            # Ctrl-C / SIGTERM landed inside the constructor: rclpy refuses to create anything more on the
+            # shut-down context. That is the stop that was asked for, not a failure.
+            rclpy.logging.get_logger(name).info(f"stopped while starting ({type(error).__name__} on shutdown)")
+            return 0
+        if node is not None or not isinstance(error, (ValueError, OSError)):
             raise
         rclpy.logging.get_logger(name).fatal(f"cannot start: {error}")
         return 1
