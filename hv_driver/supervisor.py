@@ -55,6 +55,11 @@ PULSE_GUARD_PERIODS = 2.0
 # allowance (a stalled loop resumes with a slew-limited move instead of a jump) and to the readback check.
 DEFAULT_PERIOD_S = 0.01
 # The controlling client's heartbeat watchdog is on unless switched off on purpose with math.inf.
+# A link trips only when at least this many exchanges in a row failed (besides link_timeout_s since the first): a loop
+# descheduled right after one failure would otherwise count its own stall as the supply's silence and trip without
+# asking again. A supply that stops answering fails more than this within link_timeout_s (by default each failure
+# takes a quarter of it), so its trip is not delayed.
+LINK_MIN_FAILED_EXCHANGES = 2
 DEFAULT_HEARTBEAT_TIMEOUT_S = 2.0
 
 
@@ -399,10 +404,10 @@ class Supervisor:
         self._clock = float(now) if _finite(now) else 0.0
         self.channels = {c.name: ChannelSupervisor(c, self._clock, nominal_period_s) for c in configs}
         self.control = ControlClaim(self.heartbeat_timeout_s)
-        # Per supply (device): start of the current run of failed exchanges (None while its link answers). Timing
-        # the failures, not the gap since the last success, keeps a host that was merely descheduled (a loaded
-        # machine) from tripping while a supply that stops answering still trips on time.
-        self._link_failing_since: dict[int, float | None] = {c.device: None for c in configs}
+        # Per supply (device): start and count of the current run of failed exchanges (None while its link
+        # answers). Timing the failures, not the gap since the last success, keeps a host that was merely
+        # descheduled (a loaded machine) from tripping while a supply that stops answering still trips on time.
+        self._link_failing: dict[int, tuple[float, int] | None] = {c.device: None for c in configs}
 
     @property
     def heartbeat_watchdog_off(self) -> bool:
@@ -426,13 +431,13 @@ class Supervisor:
     def link_ok(self, now: float, device: int = 0) -> None:
         """A complete, valid exchange with supply ``device`` finished at ``now``."""
         self._now(now)
-        self._link_failing_since[device] = None
+        self._link_failing[device] = None
 
     def link_failed(self, now: float, device: int = 0) -> None:
         """An exchange with supply ``device`` failed at ``now`` (no, partial, garbled or wrong answer)."""
         now = self._now(now)
-        if self._link_failing_since.get(device) is None:
-            self._link_failing_since[device] = now
+        since, failed = self._link_failing.get(device) or (now, 0)
+        self._link_failing[device] = (since, failed + 1)
 
     # --- who may command ---------------------------------------------------------------------
     def claim_control(self, client: str, now: float) -> str:
@@ -508,8 +513,8 @@ class Supervisor:
 
     def step(self, now: float) -> dict[str, ChannelCommand]:
         now = self._now(now)
-        for device, since in self._link_failing_since.items():
-            if since is not None and now - since > self.link_timeout_s:
+        for device, failing in self._link_failing.items():
+            if failing and now - failing[0] > self.link_timeout_s and failing[1] >= LINK_MIN_FAILED_EXCHANGES:
                 for channel in self.channels.values():
                     if channel.config.device == device:
                         channel.trip(Fault.LINK, f"no valid reply from the supply for more than "

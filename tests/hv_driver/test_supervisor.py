@@ -172,6 +172,25 @@ def test_a_stalled_host_with_a_healthy_link_does_not_trip():
     assert not supervisor.channel("front").faults
 
 
+def test_a_loop_stalled_after_one_failed_exchange_asks_the_supply_again_before_the_link_trips():
+    """Seen in a fresh-clone CI run: LINK on both channels of a healthy simulated supply while the test process
+    was starved. One exchange failed, the loop was then descheduled past link_timeout_s, and its next step
+    counted that stall as the supply's silence."""
+    supervisor = Supervisor([CONFIG], link_timeout_s=0.5)
+    supervisor.link_ok(0.0)
+    supervisor.link_failed(0.1)
+    supervisor.step(0.7)  # the loop's next cycle, 0.6 s later
+    assert not supervisor.channel("front").faults
+    supervisor.link_ok(0.75)  # asked again: the supply answers
+    supervisor.step(0.76)
+    assert not supervisor.channel("front").faults
+    supervisor.link_failed(0.8)
+    supervisor.step(1.4)
+    supervisor.link_failed(1.5)  # a second failure in a row, 0.7 s after the first: the supply is silent
+    supervisor.step(1.5)
+    assert supervisor.channel("front").faults == Fault.LINK
+
+
 def test_lost_heartbeat_ramps_down_then_switches_off():
     supervisor = Supervisor([CONFIG], link_timeout_s=100.0, heartbeat_timeout_s=0.5, nominal_period_s=0.05)
     supervisor.enable("front", 0.0)
