@@ -55,12 +55,12 @@ PULSE_GUARD_PERIODS = 2.0
 # allowance (a stalled loop resumes with a slew-limited move instead of a jump) and to the readback check.
 DEFAULT_PERIOD_S = 0.01
 # The controlling client's heartbeat watchdog is on unless switched off on purpose with math.inf.
+DEFAULT_HEARTBEAT_TIMEOUT_S = 2.0
 # A link trips only when at least this many exchanges in a row failed (besides link_timeout_s since the first): a loop
 # descheduled right after one failure would otherwise count its own stall as the supply's silence and trip without
 # asking again. A supply that stops answering fails more than this within link_timeout_s (by default each failure
 # takes a quarter of it), so its trip is not delayed.
 LINK_MIN_FAILED_EXCHANGES = 2
-DEFAULT_HEARTBEAT_TIMEOUT_S = 2.0
 
 
 class LimitError(SettingError):
