@@ -65,22 +65,27 @@ class Switching:
         phase = (t - self.start) * self.frequency
         return phase - math.floor(phase) < self.duty
 
+    def time_at(self, cycles: float) -> float:
+        """Device time after ``cycles`` periods. Edges and the end both come from here, so the last edge is the end
+        exactly: a phase computed back from a large clock value can fall a rounding error short of the count."""
+        return self.start + cycles / self.frequency
+
     def done(self, t: float) -> bool:
-        return self.cycles > 0 and (t - self.start) * self.frequency >= self.cycles
+        return self.cycles > 0 and t >= self.time_at(self.cycles)
 
     def completed(self, t: float) -> int:
         return int(max(0.0, t - self.start) * self.frequency)
 
     def boundaries(self, t0: float, t1: float) -> list[float]:
         """Times of the edges (and of the end) in (t0, t1)."""
-        times, period = [], 1.0 / self.frequency
+        times = []
         k = math.floor((t0 - self.start) * self.frequency)
         while True:
-            for offset in (0.0, self.duty):
-                t = self.start + (k + offset) * period
+            for offset in (0, self.duty):
+                t = self.time_at(k + offset)
                 if t0 < t < t1:
                     times.append(t)
-            if self.start + (k + 1) * period >= t1:
+            if self.time_at(k + 1) >= t1:
                 return times
             k += 1
 

@@ -7,6 +7,8 @@ import time
 
 import pytest
 import serial
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
 
 from hv_driver.dialects.iseg_edcp import ChannelStatus
 from sim_fallback.hv_plant import ChannelDefaults, DeaLoad, PlantChannel
@@ -64,6 +66,21 @@ def test_switched_off_the_load_discharges_through_the_bleeder():
     ch.voltage = 2000.0
     ch.step(0.02, 0.02)
     assert ch.voltage == pytest.approx(2000.0 * math.exp(-1.0))
+
+
+@settings(max_examples=60, deadline=None)
+@given(start=st.floats(1e3, 1e7), cycles=st.integers(1, 6), frequency=st.sampled_from([5.0, 20.0, 50.0]))
+@example(start=102920.99090649255, cycles=4, frequency=20.0)  # a host up for 29 h: the old count ran a fifth cycle
+def test_device_switching_runs_exactly_the_counted_cycles_at_any_clock_value(start, cycles, frequency):
+    """The device's clock is this host's monotonic time, which can be large; the count must not depend on it."""
+    ch = PlantChannel(ChannelDefaults(ramp_speed=None))
+    ch.voltage_set, ch.watch_level = 200.0, 100.0
+    assert ch.start_switching(start, frequency, 0.5, cycles)
+    t, end = start, start + (cycles + 2) / frequency
+    while t < end:
+        ch.step(t + 0.01, 0.01)
+        t += 0.01
+    assert len(ch.rising_edges) == cycles and ch.switching is None and not ch.output_on
 
 
 def switched_on_at(voltage: float, ramp: float) -> PlantChannel:
