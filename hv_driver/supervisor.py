@@ -9,7 +9,7 @@ Rules enforced here:
 - ceiling = min(hard maximum, assembly safe voltage, supply limit); a request above it is refused
   with `LimitError` naming the limit, and the streamed setpoint is still clamped to it;
 - the setpoint rises and falls no faster than the channel's slew limit (a stalled loop catches up by
-  at most one nominal period's worth per cycle), except that it drops at once when the ceiling drops
+  at most two nominal periods' worth per cycle), except that it drops at once when the ceiling drops
   below it or a fault latches;
 - only the client holding control (its session token) may ramp or feed the heartbeat watchdog; the
   watchdog is on unless switched off on purpose (heartbeat_timeout_s=math.inf);
@@ -51,9 +51,14 @@ COLLAPSE_READBACKS = 2
 PULSE_GUARD_MIN_CYCLES = 3
 PULSE_GUARD_PERIODS = 2.0
 
-# The control loop's nominal period [s] unless told otherwise: the largest time step credited to the slew
-# allowance (a stalled loop resumes with a slew-limited move instead of a jump) and to the readback check.
+# The control loop's nominal period [s] unless told otherwise (the time step unit of the slew credit, the readback
+# check and the pulse guard).
 DEFAULT_PERIOD_S = 0.01
+# A cycle credits the slew allowance with its elapsed time up to this many nominal periods. The driver's loop keeps its
+# schedule while a cycle ends within one period of its slot (`HvSupply._run`), so a loop that runs late but on its
+# schedule keeps the timing of its ramps (a heartbeat ramp-down ends on time); one resuming from a stall moves by at
+# most this many periods' worth instead of jumping by the whole stall's.
+SLEW_CREDIT_PERIODS = 2
 # The controlling client's heartbeat watchdog is on unless switched off on purpose with math.inf.
 DEFAULT_HEARTBEAT_TIMEOUT_S = 2.0
 # A link trips only when at least this many exchanges in a row failed (besides link_timeout_s since the first): a loop
@@ -88,10 +93,10 @@ def _finite(value) -> bool:
 class ChannelSupervisor:
     """Limits, ramp and latched faults of one output channel."""
 
-    def __init__(self, config: ChannelConfig, now: float = 0.0, max_step_s: float = DEFAULT_PERIOD_S):
+    def __init__(self, config: ChannelConfig, now: float = 0.0, nominal_period_s: float = DEFAULT_PERIOD_S):
         self.config = config
         self._clock = float(now) if _finite(now) else 0.0
-        self.max_step_s = max_step_s
+        self.nominal_period_s = nominal_period_s
         self.setpoint = 0.0
         self.target = 0.0
         self.output_enabled = False
@@ -101,7 +106,8 @@ class ChannelSupervisor:
         self.device_limit: float | None = None
         self._ramp: MinimumJerkRamp | PulseTrain | None = None
         self._off_at_zero = False
-        self._readback = ReadbackCheck(config.mismatch_tolerance_v, config.mismatch_time_s, max_step_s, self._clock)
+        self._readback = ReadbackCheck(config.mismatch_tolerance_v, config.mismatch_time_s, nominal_period_s,
+                                      self._clock)
         self._creep_since: float | None = None
         self.breakdown_guard = False
         self._held = (0.0, self._clock)  # (setpoint, since when) as last commanded
@@ -309,13 +315,13 @@ class ChannelSupervisor:
     def _check_pulses(self, now: float, voltage: float, train: PulseTrain) -> None:
         """Every pulse must reach COLLAPSE_FRACTION of the amplitude; time counted as observed (a stalled loop adds
         at most one nominal period per readback), where the on-phase is long enough for the loop to see it."""
-        if now < train.start or train.duty * train.period < PULSE_GUARD_MIN_CYCLES * self.max_step_s:
+        if now < train.start or train.duty * train.period < PULSE_GUARD_MIN_CYCLES * self.nominal_period_s:
             return
         if voltage >= COLLAPSE_FRACTION * train.amplitude:
             self._low_for = 0.0
             return
         interval = 0.0 if self._last_observed is None else max(0.0, now - self._last_observed)
-        self._low_for += min(interval, self.max_step_s)
+        self._low_for += min(interval, self.nominal_period_s)
         if self._low_for > PULSE_GUARD_PERIODS * train.period:
             self.trip(Fault.BREAKDOWN, f"no pulse of the {train.frequency:g} Hz train reached {COLLAPSE_FRACTION:g} x "
                                        f"its {train.amplitude:.0f} V for {PULSE_GUARD_PERIODS:g} periods: the voltage "
@@ -346,7 +352,7 @@ class ChannelSupervisor:
 
     def _command(self, now: float) -> ChannelCommand:
         now = self._now(now)
-        dt = min(now - self._clock, self.max_step_s)
+        dt = min(now - self._clock, SLEW_CREDIT_PERIODS * self.nominal_period_s)
         self._clock = now
         if self.faults & IMMEDIATE_FAULTS:
             return ChannelCommand(0.0, False, True)
@@ -380,7 +386,7 @@ class Supervisor:
     heartbeat_timeout_s: the controlling client must show a sign of life (a heartbeat or a ramp request
         with its token) this often, or its control lapses and every output it energised ramps to 0 V
         (HEARTBEAT). math.inf switches the watchdog off; that takes this deliberate value, None is refused.
-    nominal_period_s: the control loop's period (catch-up cap of the slew allowance, readback check).
+    nominal_period_s: the control loop's period (the unit of the slew credit's cap, the readback check's).
     """
 
     def __init__(self, configs: list[ChannelConfig], *, link_timeout_s: float,

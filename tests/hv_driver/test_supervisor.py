@@ -10,8 +10,8 @@ from hv_driver import ChannelConfig, ControlError, Fault, FaultLatchedError, Lim
 from hv_driver.dialects import DIALECTS, CurrentSensing
 from hv_driver.pulse import EDGES, plan_pulse_train
 from hv_driver.ramp import MinimumJerkRamp
-from hv_driver.supervisor import (COLLAPSE_FRACTION, COLLAPSE_SETTLE_S, DEFAULT_PERIOD_S, IMMEDIATE_FAULTS, ChannelCommand,
-                                  ChannelSupervisor)
+from hv_driver.supervisor import (COLLAPSE_FRACTION, COLLAPSE_SETTLE_S, DEFAULT_PERIOD_S, IMMEDIATE_FAULTS,
+                                  SLEW_CREDIT_PERIODS, ChannelCommand, ChannelSupervisor)
 
 CONFIG = ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=1000.0, current_trip_a=50e-6,
                        mismatch_tolerance_v=100.0, mismatch_time_s=0.5, creep_voltage_v=2000.0, max_time_at_voltage_s=60.0)
@@ -140,7 +140,7 @@ def test_a_brief_mismatch_does_not_accumulate():
 
 
 def test_time_at_voltage_trips_after_the_creep_limit():
-    channel = ChannelSupervisor(CONFIG, max_step_s=0.1)  # a 10 Hz loop
+    channel = ChannelSupervisor(CONFIG, nominal_period_s=0.1)  # a 10 Hz loop
     channel.enable()
     channel.ramp_to(0.0, 2400.0)
     run(channel, 0.0, 60.0, dt=0.1)
@@ -209,6 +209,37 @@ def test_lost_heartbeat_ramps_down_then_switches_off():
     assert all(b <= a for a, b in zip([previous] + setpoints, setpoints))  # only down
     assert any(c.output_on and 0 < c.setpoint < 1000.0 for c in commands)  # smoothly, not cut
     assert commands[-1] == ChannelCommand(0.0, False, False)
+
+
+@pytest.mark.parametrize("lateness", [1.0, 1.5, 1.9])
+def test_a_loop_running_late_on_its_schedule_ramps_down_a_lost_heartbeat_on_time(lateness):
+    """The driver's loop keeps its schedule while each cycle takes less than two periods; its ramp-down of a lost
+    heartbeat then follows the planned ramp within one cycle instead of falling behind by the loop's lateness (a
+    two-host partition's ramp-down ran over its bound on a loaded host while each cycle was credited with one
+    period only)."""
+    supervisor = Supervisor([CONFIG], link_timeout_s=100.0, heartbeat_timeout_s=0.5, nominal_period_s=DEFAULT_PERIOD_S)
+    supervisor.enable("front", 0.0)
+    front = supervisor.channel("front")
+    token = supervisor.claim_control("operator", 0.0)
+    supervisor.ramp_to("front", 0.0, 2400.0, token=token)
+    t = 0.0
+    while front.setpoint < 2400.0:
+        t += DEFAULT_PERIOD_S
+        supervisor.heartbeat(t, token)
+        supervisor.step(t)
+    cycle = lateness * DEFAULT_PERIOD_S
+    while not front.faults:
+        t += cycle
+        supervisor.step(t)
+    assert front.faults == Fault.HEARTBEAT
+    planned = MinimumJerkRamp(2400.0, 0.0, t, CONFIG.slew_rate_v_per_s)
+    lag = 0.0
+    while front.setpoint > 0.0 and t < planned.t0 + 60.0:
+        t += cycle
+        supervisor.step(t)
+        lag = max(lag, front.setpoint - planned.value(t - cycle))
+    assert lag <= 1e-9, f"the ramp-down fell {lag:.1f} V behind its plan"
+    assert t < planned.t0 + planned.duration + cycle
 
 
 def test_heartbeat_is_needed_only_while_an_output_is_energised():
@@ -457,7 +488,7 @@ class SupervisorMachine(RuleBasedStateMachine):
         previous_clock = self.clock
         if self.now > self.clock:
             self.clock = self.now
-        allowance_dt = min(self.clock - previous_clock, DEFAULT_PERIOD_S)
+        allowance_dt = min(self.clock - previous_clock, SLEW_CREDIT_PERIODS * DEFAULT_PERIOD_S)
         commands = self.sup.step(self.now)
         self._note_ended()
         for name, command in commands.items():
