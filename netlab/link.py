@@ -156,14 +156,14 @@ class Link:
                 if wait > 0:
                     return wait
                 frame = heapq.heappop(self._queue)
-                stats = self._stats[frame.direction]
-                stats.in_flight -= 1
             try:
                 os.write(self._ends[1 - frame.direction], frame.data)
                 delivered = True
             except OSError:  # the far device is down or its queue is full: the frame is lost, as on a wire
                 delivered = False
-            with self._lock:
+            with self._lock:  # in flight until its outcome is counted, so every snapshot accounts for every frame
+                stats = self._stats[frame.direction]
+                stats.in_flight -= 1
                 if delivered:
                     stats.delivered += 1
                 else:

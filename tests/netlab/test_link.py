@@ -3,6 +3,7 @@ jitter measured on the frames it delivers, the loss rate, partition and heal, bo
 No root needed. Timing assertions are one-sided where load could only make a frame later: a frame is never
 delivered before its delay; how much later it comes is reported, bounded only loosely."""
 import math
+import os
 import socket
 import statistics
 import struct
@@ -11,6 +12,7 @@ import time
 
 import pytest
 
+import netlab.link
 from netlab.link import Conditions, Link, conditions_from
 
 FRAME = struct.Struct("!Id")  # index, send time (monotonic)
@@ -173,6 +175,45 @@ def test_a_far_end_that_refuses_frames_is_counted_not_fatal(bench):
     lab.send(lab.a, 1, period_s=0.0)  # the link still runs
     lab.settle(received=6)
     assert lab.link.stats()["a_to_b"]["received"] == 6
+
+
+def test_every_frame_read_is_accounted_for_at_every_moment(monkeypatch):
+    """received = delivered + lost + partitioned + send_errors + in_flight in every snapshot, also one taken while a
+    frame is being written (it was counted nowhere then, and a test that waited for nothing in flight read one send
+    error short)."""
+    a, a_link = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+    b, b_link = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+    link = Link(a_link.fileno(), b_link.fileno(), Conditions())
+    snapshots = []
+
+    class SnapshotOnWrite:
+        """The link's `os`, taking a snapshot of its counts as each frame goes out."""
+
+        def __getattr__(self, name):
+            return getattr(os, name)
+
+        def write(self, fd, data):
+            snapshots.append(link.stats()["a_to_b"])
+            return os.write(fd, data)
+
+    monkeypatch.setattr(netlab.link, "os", SnapshotOnWrite())
+    try:
+        for closed in (False, True):  # delivered, then refused by a far end that is gone
+            if closed:
+                b.close()
+            for index in range(3):
+                a.send(FRAME.pack(index, 0.0))
+            for _ in range(3):
+                link.poll(0.01)
+        stats = link.stats()["a_to_b"]
+        assert (stats["delivered"], stats["send_errors"], len(snapshots)) == (3, 3, 6)
+        for snapshot in [*snapshots, stats]:
+            accounted = sum(snapshot[k] for k in ("delivered", "lost", "partitioned", "send_errors", "in_flight"))
+            assert accounted == snapshot["received"], snapshot
+    finally:
+        link.close()
+        for end in (a, a_link, b, b_link):
+            end.close()
 
 
 @pytest.mark.parametrize("fields, message", [
