@@ -68,9 +68,9 @@ def run_node(make_node: Callable[[], Node], name: str, executor: Callable[[], Ex
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception as error:
-        if node is None and not rclpy.ok():
-            # Ctrl-C / SIGTERM landed inside the constructor: rclpy refuses to create anything more on the
-            # shut-down context. That is the stop that was asked for, not a failure.
+        if not rclpy.ok():
+            # Ctrl-C / SIGTERM landed while the node or its executor was being built: rclpy refuses to create
+            # anything more on the shut-down context. That is the stop that was asked for, not a failure.
             rclpy.logging.get_logger(name).info(f"stopped while starting ({type(error).__name__} on shutdown)")
             return 0
         if node is not None or not isinstance(error, (ValueError, OSError)):
