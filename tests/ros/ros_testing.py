@@ -5,6 +5,7 @@ import threading
 from collections.abc import Callable
 
 import rclpy
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
@@ -25,12 +26,20 @@ def call(client, request, timeout: float = DEFAULT_TIMEOUT):
 
 
 class Inbox:
-    """A subscription that keeps every message it receives (the node must be spun)."""
+    """A subscription that keeps every message it receives (the node must be spun).
+
+    Each inbox has its own callback group: in the node's default (mutually exclusive) group the executor
+    runs one of its callbacks at a time, always the oldest ready entity first, so a few inboxes on busy
+    topics would starve a newer inbox and the node's service clients for as long as they keep receiving.
+    An inbox is never destroyed while the executor spins: rclpy 7.1 can then fail the whole executor
+    ("cannot use Destroyable because destruction was requested" while it builds its wait set).
+    """
 
     def __init__(self, node: Node, msg_type, topic: str, qos: QoSProfile | int = 10):
         self.topic = topic
         self.messages: list = []
-        self._subscription = node.create_subscription(msg_type, topic, self.messages.append, qos)
+        self._subscription = node.create_subscription(
+            msg_type, topic, self.messages.append, qos, callback_group=MutuallyExclusiveCallbackGroup())
 
     def wait(self, predicate: Callable[[object], bool] = lambda msg: True, timeout: float = DEFAULT_TIMEOUT):
         """The first message (oldest first, incl. ones already received) that satisfies ``predicate``."""
