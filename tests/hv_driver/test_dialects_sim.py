@@ -1,14 +1,24 @@
 """The same fault matrix for every dialect: HvSupply against each simulated supply over real ptys, two channels
 (one two-channel iseg module; two single-channel Keithley units; two PPV boards, i.e. two ports behind one driver).
 Every injected fault ends with the outputs off and the fault each device's capabilities let the driver name."""
+import dataclasses
+
 import pytest
 
 from dialect_rig import Rig
 
-from hv_driver import Fault, FaultLatchedError
+from hv_driver import ChannelConfig, Fault, FaultLatchedError
 from hv_driver.dialects import DIALECTS
+from hv_driver.dialects.keithley_2290 import Keithley2290
+from hv_driver.supervisor import DEFAULT_PERIOD_S, ChannelSupervisor
+from sim_fallback.hv_plant import PlantChannel
+from sim_fallback.keithley_supply import SimulatedKeithley2290
 
-FAST = dict(max_voltage_v=3000.0, slew_rate_v_per_s=8000.0, mismatch_tolerance_v=150.0, mismatch_time_s=0.2)
+# The trip leaves room for the charging current of a host-ramped supply (Keithley): its output follows each setpoint
+# step with a 10 ms lag into 2 nF, and a cycle whose exchange with one supply ran late sends the other two steps of up
+# to two periods' slew each almost at once (see the test below); an arc (2 mA) and ten times the load still trip it.
+FAST = dict(max_voltage_v=3000.0, slew_rate_v_per_s=8000.0, mismatch_tolerance_v=150.0, mismatch_time_s=0.2,
+            current_trip_a=100e-6)
 
 # fault -> dialect -> expected fault
 MATRIX = {
@@ -46,6 +56,40 @@ def test_every_dialect_identifies_configures_and_ramps_both_channels(rig, wait_u
         assert wait_until(lambda: all(abs(c.measured_current) < 1e-5 for c in made.supply.snapshot().channels))
     for handle in [made.supply.ramp_to(c, 0.0, token=made.token) for c in "ab"]:
         assert handle.wait(5.0) and handle.succeeded
+
+
+def keithley_charging_peak(late_cycle: int, trip: float) -> tuple[float, bool]:
+    """Unit b of the two-Keithley rig, its ramp to 2400 V played on the plant alone with its unit trip at ``trip``:
+    its setpoint reaches it 1 ms into each cycle, after unit a's exchange; in ``late_cycle`` that exchange stalls for
+    1.9 periods, so b gets the cycle's step late and, the loop running on at once, the next one (1.9 periods' slew)
+    right after it. Returns the peak charging current [A] and whether the unit tripped."""
+    config, exchange, stall = ChannelConfig("b", 0, **FAST), 0.001, 1.9 * DEFAULT_PERIOD_S
+    host = ChannelSupervisor(config, 0.0, DEFAULT_PERIOD_S)
+    host.enable()
+    host.ramp_to(0.0, 2400.0)
+    plant = PlantChannel(defaults=dataclasses.replace(SimulatedKeithley2290.default_defaults, current_limit=trip))
+    plant.switch_on()
+    arrivals, now = [], 0.0
+    for cycle in range(80):
+        arrivals.append((now + (stall if cycle == late_cycle else exchange), host.step(now).setpoint))
+        now += stall + exchange if cycle == late_cycle else DEFAULT_PERIOD_S
+    t, dt, peak = 0.0, 1e-4, 0.0
+    for arrival, setpoint in sorted(arrivals):
+        while t + dt < arrival:
+            t += dt
+            plant.step(t, dt)
+            peak = max(peak, plant.current)
+        plant.voltage_set = setpoint
+    return peak, plant.current_trip
+
+
+def test_the_keithley_trip_holds_two_setpoint_steps_bunched_by_a_late_exchange():
+    """The rig's trip leaves room for the worst bunching the loop's schedule allows, wherever in the ramp it falls
+    (cycles 20-39 span its fastest part)."""
+    trip = Keithley2290.capabilities.device_current_margin * FAST["current_trip_a"]
+    peaks = {cycle: keithley_charging_peak(cycle, trip) for cycle in range(20, 40)}
+    tripped = {cycle: f"{peak * 1e6:.1f} uA" for cycle, (peak, trip_latched) in peaks.items() if trip_latched}
+    assert not tripped, f"unit trip {trip * 1e6:.1f} uA exceeded with the late exchange in cycles {tripped}"
 
 
 @pytest.mark.parametrize("fault", list(MATRIX))
