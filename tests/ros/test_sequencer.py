@@ -3,6 +3,8 @@ the finger grasp succeeds, an HV fault mid-sequence and a cancel both end in the
 sequences are refused with a clear message, a second goal is rejected, the legged gait pulses its legs.
 
 The shipped strategies run with their timings scaled down (sequence_files.scaled)."""
+import time
+
 import pytest
 import rclpy
 import yaml
@@ -24,18 +26,26 @@ CHANNELS = ["front", "back", "trunk", "leg_front_left", "leg_front_right", "leg_
 RUN_TIMEOUT = 40.0
 
 
-@pytest.fixture(scope="module")
-def stack(ros_context, spin, tmp_path_factory):
-    directory = tmp_path_factory.mktemp("sequences")
-    sequencer = SequencerNode(context=ros_context, parameter_overrides=[
+def make_sequencer(directory, **kwargs) -> SequencerNode:
+    return SequencerNode(parameter_overrides=[
         Parameter("sequences_dir", value=str(directory)), Parameter("settle_time_s", value=2.0),
         Parameter("safe_stop_timeout_s", value=5.0),
         # The fake driver publishes from this test process, which the other pytest worker can starve for
         # more than 0.5 s (seen once in a fresh-clone run); these tests are about sequencing.
-        Parameter("state_timeout_s", value=2.0)])
-    arm = SimArmNode(context=ros_context, parameter_overrides=[
+        Parameter("state_timeout_s", value=2.0)], **kwargs)
+
+
+def make_arm(**kwargs) -> SimArmNode:
+    return SimArmNode(parameter_overrides=[
         Parameter("max_speed_m_per_s", value=2.0), Parameter("max_acceleration_m_per_s2", value=20.0),
-        Parameter("publish_rate_hz", value=100.0)])
+        Parameter("publish_rate_hz", value=100.0)], **kwargs)
+
+
+@pytest.fixture(scope="module")
+def stack(ros_context, spin, tmp_path_factory):
+    directory = tmp_path_factory.mktemp("sequences")
+    sequencer = make_sequencer(directory, context=ros_context)
+    arm = make_arm(context=ros_context)
     hv = FakeHv(CHANNELS, context=ros_context)
     client = rclpy.create_node("sequencer_test_client", context=ros_context)
     events = Inbox(client, SequenceEvent, "sequencer/events", 100)
@@ -93,6 +103,22 @@ def test_finger_grasp_runs_to_success(stack, hv):
     stack["poses"].messages.clear()
     at = stack["poses"].wait().pose.position
     assert (at.x, at.y, at.z) == pytest.approx((0.45, 0.3, 0.25))  # withdrawn above B
+
+
+def test_a_goal_sent_before_the_arm_is_up_runs_once_the_arm_appears(ros_context, spin, tmp_path):
+    """Start-up order does not matter: the sequencer waits the default server_timeout_s for a server it has not
+    discovered yet (a stack started at once on a loaded host can take seconds), here an arm started 3 s late."""
+    namespace = "/late_arm"
+    hv = FakeHv(CHANNELS, context=ros_context, namespace=namespace)
+    client = rclpy.create_node("late_arm_client", context=ros_context, namespace=namespace)
+    action = ActionClient(client, RunSequence, "sequencer/run")
+    spin(make_sequencer(tmp_path, context=ros_context, namespace=namespace), hv, client)
+    assert action.wait_for_server(timeout_sec=10.0)
+    run = Run(action, scaled("finger_grasp", tmp_path, speed=2.0))
+    time.sleep(3.0)
+    spin(make_arm(context=ros_context, namespace=namespace))
+    status, result = run.result()
+    assert status == GoalStatus.STATUS_SUCCEEDED and result.success, result.message
 
 
 def test_hv_fault_mid_sequence_stops_in_the_safe_state(stack, hv):
