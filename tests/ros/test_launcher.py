@@ -31,6 +31,9 @@ def test_stack_runs_nodes_with_the_params_file_and_stops_them_cleanly(ros_contex
         inbox = Inbox(client, Assembly, "assembly/current", LATCHED)
         spin(client)
         assert inbox.wait().header.frame_id == "launcher_test_frame"
+        # The node publishes its latched assembly before it logs its start: a stop in between is a clean stop
+        # without the line.
+        wait_for(lambda: "publishing at" in output.getvalue(), what="the node's start-up line")
         assert stack.dead() == {}
     assert stack.stop() == {"assembly_state": 0}, output.getvalue()[-3000:]
     lines = output.getvalue().splitlines()
