@@ -11,6 +11,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile
 
 from softblock_ros.client import call_service, wait_until
+from softblock_ros.runner import spin_logging_errors
 
 DEFAULT_TIMEOUT = 15.0  # [s] generous: the suite runs on two loaded cores
 
@@ -31,7 +32,7 @@ class Inbox:
     Each inbox has its own callback group: in the node's default (mutually exclusive) group the executor
     runs one of its callbacks at a time, always the oldest ready entity first, so a few inboxes on busy
     topics would starve a newer inbox and the node's service clients for as long as they keep receiving.
-    An inbox is never destroyed while the executor spins: rclpy 7.1 can then fail the whole executor
+    An inbox is never destroyed while the executor spins: rclpy 7.1 can then fail the executor's wait
     ("cannot use Destroyable because destruction was requested" while it builds its wait set).
     """
 
@@ -51,12 +52,19 @@ class Inbox:
 
 
 class Spinner:
-    """A MultiThreadedExecutor running in a daemon thread; nodes can be added while it spins."""
+    """A MultiThreadedExecutor running in a daemon thread; nodes can be added while it spins.
+
+    It spins as the nodes' own processes do (``spin_logging_errors``): an error raised while spinning is
+    logged and spinning goes on, so a node under test that destroys entities from a callback (a lifecycle
+    cleanup) is not cut off by rclpy's race between that and the executor's wait.
+    """
 
     def __init__(self, context: rclpy.Context, num_threads: int = 4):
         self.executor = MultiThreadedExecutor(num_threads=num_threads, context=context)
         self.nodes: list[Node] = []
-        self._thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self._closing = threading.Event()
+        self._thread = threading.Thread(target=spin_logging_errors, daemon=True, args=(
+            self.executor, rclpy.logging.get_logger("test_spinner"), lambda: not self._closing.is_set()))
         self._thread.start()
 
     def add(self, *nodes: Node) -> None:
@@ -65,6 +73,7 @@ class Spinner:
             self.nodes.append(node)
 
     def close(self) -> None:
+        self._closing.set()
         self.executor.shutdown(timeout_sec=5.0)
         self._thread.join(timeout=5.0)
         for node in reversed(self.nodes):

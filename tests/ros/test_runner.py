@@ -9,8 +9,10 @@ import textwrap
 import pytest
 import rclpy
 from processes import start, stop
-from ros_testing import Inbox
+from rclpy.callback_groups import ReentrantCallbackGroup
+from ros_testing import Inbox, call
 from std_msgs.msg import Int32
+from std_srvs.srv import Trigger
 
 PROBE = textwrap.dedent("""
     import os, signal, sys, time
@@ -132,3 +134,33 @@ def test_a_stop_signal_while_the_node_is_being_built_is_a_clean_stop(building):
     assert probe.returncode == 0, probe.stderr
     assert "Traceback" not in re.sub(RCLPY_HALF_BUILT_EXECUTOR, "", probe.stderr), probe.stderr
     assert "stopped while starting" in probe.stderr
+
+
+def test_a_node_that_destroys_entities_while_it_is_spun_keeps_being_served(ros_context, spin):
+    """Seen in a fresh-clone run: the HV driver's cleanup (a service callback on a worker thread) destroyed its
+    publishers while the executor's thread was adding their QoS event handlers to its wait set. rclpy 7.1 raised
+    InvalidHandle ("destruction was requested") from the executor's wait, which ended a plain ``spin()``: the
+    driver answered no service again. Spinning as the nodes do (``spin_logging_errors``) carries on."""
+    churn = rclpy.create_node("entity_churn", context=ros_context)
+    listening = ReentrantCallbackGroup()  # not the service's group: its entities stay in the wait set meanwhile
+
+    def recreate(request, response):
+        # Each create and destroy wakes the executor, which then rebuilds its wait set from the node's entities.
+        subscriptions = [churn.create_subscription(Int32, "churned", lambda msg: None, 10, callback_group=listening)
+                         for _ in range(20)]
+        for subscription in subscriptions:
+            churn.destroy_subscription(subscription)
+        response.success = True
+        return response
+
+    churn.create_service(Trigger, "entity_churn/recreate", recreate)
+    client = rclpy.create_node("entity_churn_client", context=ros_context)
+    recreate_client = client.create_client(Trigger, "entity_churn/recreate")
+    spin(churn, client)
+    switch_interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)  # threads interleave often: the race's window is a few bytecodes wide
+    try:
+        for _ in range(200):
+            assert call(recreate_client, Trigger.Request()).success
+    finally:
+        sys.setswitchinterval(switch_interval)

@@ -38,16 +38,21 @@ def where(error: BaseException) -> str:
     return f"{os.path.basename(frames[-1].filename)}:{frames[-1].lineno} in {frames[-1].name}" if frames else "?"
 
 
-def spin_logging_errors(executor: Executor, logger) -> None:
+def spin_logging_errors(executor: Executor, logger, keep_spinning: Callable[[], bool] = lambda: True) -> None:
     """``executor.spin()``, except that an exception raised by a callback is logged in one line (at most once
-    a second) and spinning goes on. Returns when the context is shut down (Ctrl-C, SIGTERM)."""
-    while executor.context.ok():
+    a second) and spinning goes on. Returns when the context is shut down (Ctrl-C, SIGTERM) or
+    ``keep_spinning()`` turns false.
+
+    The executor's own wait can raise too: rclpy 7.1 fails it with InvalidHandle when a callback on another
+    thread destroys an entity (as a lifecycle cleanup does) while the wait set is being built. The next
+    spin builds it afresh without that entity."""
+    while executor.context.ok() and keep_spinning():
         try:
             executor.spin_once()
         except (KeyboardInterrupt, ExternalShutdownException):
             raise
         except Exception as error:  # any callback error: the node must keep serving
-            if not executor.context.ok():
+            if not executor.context.ok() or not keep_spinning():
                 # Ctrl-C / SIGTERM shut the context down while the executor was taking a message; rclpy then
                 # raises from the half-destroyed handle. That is the stop that was asked for, not a failure.
                 return
