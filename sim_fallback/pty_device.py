@@ -4,8 +4,9 @@
 steps the channels' plants on the device's clock, keeps a log of the lines received, and injects the same faults
 into every dialect: ``over_current`` (an arc: film breakdown), ``no_reply`` (silence), ``garbled`` and ``partial``
 replies, ``disconnect``, ``device_reset``, ``readback_drift`` and ``load_change`` (the load's capacitance ten times
-larger, e.g. a short across part of the film). A subclass gives the framing and answers the command set:
-``execute(line)`` returns the answer line, or None for a line the device does not answer.
+larger, e.g. a short across part of the film), at once (``inject``) or as the device answers a given line
+(``inject_after``: a fault in the middle of the host's set-up). A subclass gives the framing and answers the
+command set: ``execute(line)`` returns the answer line, or None for a line the device does not answer.
 """
 import dataclasses
 import os
@@ -50,6 +51,7 @@ class PtyDevice:
         self._tick = tick_s
         self._lock = threading.Lock()
         self._modes: set[str] = set()
+        self._armed: list[tuple[str, str, list[int]]] = []  # (command, fault, channels) of inject_after
         self.command_log: deque[tuple[float, str]] = deque(maxlen=20000)
         self.port: str | None = None
         self._master = self._slave = None
@@ -90,39 +92,54 @@ class PtyDevice:
     # --- fault injection -----------------------------------------------------------------------
     def inject(self, fault: str, channel: int | None = None) -> float:
         """Inject ``fault`` (one of FAULTS; channel None = every channel); returns its time stamp."""
-        if fault not in FAULTS:
-            raise ValueError(f"fault={fault!r}: one of {', '.join(FAULTS)}")
-        targets = self._channels(channel)
+        targets = self._fault_targets(fault, channel)
         with self._lock:
             now = time.monotonic()
             self._step(now)
-            if fault == "over_current":
-                for ch in targets:
-                    if self.plant[ch].output_on:
-                        self.plant[ch].arcing = True
-                        self.plant[ch].events |= PlantEvent.ARC
-            elif fault == "readback_drift":
-                for ch in targets:
-                    self.plant[ch].drift_rate = DRIFT_RATE
-            elif fault == "load_change":
-                for ch in targets:
-                    load = self._loads[ch]
-                    self.plant[ch].load = dataclasses.replace(load, capacitance=load.capacitance * LOAD_CHANGE_FACTOR)
-            elif fault == "device_reset":
-                for ch in self.plant:
-                    ch.switch_off(now, emergency=False)
-                    ch.power_on_reset()
-                self.reset_device_state()
-            elif fault == "disconnect":
-                self._disconnect()
-            else:
-                self._modes.add(fault)
+            self._apply_fault(fault, targets, now)
         return now
 
+    def inject_after(self, command: str, fault: str, channel: int | None = None) -> None:
+        """Inject ``fault`` right after the device has answered the next line that equals ``command``: a fault
+        in the middle of a conversation, placed by the host's own progress rather than by a test's timing."""
+        targets = self._fault_targets(fault, channel)
+        with self._lock:
+            self._armed.append((command, fault, targets))
+
+    def _fault_targets(self, fault: str, channel: int | None) -> list[int]:
+        if fault not in FAULTS:
+            raise ValueError(f"fault={fault!r}: one of {', '.join(FAULTS)}")
+        return self._channels(channel)
+
+    def _apply_fault(self, fault: str, targets: list[int], now: float) -> None:
+        """Start ``fault`` on ``targets`` (the lock held, the plants stepped to ``now``)."""
+        if fault == "over_current":
+            for ch in targets:
+                if self.plant[ch].output_on:
+                    self.plant[ch].arcing = True
+                    self.plant[ch].events |= PlantEvent.ARC
+        elif fault == "readback_drift":
+            for ch in targets:
+                self.plant[ch].drift_rate = DRIFT_RATE
+        elif fault == "load_change":
+            for ch in targets:
+                load = self._loads[ch]
+                self.plant[ch].load = dataclasses.replace(load, capacitance=load.capacitance * LOAD_CHANGE_FACTOR)
+        elif fault == "device_reset":
+            for ch in self.plant:
+                ch.switch_off(now, emergency=False)
+                ch.power_on_reset()
+            self.reset_device_state()
+        elif fault == "disconnect":
+            self._disconnect()
+        else:
+            self._modes.add(fault)
+
     def clear_faults(self) -> None:
-        """End injected faults (a disconnect stays: the pty is gone)."""
+        """End injected faults and those still waiting for their command (a disconnect stays: the pty is gone)."""
         with self._lock:
             self._modes.clear()
+            self._armed.clear()
             for ch, load in zip(self.plant, self._loads):
                 ch.arcing = False
                 ch.drift = ch.drift_rate = 0.0
@@ -211,6 +228,9 @@ class PtyDevice:
                 self._last_command = time.monotonic()
                 self.command_log.append((self._last_command, line))
                 self._reply(line, self.execute(line))
+                for armed in [armed for armed in self._armed if armed[0] == line]:
+                    self._armed.remove(armed)
+                    self._apply_fault(armed[1], armed[2], self._last_command)
             elif len(self._line) > MAX_LINE:
                 self._line.clear()
 

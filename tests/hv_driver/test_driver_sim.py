@@ -367,14 +367,18 @@ def test_open_gives_up_on_a_silent_supply_after_the_link_timeout(sim):
 
 
 def test_open_rides_out_answers_missing_in_the_middle_of_the_set_up(sim, background):
-    """The simulator starved for a moment after the identification: the set-up is repeated, not given up."""
-    def starve_after_identification():
+    """The simulator starved for a moment after the identification: the set-up is repeated, not given up.
+
+    The silence starts as the simulator answers *IDN? (a test thread that waited to see the line could wake
+    after the whole set-up on a loaded host, as in a fresh-clone run, and the set-up then had nothing to ride out)."""
+    sim.inject_after("*IDN?", "no_reply")
+
+    def end_the_silence():
         while not any(line == "*IDN?" for _, line in list(sim.command_log)):
             time.sleep(0.001)
-        sim.inject("no_reply")
         time.sleep(0.3)
         sim.clear_faults()
-    background(starve_after_identification)
+    background(end_the_silence)
     configs = [ChannelConfig("front", 0, max_voltage_v=3000.0)]
     with HvSupply(sim.port, channels=configs, link_timeout_s=2.0, handle_signals=False) as hv:
         hv.wait_cycles(3)

@@ -181,9 +181,23 @@ def test_reply_faults_and_clear(port, fault, check):
     assert exchange(link, "*OPC?") == ("*OPC?", "1")
 
 
+def test_a_fault_injected_after_a_command_starts_once_that_command_is_answered(port):
+    sim, link = port
+    link.timeout = 0.1
+    sim.inject_after("*IDN?", "no_reply")
+    assert exchange(link, "*OPC?") == ("*OPC?", "1")  # another line: not yet
+    assert exchange(link, "*IDN?") == ("*IDN?", sim_identity())  # answered, then silent
+    link.write(b"*OPC?\r\n")
+    assert link.readline() == b""
+    sim.clear_faults()
+    assert exchange(link, "*OPC?") == ("*OPC?", "1")
+
+
 def test_unknown_fault_names_the_choices():
     with pytest.raises(ValueError, match="over_current, no_reply"):
         SimulatedSupply().inject("lightning")
+    with pytest.raises(ValueError, match="over_current, no_reply"):
+        SimulatedSupply().inject_after("*IDN?", "lightning")
 
 
 def test_cli_prints_the_port_and_takes_fault_commands():
