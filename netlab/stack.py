@@ -26,6 +26,8 @@ from pathlib import Path
 
 import yaml
 
+from hv_driver.supervisor import DEFAULT_PERIOD_S, SLEW_CREDIT_PERIODS
+
 from .emulated import EmulatedHosts
 
 RIG_NODES = ("hv_driver",)
@@ -37,7 +39,7 @@ RECORDER_TIMEOUT = 60.0  # [s] a recorder's start and subscriptions on two loade
 # Run above normal priority they stand for a rig PC of their own.
 RIG_NICENESS = -20
 # The sequencer's timeouts, widened from their defaults (0.5 s, 2 s): with both hosts on shared cores the driver
-# was seen to stall for up to 1.3 s (a gap in its stamps on its own host's console, not a loss on the link), and
+# was seen to stall for up to 1.6 s (a gap in its stamps on its own host's console, not a loss on the link), and
 # across a lossy link a lost request or reply is repaired only at the writer's next periodic heartbeat (Fast
 # DDS: every DDS_REPAIR_PERIOD_S). A service wait must cover three repairs: a lost request, a lost repair (or
 # its heartbeat or acknowledgement) and a lost reply. With 5 s (one repair and a half) one lossy grasp in about
@@ -46,6 +48,9 @@ DDS_REPAIR_PERIOD_S = 3.0
 SEQUENCER_STATE_TIMEOUT_S = 2.0
 SEQUENCER_SERVER_TIMEOUT_S = 3 * DDS_REPAIR_PERIOD_S + 1.0
 SEQUENCER_PARAMETERS = {"state_timeout_s": SEQUENCER_STATE_TIMEOUT_S, "server_timeout_s": SEQUENCER_SERVER_TIMEOUT_S}
+# A gap this long between two hv/state samples the driver sent one after the other (it publishes every 20 ms) is
+# a stall of its process, not a late cycle.
+STALL_S = 0.1
 
 
 LOST_DRIVER_LOG = re.compile(r"^\[sequencer\] \[ERROR\] \[(\d+\.\d+)\] \[sequencer\]: HV driver lost", re.MULTILINE)
@@ -55,6 +60,19 @@ STEP_DURATION = re.compile(r"^  (\S+) +(\d+\.\d+) s$", re.MULTILINE)  # run_sequ
 def channels_below(state: dict, volts: float) -> bool:
     """Every channel of an hv/state record measured and set below ``volts``."""
     return all(c["voltage_v"] < volts and c["setpoint_v"] < volts for c in state["channels"].values())
+
+
+def driver_stalls(states: list[dict], since: float, until: float, longer_than_s: float = STALL_S) -> list[float]:
+    """How long each stall of the driver held its ramps back [s], between the stamps ``since`` and ``until``: a gap
+    longer than ``longer_than_s`` between two hv/state samples it sent one after the other (consecutive sequence
+    numbers, so nothing was lost on the way), less the slew credit its first cycle after the stall takes
+    (hv_driver.supervisor: at most SLEW_CREDIT_PERIODS nominal periods). Its ramps resume where they stopped,
+    so they end that much later."""
+    credit = SLEW_CREDIT_PERIODS * DEFAULT_PERIOD_S
+    ordered = sorted(states, key=lambda state: state["sequence"])
+    return [after["stamp"] - before["stamp"] - credit for before, after in zip(ordered, ordered[1:])
+            if after["sequence"] == before["sequence"] + 1 and since <= before["stamp"] and after["stamp"] <= until
+            and after["stamp"] - before["stamp"] > longer_than_s]
 
 
 def driver_lost_logged(launcher_log: str, since: float) -> float | None:
