@@ -1,6 +1,10 @@
 """Sequencer against the real HV driver node (simulated supply on a pty) and the simulated arm:
 the scaled finger grasp succeeds while the sequencer holds control and its heartbeat keeps the driver's
-watchdog quiet, and an over-current injected through `hv/inject_fault` mid-sequence ends in the safe state."""
+watchdog quiet, even across a stall of the process, and an over-current injected through `hv/inject_fault`
+mid-sequence ends in the safe state."""
+import sys
+import time
+
 import pytest
 import rclpy
 from action_msgs.msg import GoalStatus
@@ -19,6 +23,12 @@ from softblock_ros.sequencer_node import SequencerNode
 from softblock_ros.sim_arm_node import SimArmNode
 
 RUN_TIMEOUT = 40.0
+# Every node here shares the test's process, so a stall of that process (a garbage collection, a loaded host)
+# silences the sequencer's heartbeat and hv/state and pauses the driver's watchdog alike: one in a fresh-clone
+# run lapsed a 0.5 s heartbeat timeout. The driver's heartbeat timeout and the sequencer's hv/state timeout
+# are the driver's default (2 s), as for nodes in processes of their own.
+TIMEOUT_S = 2.0
+STALL_S = 0.7  # [s] longer than the 0.5 s heartbeat timeout that lapsed, well inside TIMEOUT_S
 
 
 @pytest.fixture(scope="module")
@@ -26,9 +36,10 @@ def stack(ros_context, spin, tmp_path_factory):
     directory = tmp_path_factory.mktemp("sequences")
     driver = HvDriverNode(context=ros_context, parameter_overrides=[
         Parameter("autostart", value=False), Parameter("slew_rate_v_per_s", value=15_000.0),
-        Parameter("heartbeat_timeout_s", value=0.5)])
+        Parameter("heartbeat_timeout_s", value=TIMEOUT_S)])
     sequencer = SequencerNode(context=ros_context, parameter_overrides=[
-        Parameter("settle_time_s", value=2.0), Parameter("sequences_dir", value=str(directory))])
+        Parameter("settle_time_s", value=2.0), Parameter("sequences_dir", value=str(directory)),
+        Parameter("state_timeout_s", value=TIMEOUT_S)])
     arm = SimArmNode(context=ros_context, parameter_overrides=[
         Parameter("max_speed_m_per_s", value=2.0), Parameter("max_acceleration_m_per_s2", value=20.0)])
     client = rclpy.create_node("sequencer_hv_test_client", context=ros_context)
@@ -67,8 +78,26 @@ def all_channels_at_zero(stack) -> HvState:
     return stack["state"].wait(lambda msg: all(abs(c.measured_voltage) < 50.0 for c in msg.channels))
 
 
+def stall_this_process(seconds: float) -> float:
+    """Keep every Python thread of this process from running for at least ``seconds`` (as a garbage collection
+    does): the caller holds the interpreter, and no waiting thread asks it back for longer than that. Returns
+    the stall's length."""
+    switch_interval = sys.getswitchinterval()
+    start = time.monotonic()
+    sys.setswitchinterval(seconds)
+    try:
+        while time.monotonic() - start < seconds:
+            pass
+    finally:
+        sys.setswitchinterval(switch_interval)
+    return time.monotonic() - start
+
+
 def test_finger_grasp_with_the_real_driver(stack):
-    status, result = result_of(start(stack, scaled("finger_grasp", stack["dir"], speed=2.0, slew_rate=15_000.0)))
+    handle = start(stack, scaled("finger_grasp", stack["dir"], speed=2.0, slew_rate=15_000.0))
+    stack["events"].wait(lambda msg: msg.step_name == "surround_object" and msg.phase == "started")
+    print(f"the process stalled for {stall_this_process(STALL_S):.2f} s while the fingers held high voltage")
+    status, result = result_of(handle)
     assert status == GoalStatus.STATUS_SUCCEEDED and result.success, result.message
     assert len(result.step_names) == 12
     all_channels_at_zero(stack)
