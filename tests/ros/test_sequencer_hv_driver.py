@@ -8,6 +8,7 @@ import time
 import pytest
 import rclpy
 from action_msgs.msg import GoalStatus
+from hv_driver.supervisor import DEFAULT_HEARTBEAT_TIMEOUT_S
 from rclpy.lifecycle import TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from ros_testing import Inbox, call, wait_for
@@ -27,7 +28,7 @@ RUN_TIMEOUT = 40.0
 # silences the sequencer's heartbeat and hv/state and pauses the driver's watchdog alike: one in a fresh-clone
 # run lapsed a 0.5 s heartbeat timeout. The driver's heartbeat timeout and the sequencer's hv/state timeout
 # are the driver's default (2 s), as for nodes in processes of their own.
-TIMEOUT_S = 2.0
+TIMEOUT_S = DEFAULT_HEARTBEAT_TIMEOUT_S
 STALL_S = 0.7  # [s] longer than the 0.5 s heartbeat timeout that lapsed, well inside TIMEOUT_S
 
 
@@ -83,14 +84,14 @@ def stall_this_process(seconds: float) -> float:
     does): the caller holds the interpreter, and no waiting thread asks it back for longer than that. Returns
     the stall's length."""
     switch_interval = sys.getswitchinterval()
-    start = time.monotonic()
+    began = time.monotonic()
     sys.setswitchinterval(seconds)
     try:
-        while time.monotonic() - start < seconds:
+        while time.monotonic() - began < seconds:
             pass
     finally:
         sys.setswitchinterval(switch_interval)
-    return time.monotonic() - start
+    return time.monotonic() - began
 
 
 def test_finger_grasp_with_the_real_driver(stack):
