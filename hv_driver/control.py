@@ -4,6 +4,12 @@ Pure logic, time passed in. A client claims control under its name and gets a fr
 heartbeats must carry that token. Control ends when the client releases it, when its heartbeat stops for
 longer than the timeout (it lapses), or at an e-stop. A token from an earlier session (a recording played
 back, a restarted client) is never the live one, so it can neither feed the watchdog nor ramp.
+
+The silence counts the time the driver could hear the client. While the driver's own process stalls, the
+client's heartbeats wait in the transport's buffers (or the client stalled with it, on a shared host), so the
+first check after the stall would find them all missing. A gap between two control cycles (`cycle`) counts
+towards the silence by at most LOOP_STALL_FRACTION of the timeout: a loop that keeps its period counts every
+second of it, and a dead client still lapses, later by at most its driver's own stalls.
 """
 import hmac
 import math
@@ -18,6 +24,10 @@ TOKEN_BYTES = 16
 # token seconds after the claim. Until it shows it, nothing is energised under the session (every ramp carries
 # the token), so the longer wait costs only the time another client waits to claim.
 FIRST_SIGN_OF_LIFE_S = 10.0
+# The most of the client's allowed silence one gap between the driver's control cycles may use up. A loop that
+# cycles slower than that (every 0.5 s for a 2 s timeout) is stalled: descheduled, or waiting on a supply that
+# does not answer (which the link watchdog trips on).
+LOOP_STALL_FRACTION = 0.25
 
 
 class ControlError(HvError, RuntimeError):
@@ -45,6 +55,8 @@ class ControlClaim:
         self._token: str | None = None
         self._last_heartbeat = -math.inf
         self._confirmed = False  # the owner has shown its token since the claim
+        self._last_cycle: float | None = None  # the driver's last control cycle (None before its first)
+        self._unheard = 0.0  # [s] of the current silence the driver's loop was stalled (not counted)
         self.ended = ""  # why the last control session ended, e.g. "control released by 'demo'"
 
     def heartbeat_age(self, now: float) -> float | None:
@@ -56,9 +68,36 @@ class ControlClaim:
         """How long the owner may stay silent: the timeout, or FIRST_SIGN_OF_LIFE_S if longer until its first sign."""
         return self.timeout_s if self._confirmed else max(self.timeout_s, FIRST_SIGN_OF_LIFE_S)
 
+    @property
+    def _max_cycle_gap_s(self) -> float:
+        return LOOP_STALL_FRACTION * self.timeout_s
+
+    def _stalled_since_cycle(self, now: float) -> float:
+        """How much of the time since the last control cycle (and since the last heartbeat) is a stall [s]."""
+        if self._last_cycle is None:
+            return 0.0
+        return max(0.0, now - max(self._last_cycle + self._max_cycle_gap_s, self._last_heartbeat))
+
+    def cycle(self, now: float) -> None:
+        """The driver's control loop ran a cycle at ``now``; a gap since its previous one is a stall of the driver
+        (its time beyond the most a gap may count is not the client's silence)."""
+        if self._last_cycle is not None and now < self._last_cycle:
+            return
+        self._unheard += self._stalled_since_cycle(now)
+        self._last_cycle = now
+
+    def silence(self, now: float) -> float:
+        """Seconds the owner has been silent while the driver could hear it (0 without an owner)."""
+        if self.owner is None:
+            return 0.0
+        return max(0.0, now - self._last_heartbeat - self._unheard - self._stalled_since_cycle(now))
+
     def silent(self, now: float) -> bool:
-        """True when the owner's heartbeat is older than it may be."""
-        return self.owner is not None and now - self._last_heartbeat > self.allowed_silence_s
+        """True when the owner has been silent for longer than it may be."""
+        return self.owner is not None and self.silence(now) > self.allowed_silence_s
+
+    def _heard(self, now: float) -> None:
+        self._last_heartbeat, self._unheard = now, 0.0
 
     def claim(self, client: str, now: float) -> str:
         """Take control as ``client``; returns the session token. Refused while another session is live.
@@ -69,12 +108,13 @@ class ControlClaim:
         client = _valid_client_name(client)
         self.lapse_if_silent(now)
         if self.owner == client and not self._confirmed:
-            self._last_heartbeat = now
+            self._heard(now)
             return self._token
         if self.owner is not None:
             raise ControlError(f"control is held by {self.owner!r} (last heartbeat {self.heartbeat_age(now):.1f} s "
                                f"ago); it must release it first{self._lapse_hint()}")
-        self.owner, self._token, self._last_heartbeat = client, self._new_token(), now
+        self.owner, self._token = client, self._new_token()
+        self._heard(now)
         self._confirmed = False
         self.ended = ""
         return self._token
@@ -87,7 +127,8 @@ class ControlClaim:
         self.lapse_if_silent(now)
         if not self._is_live(token):
             raise ControlError(self._refusal())
-        self._last_heartbeat = max(self._last_heartbeat, now)
+        if now >= self._last_heartbeat:
+            self._heard(now)
         self._confirmed = True
 
     def release(self, token, now: float) -> str:
@@ -103,8 +144,8 @@ class ControlClaim:
         """End a session whose heartbeat stopped; returns the lapsed owner's name."""
         if not self.silent(now):
             return None
-        owner, silence = self.owner, self.allowed_silence_s
-        self.end(f"control of {owner!r} lapsed: no heartbeat for more than {silence:g} s")
+        owner, allowed = self.owner, self.allowed_silence_s
+        self.end(f"control of {owner!r} lapsed: no heartbeat for more than {allowed:g} s")
         return owner
 
     def end(self, reason: str) -> None:

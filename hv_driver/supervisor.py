@@ -12,7 +12,8 @@ Rules enforced here:
   at most two nominal periods' worth per cycle), except that it drops at once when the ceiling drops
   below it or a fault latches;
 - only the client holding control (its session token) may ramp or feed the heartbeat watchdog; the
-  watchdog is on unless switched off on purpose (heartbeat_timeout_s=math.inf);
+  watchdog is on unless switched off on purpose (heartbeat_timeout_s=math.inf), and a stall of the driver's
+  own loop is not counted as the client's silence (`ControlClaim.cycle`);
 - the readback must follow the commands at the device's own ramp (`ReadbackCheck`);
 - on a supply without current readback (breakdown guard on), a measured voltage far below a setpoint held for a
   moment, or a pulse train none of whose pulses reaches half its amplitude for two periods, is a film breakdown
@@ -525,6 +526,7 @@ class Supervisor:
                     if channel.config.device == device:
                         channel.trip(Fault.LINK, f"no valid reply from the supply for more than "
                                                  f"{self.link_timeout_s:g} s")
+        self.control.cycle(now)
         self._watch_control(now)
         return {name: channel.step(now) for name, channel in self.channels.items()}
 

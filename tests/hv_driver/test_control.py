@@ -9,7 +9,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from hv_driver import ChannelConfig, ControlError, Fault, Supervisor
-from hv_driver.control import FIRST_SIGN_OF_LIFE_S, MAX_CLIENT_NAME, ControlClaim
+from hv_driver.control import FIRST_SIGN_OF_LIFE_S, LOOP_STALL_FRACTION, MAX_CLIENT_NAME, ControlClaim
 from hv_driver.supervisor import DEFAULT_HEARTBEAT_TIMEOUT_S
 
 CONFIG = ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=1000.0)
@@ -120,7 +120,7 @@ def test_a_replayed_heartbeat_cannot_keep_an_output_energised():
 
 def test_control_lapses_with_the_heartbeat_and_its_token_is_dead_for_good():
     supervisor, token = energised()
-    supervisor.step(2.6)
+    hold(supervisor, token, 2.0, 2.6, beat=False)
     assert supervisor.control.owner is None and supervisor.channel("front").faults == Fault.HEARTBEAT
     with pytest.raises(ControlError, match="lapsed: no heartbeat for more than 0.5 s"):
         supervisor.heartbeat(2.61, token)
@@ -132,13 +132,13 @@ def test_a_client_that_learns_its_token_late_still_holds_control():
     the session waits FIRST_SIGN_OF_LIFE_S for the first heartbeat, then the usual timeout applies."""
     supervisor = Supervisor([CONFIG], link_timeout_s=100.0, heartbeat_timeout_s=2.0)
     token = supervisor.claim_control("sequencer", 0.0)
-    supervisor.step(3.5)
+    hold(supervisor, token, 0.0, 3.5, beat=False)
     supervisor.heartbeat(3.5, token)  # 3.5 s after the claim, beyond the 2 s timeout
     supervisor.enable("front", 3.5)
     supervisor.ramp_to("front", 3.5, 500.0, token=token)
-    supervisor.step(5.4)
+    hold(supervisor, token, 3.5, 5.4, beat=False)
     assert supervisor.control.owner == "sequencer" and not supervisor.channel("front").faults
-    supervisor.step(5.6)  # from the first sign of life on, 2 s of silence end the session as always
+    hold(supervisor, token, 5.4, 5.6, beat=False)  # from the first sign of life on, 2 s of silence end the session as always
     assert supervisor.control.owner is None and supervisor.channel("front").faults == Fault.HEARTBEAT
 
 
@@ -156,8 +156,9 @@ def test_a_claim_that_never_shows_a_sign_of_life_lapses_after_the_first_sign_wai
 def test_a_new_client_never_inherits_outputs_a_lapsed_session_left_energised():
     """The old client's silence is noticed by the claim itself, before the control loop's next cycle: what it
     left energised trips, and the new session starts with nothing raised."""
-    supervisor, _ = energised(heartbeat_timeout_s=0.5)
-    supervisor.claim_control("demo", 2.6)  # no step() since the old client fell silent at 2.0
+    supervisor, token = energised(heartbeat_timeout_s=0.5)
+    hold(supervisor, token, 2.0, 2.45, beat=False)  # the old client fell silent at 2.0
+    supervisor.claim_control("demo", 2.52)  # before the loop's next cycle
     front = supervisor.channel("front")
     assert front.faults == Fault.HEARTBEAT and front.target == 0.0
     assert "control of 'sequencer' lapsed" in front.fault_text
@@ -211,4 +212,72 @@ def test_control_lapses_exactly_when_a_heartbeat_gap_exceeds_the_timeout(timeout
                 supervisor.heartbeat(t, token)
             return
         supervisor.heartbeat(t, token)
+    assert supervisor.control.owner == "sequencer"
+
+
+# --- stalls of the driver's own loop ---------------------------------------------------------------------
+@pytest.mark.parametrize("first", ["the control loop's cycle", "a queued heartbeat"])
+def test_a_stall_of_the_driver_longer_than_the_timeout_keeps_a_client_that_kept_beating(first):
+    """The two-host miss: the driver's process stalled past the 2 s timeout while its client beat on. The beats
+    waited in the transport's buffers; after the stall, whichever ran first (the loop's cycle, or the executor
+    taking a queued beat) found the last one 2.5 s old, and control lapsed."""
+    supervisor, token = energised(heartbeat_timeout_s=2.0)
+    hold(supervisor, token, 2.0, 3.0)
+    resumed = 3.0 + 2.5  # nothing of the driver ran for 2.5 s
+    if first == "the control loop's cycle":
+        supervisor.step(resumed)
+    supervisor.heartbeat(resumed + 0.001, token)
+    hold(supervisor, token, resumed + 0.001, resumed + 1.0)
+    assert supervisor.control.owner == "sequencer" and not supervisor.channel("front").faults
+
+
+def test_after_a_stall_of_the_whole_host_the_client_has_time_to_beat_again():
+    """The client stalled with the driver (one host): its next beat comes after the stall, across the link."""
+    supervisor, token = energised(heartbeat_timeout_s=2.0)
+    hold(supervisor, token, 2.0, 3.0)
+    hold(supervisor, token, 3.0 + 5.0, 3.0 + 5.0 + 0.5, beat=False)  # 5 s stall, then 0.5 s to the next beat
+    supervisor.heartbeat(8.5, token)
+    assert supervisor.control.owner == "sequencer" and not supervisor.channel("front").faults
+
+
+def test_a_client_that_died_before_a_stall_still_lapses_after_it():
+    supervisor, token = energised(heartbeat_timeout_s=2.0)
+    hold(supervisor, token, 2.0, 3.0)  # the last beat at 3.0
+    hold(supervisor, token, 3.0, 4.0, beat=False)
+    supervisor.step(4.0 + 10.0)  # a 10 s stall counts as LOOP_STALL_FRACTION of the timeout
+    due = 14.0 + 2.0 - (1.0 + LOOP_STALL_FRACTION * 2.0)  # the silence counted so far: 1 s, then the stall's share
+    hold(supervisor, token, 14.0, due - 0.02, beat=False)
+    assert supervisor.control.owner == "sequencer"
+    hold(supervisor, token, due - 0.02, due + 0.02, beat=False)
+    assert supervisor.control.owner is None and supervisor.channel("front").faults == Fault.HEARTBEAT
+
+
+@given(timeout=st.floats(min_value=0.05, max_value=5.0),
+       cycles=st.lists(st.tuples(st.floats(min_value=0.001, max_value=3.0), st.booleans()), min_size=1, max_size=80))
+def test_a_silent_client_lapses_no_earlier_than_the_timeout_and_no_later_than_the_drivers_stalls_allow(
+        timeout, cycles):
+    """Control loop cycles after random gaps (some of them stalls), heartbeats on some cycles. The session
+    never lapses while the client's last beat is within the timeout of the clock, and it lapses once the
+    silence, less what of it the driver's loop was stalled beyond LOOP_STALL_FRACTION of the timeout per
+    gap, exceeds the timeout. A loop that never stalls times the watchdog exactly."""
+    supervisor = Supervisor([CONFIG], link_timeout_s=1e9, heartbeat_timeout_s=timeout)
+    token, t = supervisor.claim_control("sequencer", 0.0), 0.0
+    supervisor.heartbeat(0.0, token)
+    supervisor.step(0.0)
+    last_beat, stalled = 0.0, 0.0  # stalled: [s] of the silence beyond the most a gap counts
+    for gap, beat in cycles:
+        t += gap
+        stalled += max(0.0, gap - LOOP_STALL_FRACTION * timeout)
+        supervisor.step(t)
+        if t - last_beat <= timeout:
+            assert supervisor.control.owner == "sequencer"
+        if t - last_beat - stalled > timeout * (1 + 1e-9):
+            assert supervisor.control.owner is None
+            return
+        if supervisor.control.owner is None:  # within rounding of the bound
+            assert t - last_beat - stalled == pytest.approx(timeout)
+            return
+        if beat:
+            supervisor.heartbeat(t, token)
+            last_beat, stalled = t, 0.0
     assert supervisor.control.owner == "sequencer"

@@ -16,6 +16,7 @@ from hv_driver import (ChannelConfig, ConfigurationError, ControlError, Fault, F
 from sim_fallback.hv_plant import PlantEvent
 from sim_fallback.hv_plant import ChannelDefaults
 from sim_fallback.hv_supply import SimulatedSupply
+from stalls import stall_this_process
 
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -188,6 +189,28 @@ def test_lost_heartbeat_ramps_outputs_down(sim, wait_until):
         assert wait_until(lambda: Fault.HEARTBEAT in hv.snapshot().channel("front").faults)
         assert wait_until(lambda: not sim.plant[0].output_on)
         assert not sim.plant[0].emergency  # ramped down and switched off, not cut
+
+
+@pytest.mark.parametrize("first", ["the control loop's cycle", "the client's next beat"])
+def test_a_stall_of_the_whole_process_longer_than_the_timeout_keeps_control(sim, wait_until, first):
+    """Driver and client in one stalled process (a garbage collection, a loaded host): after the stall the
+    client beats again at once, or only after the driver's loop has run a cycle; either way it keeps control."""
+    configs = [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=8000.0)]
+    with HvSupply(sim.port, channels=configs, heartbeat_timeout_s=0.5, link_timeout_s=2.0,
+                  handle_signals=False) as hv:
+        token = hv.claim_control("test")
+        hv.enable("front")
+        assert hv.ramp_to("front", 1000.0, token=token).wait(5.0)
+        hv.heartbeat(token)
+        assert stall_this_process(1.5) >= 1.5  # three timeouts without a cycle or a beat
+        if first == "the control loop's cycle":
+            hv.wait_cycles(1)
+        for _ in range(20):
+            hv.heartbeat(token)
+            time.sleep(0.05)
+        snap = hv.snapshot()
+        assert snap.controller == "test" and not snap.channel("front").faults, snap.channel("front").fault_text
+        assert sim.plant[0].output_on and sim.plant[0].voltage_set == 1000.0
 
 
 def test_close_ramps_down_and_switches_off(sim):

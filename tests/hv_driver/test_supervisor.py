@@ -250,9 +250,11 @@ def test_heartbeat_is_needed_only_while_an_output_is_energised():
         supervisor.step(t)
     assert not front.faults and front.output_enabled
     token = supervisor.claim_control("operator", 10.0)
-    supervisor.step(10.3)
+    for k in range(1, 31):
+        supervisor.step(10.0 + 0.01 * k)
     supervisor.ramp_to("front", 10.3, 500.0, token=token)  # the request itself is a sign of life
-    supervisor.step(10.7)
+    for k in range(31, 81):
+        supervisor.step(10.0 + 0.01 * k)
     assert not front.faults and front.setpoint > 0.0
     supervisor.step(10.81)  # energised and silent for more than 0.5 s
     assert front.faults == Fault.HEARTBEAT

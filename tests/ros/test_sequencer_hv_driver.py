@@ -2,9 +2,6 @@
 the scaled finger grasp succeeds while the sequencer holds control and its heartbeat keeps the driver's
 watchdog quiet, even across a stall of the process, and an over-current injected through `hv/inject_fault`
 mid-sequence ends in the safe state."""
-import sys
-import time
-
 import pytest
 import rclpy
 from action_msgs.msg import GoalStatus
@@ -16,6 +13,7 @@ from sequence_files import scaled
 from softblock_interfaces.action import RunSequence
 from softblock_interfaces.msg import HvState, SequenceEvent
 from softblock_interfaces.srv import InjectFault
+from stalls import stall_this_process
 from std_srvs.srv import Trigger
 
 from softblock_ros.client import ActionClient
@@ -77,21 +75,6 @@ def result_of(handle):
 def all_channels_at_zero(stack) -> HvState:
     stack["state"].messages.clear()
     return stack["state"].wait(lambda msg: all(abs(c.measured_voltage) < 50.0 for c in msg.channels))
-
-
-def stall_this_process(seconds: float) -> float:
-    """Keep every Python thread of this process from running for at least ``seconds`` (as a garbage collection
-    does): the caller holds the interpreter, and no waiting thread asks it back for longer than that. Returns
-    the stall's length."""
-    switch_interval = sys.getswitchinterval()
-    began = time.monotonic()
-    sys.setswitchinterval(seconds)
-    try:
-        while time.monotonic() - began < seconds:
-            pass
-    finally:
-        sys.setswitchinterval(switch_interval)
-    return time.monotonic() - began
 
 
 def test_finger_grasp_with_the_real_driver(stack):
