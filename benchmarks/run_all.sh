@@ -18,6 +18,7 @@ benchmarks=(
     recorder_load.py
     ros_nodes.py
     sequencer_gait.py
+    publish_hold.py
 )
 for i in "${!benchmarks[@]}"; do
     printf '\n=== [%d/%d] benchmarks/%s ===\n' "$((i + 1))" "${#benchmarks[@]}" "${benchmarks[$i]}"

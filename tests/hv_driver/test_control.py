@@ -218,9 +218,9 @@ def test_control_lapses_exactly_when_a_heartbeat_gap_exceeds_the_timeout(timeout
 # --- stalls of the driver's own loop ---------------------------------------------------------------------
 @pytest.mark.parametrize("first", ["the control loop's cycle", "a queued heartbeat"])
 def test_a_stall_of_the_driver_longer_than_the_timeout_keeps_a_client_that_kept_beating(first):
-    """The two-host miss: the driver's process stalled past the 2 s timeout while its client beat on. The beats
-    waited in the transport's buffers; after the stall, whichever ran first (the loop's cycle, or the executor
-    taking a queued beat) found the last one 2.5 s old, and control lapsed."""
+    """The driver's process stalls past the 2 s timeout (seen: 1.6 s on a quiet 2-core host) while its client
+    beats on. The beats wait in the transport's buffers; after the stall, whichever runs first (the loop's cycle,
+    or the executor taking a queued beat) must not find the last one 2.5 s old and end control."""
     supervisor, token = energised(heartbeat_timeout_s=2.0)
     hold(supervisor, token, 2.0, 3.0)
     resumed = 3.0 + 2.5  # nothing of the driver ran for 2.5 s

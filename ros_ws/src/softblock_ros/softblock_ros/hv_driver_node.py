@@ -9,6 +9,7 @@ else in the driver's loop) and feed the heartbeat watchdog; hv/estop is open to 
 from __future__ import annotations
 
 import math
+import os
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.action import ActionServer, CancelResponse
@@ -25,6 +26,7 @@ from std_srvs.srv import Trigger
 from hv_driver import HvError, HvSupply, dialect
 from sim_fallback.hv_supply_process import SimulatedSupplyProcess
 
+from . import PUBLICATION_MODE, PUBLICATION_MODE_VARIABLE
 from .hv_conversions import diagnostics_msg, hv_state_msg
 from .hv_parameters import PARAMETERS, channel_configs, device_count
 from .hv_pulse_goal import execute_pulse_goal
@@ -71,6 +73,10 @@ class HvDriverNode(LifecycleNode):
         backend, ports, channels = self._param("backend"), self._param("ports"), self._channels
         if not self._param("expected_identity"):
             self.get_logger().warning("expected_identity is empty: the supply's identity is not checked")
+        if (mode := os.environ.get(PUBLICATION_MODE_VARIABLE)) != PUBLICATION_MODE:
+            self.get_logger().warning(f"{PUBLICATION_MODE_VARIABLE}={mode}: a reader that stops answering can block "
+                                      f"hv/state's publish, and with it the control loop, for up to 1 s "
+                                      f"({PUBLICATION_MODE} never blocks)")
         try:
             if backend == "sim":
                 self._sim = SimulatedSupplyProcess(channels=SIM_CHANNELS, dialect=self._param("dialect"),

@@ -47,7 +47,7 @@ PARAMETERS = (
     # A stack started at once on a loaded host can take seconds to discover its servers; a reply lost on a lossy link
     # is resent only at the writer's next periodic heartbeat (3 s, docs/two_machines.md).
     Param("server_timeout_s", 10.0, "wait for the arm/move, hv/ramp, hv/estop servers", "s", 0.1, 60.0),
-    Param("state_timeout_s", 1.0, "hv/state older than this counts as a link fault", "s", 0.05, 10.0),
+    Param("state_timeout_s", 2.0, "hv/state older than this counts as a link fault", "s", 0.05, 10.0),
 )
 
 
