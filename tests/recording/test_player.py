@@ -153,7 +153,10 @@ def test_recorded_qos_round_trips_to_playback_qos():
     latched = playback_qos(parse_offered_qos(offered_qos_yaml([LATCHED])))
     assert (latched.durability.short_key, latched.reliability.short_key) == \
         ("transient_local", "reliable")
-    assert playback_qos(parse_offered_qos("")).durability.short_key == "volatile"
+    assert latched.history.short_key == "keep_last"  # a late joiner gets the latest, not every sample
+    volatile = playback_qos(parse_offered_qos(""))
+    assert volatile.durability.short_key == "volatile"
+    assert volatile.history.short_key == "keep_all"  # a burst of the replay is never dropped unsent
     with pytest.raises(ValueError, match="offered_qos_profiles"):
         parse_offered_qos("history: keep_last")
 

@@ -67,12 +67,15 @@ def recording_qos(offered: list[QoSProfile]) -> QoSProfile:
 
 
 def playback_qos(recorded: list[dict]) -> QoSProfile:
-    """Publisher QoS that offers what the recorded publishers offered."""
+    """Publisher QoS that offers what the recorded publishers offered. A volatile topic's publisher keeps every
+    sample until it is sent: the stack publishes asynchronously (see softblock_ros), and a burst of a replay
+    outran the sending thread, whose history then dropped samples never sent (a replayed recording came back
+    short). A latched topic keeps its recorded depth, which is what a late joiner gets."""
     reliable = not recorded or _all_offer(recorded, "reliability", "reliable")
     latched = _all_offer(recorded, "durability", "transient_local")
     depth = max([int(p.get("depth") or 0) for p in recorded] + [PLAYBACK_DEPTH])
     return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST, depth=depth,
+        history=HistoryPolicy.KEEP_LAST if latched else HistoryPolicy.KEEP_ALL, depth=depth,
         reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
         durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
         liveliness=LivelinessPolicy.AUTOMATIC)
