@@ -21,7 +21,7 @@ from .dialects import CurrentSensing, Dialect, IsegEdcp, ProtocolError
 from .errors import SettingError, StateError
 from .faults import Fault
 from .link import LinkError
-from .pulse import PulseTrain, plan_pulse_train
+from .pulse import PulseTally, PulseTrain, plan_pulse_train
 from .supervisor import DEFAULT_HEARTBEAT_TIMEOUT_S, Supervisor
 
 log = logging.getLogger(__name__)
@@ -142,13 +142,17 @@ class PulseHandle:
         with self._supply._lock:
             return self._ended()
 
+    def _tallies(self) -> dict[str, PulseTally]:
+        """Per channel of a streamed train: its `PulseTally` (none for a train the device switches)."""
+        with self._supply._lock:
+            tallies = {name: self._supply._supervisor.channel(name).pulse_tally for name in self.trains}
+            return {name: tally for name, tally in tallies.items()
+                    if tally is not None and tally.ramp_id == self._ramp_ids[name]}
+
     @property
     def short_pulses(self) -> dict[str, int]:
         """Per channel of a streamed train: pulses that fell short of the amplitude (see `PulseTally`)."""
-        with self._supply._lock:
-            tallies = {name: self._supply._supervisor.channel(name).pulse_tally for name in self.trains}
-            return {name: tally.short for name, tally in tallies.items()
-                    if tally is not None and tally.ramp_id == self._ramp_ids[name]}
+        return {name: tally.short for name, tally in self._tallies().items()}
 
     @property
     def message(self) -> str:
@@ -160,9 +164,9 @@ class PulseHandle:
             return self._failure
         failed = [f"{c.channel}: {c.message}" for c in self._channels if c.done and not c.succeeded]
         train = next(iter(self.trains.values()))
-        failed += [f"{name}: {short} of {train.cycles} pulses fell short of {train.amplitude:g} V (the control loop "
-                   f"fell behind; slew-limited, it does not catch up)" for name, short in self.short_pulses.items()
-                   if short]
+        failed += [f"{name}: {tally.short} of {train.cycles} pulses fell short of {train.amplitude:g} V (the control "
+                   f"loop fell behind, its longest gap between cycles {tally.longest_gap * 1e3:.0f} ms; slew-limited, "
+                   f"it does not catch up)" for name, tally in self._tallies().items() if tally.short]
         return "; ".join(failed) if failed else f"completed {self.cycles_done} cycles"
 
     @property

@@ -99,12 +99,18 @@ class PulseTally:
     train: PulseTrain
     ramp_id: int
     short: int = 0
+    longest_gap: float = 0.0  # [s] between consecutive loop cycles from the train's start: a stall shows here
     _period: int = -1  # period index of the samples so far (-1: before the first)
     _peak: float = 0.0
+    _last: float | None = None  # time of the last sample [s]
 
     def add(self, t: float, setpoint: float) -> None:
         if t < self.train.start:
+            self._last = t
             return
+        if self._last is not None:
+            self.longest_gap = max(self.longest_gap, t - self._last)
+        self._last = t
         period = min(math.floor((t - self.train.start) * self.train.frequency), self.train.cycles)
         if period != self._period:
             self._close()

@@ -140,6 +140,24 @@ def test_a_loop_too_slow_for_a_streamed_train_counts_its_short_pulses(interval, 
         t += interval
         channel.step(t)
     assert channel.pulse_tally.short == short
+    assert channel.pulse_tally.longest_gap == pytest.approx(interval)
+
+
+def test_a_loop_that_stands_still_through_an_on_phase_counts_that_pulse_short_and_names_its_gap():
+    """A stall of one on-phase costs that pulse alone, and the tally names the stall (a fresh-clone run's pulse
+    test reported short pulses without saying how long its loop had stood still)."""
+    channel = ChannelSupervisor(CONFIG, 0.0, PERIOD)
+    channel.enable()
+    train = plan(Keithley2290, now=0.0)  # 5 Hz: on for 100 ms of each 200 ms period
+    channel.pulse(0.0, train)
+    t, stalled = 0.0, False
+    while channel.pulse_train is not None and t < train.stop + 1.0:
+        stall = not stalled and t >= train.start + 0.405  # from just into period 3's on-phase to its off-phase
+        stalled |= stall
+        t += 0.13 if stall else PERIOD
+        channel.step(t)
+    assert channel.pulse_tally.short == 1
+    assert channel.pulse_tally.longest_gap == pytest.approx(0.13)
 
 
 def test_a_stopped_streamed_train_counts_only_the_periods_it_ran():

@@ -5,7 +5,7 @@ import rclpy
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.qos import DurabilityPolicy, QoSProfile
+from rclpy.qos import QoSProfile
 from rclpy.serialization import serialize_message
 from softblock_interfaces.msg import (Assembly, AssemblyState, Chain, ChainState, HvChannelState,
                                       HvState, SequenceEvent)
@@ -14,7 +14,6 @@ from softblock_ros.client import wait_until
 from recording.mcap_file import RecordingWriter
 from softblock_ros.recording.qos_metadata import offered_qos_yaml
 
-LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 TIMEOUT = 30.0  # [s] liveness deadline only: the suite shares two loaded cores
 
 

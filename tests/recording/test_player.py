@@ -10,13 +10,14 @@ from rclpy.lifecycle import TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
 from rclpy.serialization import serialize_message
-from recording_helpers import (LATCHED, Spinner, assembly, hv_state, sequence_event, stamp,
+from recording_helpers import (Spinner, assembly, hv_state, sequence_event, stamp,
                                wait_for, write_recording)
 from rosgraph_msgs.msg import Clock
 from softblock_interfaces.msg import Assembly, HvHeartbeat, HvState
 from std_msgs.msg import Float64
 
 from softblock_ros.hv_driver_node import HvDriverNode
+from softblock_ros.qos import LATCHED
 from softblock_ros.recording.message_types import UnknownMessageTypeError
 from recording.mcap_file import RecordingWriter
 from recording.playback import PlaybackOptions

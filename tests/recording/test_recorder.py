@@ -7,12 +7,13 @@ import rclpy
 import yaml
 from mcap.reader import make_reader
 from rclpy.parameter import Parameter
-from recording_helpers import (LATCHED, Spinner, assembly, assembly_state, hv_state, read_decoded,
+from recording_helpers import (Spinner, assembly, assembly_state, hv_state, read_decoded,
                                sequence_event, stamp, wait_for)
 from rosbags.highlevel import AnyReader
 from softblock_interfaces.msg import Assembly, AssemblyState, HvState, SequenceEvent
 from std_msgs.msg import Float64, String
 
+from softblock_ros.qos import LATCHED
 from softblock_ros.recording.recorder_node import RecorderNode
 
 COUNT = 40

@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 import rclpy
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, QoSProfile
 from ros_testing import Inbox, call, wait_for
 from softblock_interfaces.msg import Assembly, AssemblyState, HvChannelState, HvState
 from softblock_interfaces.srv import SetAssembly
@@ -20,8 +19,8 @@ from planner.table import load_table
 from softblock_ros.assembly_state_node import AssemblyStateNode
 from softblock_ros.conversions import assembly_msg
 from softblock_ros.paths import resolve_path
+from softblock_ros.qos import LATCHED
 
-LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 LATE_JOINERS = itertools.count()
 GRIPPER = load_assembly(resolve_path("config/assemblies/gripper.yaml"))
 

@@ -11,7 +11,6 @@ import yaml
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, QoSProfile
 from ros_testing import Inbox, call
 from sensor_msgs.msg import Image
 from softblock_config import config_file
@@ -24,8 +23,8 @@ from planner.assembly import Chain, PlacedBlock
 from planner.table import load_table
 from softblock_ros.conversions import assembly_msg, image_msg
 from softblock_ros.estimator_node import VIEW_PARAMETERS, EstimatorNode
+from softblock_ros.qos import LATCHED
 
-LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 PIXEL_SIZE = 2.5e-4  # [m]
 RIG = Chain("rig", "front", (PlacedBlock(15, 0, "R-1"), PlacedBlock(15, 0, "R-2"), PlacedBlock(15, 0, "R-3")))
 OFFSETS = np.radians([1.5, -1.0, 2.0])

@@ -16,7 +16,6 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 from message_strategies import TEXT, messages
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, QoSProfile
 from ros_testing import Inbox, call, wait_for
 from sensor_msgs.msg import Image
 from softblock_interfaces.action import MoveArm, RunSequence
@@ -33,12 +32,12 @@ from softblock_ros.client import ActionClient, ClientError
 from softblock_ros.conversions import assembly_msg, image_msg
 from softblock_ros.paths import resolve_path
 from softblock_ros.planner_node import PlannerNode
+from softblock_ros.qos import LATCHED
 from softblock_ros.sequencer_node import SequencerNode
 from softblock_ros.sim_arm_node import SimArmNode
 
 FUZZ = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 ANSWER = 20.0  # [s] liveness bound on one answer; answers take milliseconds to a second
-LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 TABLE = load_table()
 STRAWBERRY = image_msg(load_mask(resolve_path("config/objects/strawberry.png")).astype(np.uint8) * 255)
 

@@ -192,10 +192,11 @@ def test_a_pulse_train_runs_in_the_driver_loop_for_the_client_holding_control(re
     assert result.message == "refused: control is held by 'sequencer', and this token is not its session's"
     state_seen = ready.state.messages
     state_seen.clear()
-    # Slow enough that a loop running far below its rate on a loaded machine still reaches the amplitude.
-    status, result = ready.pulse_result(token, amplitude=300.0, frequency=0.5, cycles=2)
+    # Slow enough that a loop running far below its rate on a loaded machine still reaches the amplitude: 2 s
+    # on-phases (in a fresh-clone run, 1 of 2 pulses with 1 s on-phases fell short on both channels).
+    status, result = ready.pulse_result(token, amplitude=300.0, frequency=0.25, cycles=2)
     assert status == GoalStatus.STATUS_SUCCEEDED and result.success, result.message
-    assert (result.cycles_done, result.frequency, result.generated_by) == (2, 0.5, "loop")
+    assert (result.cycles_done, result.frequency, result.generated_by) == (2, 0.25, "loop")
     peaks = [max(c.measured_voltage for c in msg.channels) for msg in list(state_seen)]
     assert max(peaks) > 250.0 and peaks[-1] < 100.0  # it pulsed, and ended at 0 V
 

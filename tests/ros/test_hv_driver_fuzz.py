@@ -16,7 +16,6 @@ from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, rule
 from rclpy.lifecycle import TransitionCallbackReturn
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, QoSProfile
 from ros_testing import Inbox, call, wait_for
 from softblock_interfaces.action import RampChannel
 from softblock_interfaces.msg import HvHeartbeat, HvState
@@ -27,10 +26,10 @@ from std_srvs.srv import Trigger
 from sim_fallback.hv_supply import FAULTS
 from softblock_ros.client import ActionClient
 from softblock_ros.hv_driver_node import HvDriverNode
+from softblock_ros.qos import LATCHED
 
 MAX_VOLTAGE = 3000.0
 TOLERANCE = 100.0  # [V] readback tolerance: the measured voltage may lag a falling ceiling by this much
-LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 LIVE = object()  # strategy marker: use the live session's token
 
 text = st.text(st.characters(exclude_categories=("Cs",)), max_size=80)  # anything a ROS string can carry

@@ -12,7 +12,6 @@ from lifecycle_msgs.msg import State, Transition
 from lifecycle_msgs.srv import ChangeState, GetState
 from rclpy.lifecycle import TransitionCallbackReturn
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, QoSProfile
 from ros_testing import Inbox, call, wait_for
 from softblock_interfaces.action import RampChannel
 from softblock_interfaces.msg import HvChannelState, HvState
@@ -23,8 +22,8 @@ from std_srvs.srv import Trigger
 from softblock_ros.client import ActionClient
 from softblock_ros.hv_control import HvControl
 from softblock_ros.hv_driver_node import HvDriverNode
+from softblock_ros.qos import LATCHED
 
-LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 class Client:

@@ -8,13 +8,12 @@ import textwrap
 
 import pytest
 import rclpy
-from rclpy.qos import DurabilityPolicy, QoSProfile
 from ros_testing import Inbox, wait_for
 from softblock_interfaces.msg import Assembly
 
 from softblock_ros.launcher import NodeDied, Stack, main
+from softblock_ros.qos import LATCHED
 
-LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 @pytest.fixture

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import rclpy
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
+from rclpy.qos import qos_profile_sensor_data
 from ros_testing import Inbox, wait_for
 from sensor_msgs.msg import Image
 from softblock_interfaces.msg import Assembly, AssemblyState, HvChannelState, HvState
@@ -16,9 +16,9 @@ from planner.assembly import Chain, PlacedBlock
 from planner.table import load_table
 from softblock_ros.conversions import assembly_msg, mask_from_image
 from softblock_ros.estimator_node import EstimatorNode
+from softblock_ros.qos import LATCHED
 from softblock_ros.sim_camera_node import SimCameraNode
 
-LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 OFFSETS = [0.03, -0.02, 0.025]  # [rad]
 VOLTAGE = 1500.0  # [V]
 VIEW = [Parameter("chain", value="finger"), Parameter("base_pose", value=[0.05, 0.005, math.pi / 2])]

@@ -12,7 +12,7 @@ from __future__ import annotations
 import sys
 
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
+from rclpy.qos import qos_profile_sensor_data
 from softblock_interfaces.msg import Assembly, AssemblyState, HvState
 from softblock_interfaces.srv import SetAssembly
 from std_msgs.msg import Float64, Header
@@ -27,10 +27,10 @@ from .conversions import (assembly_from_msg, assembly_msg, chain_state_msg, chan
                           safe_voltage)
 from .markers import assembly_markers
 from .parameters import Param, declare
+from .qos import LATCHED, stream_qos
 from .paths import resolve_path
 from .runner import run_node
 
-LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 PARAMETERS = (
     Param("assembly_file", "assemblies/gripper.yaml", "assembly YAML loaded at start (relative and not found from "
           "the working directory: a shipped file of config/)", kind=str),
@@ -53,8 +53,8 @@ class AssemblyStateNode(Node):
 
         self._current_pub = self.create_publisher(Assembly, "assembly/current", LATCHED)
         self._safe_voltage_pub = self.create_publisher(Float64, "assembly/safe_voltage", LATCHED)
-        self._state_pub = self.create_publisher(AssemblyState, "assembly/state", 10)
-        self._markers_pub = self.create_publisher(MarkerArray, "assembly/markers", 10)
+        self._state_pub = self.create_publisher(AssemblyState, "assembly/state", stream_qos(rate))
+        self._markers_pub = self.create_publisher(MarkerArray, "assembly/markers", stream_qos(rate))
         self._voltages: dict[str, float] = {}  # measured channel voltages [V]; absent = not actuated
         self._prediction = None  # (voltages, state, markers) of the last computation
         assembly = load_assembly(resolve_path(assembly_file))

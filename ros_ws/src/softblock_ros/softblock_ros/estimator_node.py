@@ -24,7 +24,7 @@ import numpy as np
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import Image
 from softblock_interfaces.msg import Assembly, AssemblyState, ChainState, HvState
@@ -39,9 +39,9 @@ from planner.table import load_table
 
 from .conversions import assembly_from_msg, channel_voltages, mask_from_image, points_msg, safe_voltage
 from .parameters import Param, declare
+from .qos import LATCHED
 from .runner import run_node
 
-LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # Best effort matches any camera; depth 1: images that arrive while one is being estimated replace each other.
 IMAGE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 LEVELS = {Status.AS_BUILT: DiagnosticStatus.OK, Status.MISTAKES_FOUND: DiagnosticStatus.WARN,

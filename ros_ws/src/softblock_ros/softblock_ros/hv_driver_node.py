@@ -8,7 +8,6 @@ else in the driver's loop) and feed the heartbeat watchdog; hv/estop is open to 
 """
 from __future__ import annotations
 
-import math
 import os
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -16,7 +15,7 @@ from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from softblock_interfaces.action import PulseChannels, RampChannel
 from softblock_interfaces.msg import HvHeartbeat, HvState
 from softblock_interfaces.srv import ClaimControl, InjectFault, ReleaseControl
@@ -33,16 +32,13 @@ from .hv_pulse_goal import execute_pulse_goal
 from .hv_ramp_goal import execute_ramp_goal
 from .log_forwarding import forward_logging, stop_forwarding
 from .parameters import ParameterError, declare
+from .qos import LATCHED, stream_qos
 from .runner import run_node
 
-LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # A heartbeat is a sign of life: the newest counts. Taken reliably, one lost on a lossy link would hold up
 # the ones behind it until it is repaired (over a second measured on a 5 % lossy link, up to the writer's 3 s
 # heartbeat period), which the watchdog would take for a silent client.
 HEARTBEAT_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
-# Fast DDS repairs a sample a reader missed at the writer's next periodic heartbeat (every 3 s by default):
-# 8 s of hv/state let a reliable reader across a lossy link (a recorder) repair a loss and a lost repair.
-STATE_HISTORY_S = 8.0  # [s]
 SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
 SIM_ERRORS = (RuntimeError, ValueError, OSError)  # the simulated supply's process: not started, unknown fault
 SIM_CHANNELS = 4  # a simulated multi-channel supply models a 4-channel module; configured indices must exist on it
@@ -94,8 +90,7 @@ class HvDriverNode(LifecycleNode):
             return FAILURE
         self._index = {c.name: (c.index, c.device) for c in channels}
         self._published, self._diag_time = None, 0
-        self._state_pub = self.create_publisher(
-            HvState, "hv/state", math.ceil(STATE_HISTORY_S * self._param("publish_rate_hz")))
+        self._state_pub = self.create_publisher(HvState, "hv/state", stream_qos(self._param("publish_rate_hz")))
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         g = self._group
         self._entities = [

@@ -18,6 +18,7 @@ from softblock_interfaces.action import MoveArm
 
 from .conversions import pose_msg
 from .parameters import Param, declare
+from .qos import stream_qos
 from .runner import run_node
 
 LIMITS = (  # the ArmLimits fields
@@ -58,7 +59,7 @@ class SimArmNode(Node):
         self._active_goal = None
         self._last_step = time.monotonic()
         group = ReentrantCallbackGroup()
-        self._pose_pub = self.create_publisher(PoseStamped, "arm/pose", 10)
+        self._pose_pub = self.create_publisher(PoseStamped, "arm/pose", stream_qos(value["publish_rate_hz"]))
         self.create_timer(1.0 / value["publish_rate_hz"], self._on_timer)  # default group: one step at a time
         self._server = ActionServer(self, MoveArm, "arm/move", execute_callback=self._execute,
                                     cancel_callback=lambda _: CancelResponse.ACCEPT, callback_group=group)

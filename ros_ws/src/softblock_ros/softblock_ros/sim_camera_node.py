@@ -13,7 +13,7 @@ import sys
 
 import numpy as np
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
+from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image
 from softblock_interfaces.msg import Assembly, HvState
 
@@ -23,9 +23,9 @@ from planner.table import load_table
 from .conversions import assembly_from_msg, channel_voltages, image_msg
 from .estimator_node import VIEW_PARAMETERS, camera_view
 from .parameters import Param, declare
+from .qos import LATCHED
 from .runner import run_node
 
-LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 PARAMETERS = VIEW_PARAMETERS + (
     Param("image_size", [480, 320], "image rows and columns", "pixels", 8, 4000, kind=int, size=2),
     Param("rate_hz", 1.0, "most images per second (a new one only when the assembly or the voltage changed)", "Hz",
