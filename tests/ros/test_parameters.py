@@ -57,6 +57,20 @@ def test_every_key_of_the_shipped_parameter_files_is_a_valid_declared_parameter(
         assert sections, path
 
 
+def test_the_sequencer_waits_for_a_silent_driver_as_long_as_the_driver_waits_for_a_silent_client():
+    # A loaded host, or a DDS write held up by a stopped reader, left the demo's driver silent for 1.2 s, and a
+    # 1 s state timeout called the driver lost and aborted the grasp.
+    def default(node, name):
+        return next(param.default for param in node_schema(node) if param.name == name)
+
+    def shipped(node, name):
+        return yaml.safe_load(config_file(f"{node}.yaml").read_text())[node]["ros__parameters"][name]
+
+    heartbeat_timeout = default("hv_driver", "heartbeat_timeout_s")
+    assert default("sequencer", "state_timeout_s") >= heartbeat_timeout
+    assert shipped("sequencer", "state_timeout_s") >= shipped("hv_driver", "heartbeat_timeout_s")
+
+
 DOCS_PARAMETER_BLOCKS = [(path.name, block) for path in sorted(DOCS.glob("*.md"))
                          for block in re.findall(r"```yaml\n(.*?)```", path.read_text(), re.S)
                          if "ros__parameters" in block]

@@ -27,8 +27,8 @@ from .conversions import (assembly_from_msg, assembly_msg, chain_state_msg, chan
                           safe_voltage)
 from .markers import assembly_markers
 from .parameters import Param, declare
-from .qos import LATCHED, stream_qos
 from .paths import resolve_path
+from .qos import LATCHED, stream_qos
 from .runner import run_node
 
 PARAMETERS = (
