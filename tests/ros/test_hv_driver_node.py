@@ -25,7 +25,6 @@ from softblock_ros.hv_driver_node import HvDriverNode
 from softblock_ros.qos import LATCHED
 
 
-
 class Client:
     """The test's client node with one handle per interface of the driver."""
 

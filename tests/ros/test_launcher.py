@@ -15,7 +15,6 @@ from softblock_ros.launcher import NodeDied, Stack, main
 from softblock_ros.qos import LATCHED
 
 
-
 @pytest.fixture
 def params(tmp_path):
     path = tmp_path / "params.yaml"

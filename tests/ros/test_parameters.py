@@ -66,8 +66,7 @@ def test_the_sequencer_waits_for_a_silent_driver_as_long_as_the_driver_waits_for
     def shipped(node, name):
         return yaml.safe_load(config_file(f"{node}.yaml").read_text())[node]["ros__parameters"][name]
 
-    heartbeat_timeout = default("hv_driver", "heartbeat_timeout_s")
-    assert default("sequencer", "state_timeout_s") >= heartbeat_timeout
+    assert default("sequencer", "state_timeout_s") >= default("hv_driver", "heartbeat_timeout_s")
     assert shipped("sequencer", "state_timeout_s") >= shipped("hv_driver", "heartbeat_timeout_s")
 
 

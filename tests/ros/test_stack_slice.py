@@ -7,7 +7,6 @@ import io
 import numpy as np
 import pytest
 import rclpy
-from rclpy.qos import DurabilityPolicy, QoSProfile
 from ros_testing import Inbox, call, wait_for
 from softblock_interfaces.action import RampChannel
 from softblock_interfaces.msg import AssemblyState, HvState
@@ -21,6 +20,7 @@ from softblock_ros.hv_control import HvControl
 from softblock_ros.conversions import assembly_msg, safe_voltage
 from softblock_ros.launcher import Stack
 from softblock_ros.paths import resolve_path
+from softblock_ros.qos import LATCHED
 
 NAMESPACE = "/slice"  # apart from in-process nodes of other test modules
 TABLE = load_table()
@@ -43,8 +43,7 @@ def client(ros_context, spin, stack):
     node = rclpy.create_node("slice_client", namespace=NAMESPACE, context=ros_context)
     node.hv_states = Inbox(node, HvState, "hv/state")
     node.assembly_states = Inbox(node, AssemblyState, "assembly/state")
-    node.safe_voltages = Inbox(node, Float64, "assembly/safe_voltage",
-                               QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    node.safe_voltages = Inbox(node, Float64, "assembly/safe_voltage", LATCHED)
     node.control = HvControl(node, "slice_client", timeout_s=15.0)
     spin(node)
     node.control.claim()
