@@ -17,6 +17,9 @@ class Fault(IntFlag):
     ESTOP = 32              # emergency stop
     DEVICE = 64             # the supply itself reported a trip, interlock or reset
     BREAKDOWN = 128         # the output voltage collapsed far below a held setpoint (supply without current readback)
+    NODE_LOST = 256         # the ROS node driving the supervisor process closed its channel or stopped its keep-alive
+    CUT_UNCONFIRMED = 512   # after a cut the device still reports its output on (or its voltage does not fall)
+    SUPERVISOR_LOST = 1024  # the supervisor process died: only the device's own means still hold (set by the node)
 
 
 def fault_names(faults: Fault) -> str:
