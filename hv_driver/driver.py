@@ -439,6 +439,11 @@ class HvSupply:
         """Sign of life from the client holding control (ControlError for any other token)."""
         self._change(lambda now: self._supervisor.heartbeat(now, token))
 
+    def node_lost(self, reason: str) -> None:
+        """The node driving this supply is gone (see `hv_driver.server`): control ends, every channel latches
+        NODE_LOST and energised outputs ramp to 0 V."""
+        self._change(lambda now: self._supervisor.node_lost(now, reason))
+
     def set_safe_voltage(self, voltage: float | None) -> None:
         """Assembly safe voltage [V] for every channel (None = unknown)."""
         self._change(lambda now: self._supervisor.set_safe_voltage(voltage))

@@ -21,8 +21,8 @@ Rules enforced here:
 - a pulse train (`PulseTrain`) runs in place of a ramp: smooth trains are streamed within the slew limit, square
   ones are switched by the device itself (the setpoint is their amplitude while it switches; stopping one drops the
   output to 0 V at once, one more square edge of the kind it was making);
-- faults latch until `reset`; every fault but HEARTBEAT puts the output to 0 V and off at once
-  (emergency off), a lost heartbeat ramps to 0 V at the slew limit and then switches off;
+- faults latch until `reset`; every fault but HEARTBEAT and NODE_LOST puts the output to 0 V and off at once
+  (emergency off), a lost heartbeat or node ramps to 0 V at the slew limit and then switches off;
 - after a reset the outputs stay off until enabled again (never resume by themselves).
 """
 import math
@@ -37,8 +37,8 @@ from .pulse import PulseTally, PulseTrain
 from .ramp import MinimumJerkRamp, check_slew_rate
 from .readback import ReadbackCheck
 
-# A lost heartbeat ramps down smoothly; every other fault cuts the output at once.
-RAMP_DOWN_FAULTS = Fault.HEARTBEAT
+# A lost heartbeat or node ramps down smoothly; every other fault cuts the output at once.
+RAMP_DOWN_FAULTS = Fault.HEARTBEAT | Fault.NODE_LOST
 IMMEDIATE_FAULTS = Fault(sum(Fault)) & ~RAMP_DOWN_FAULTS
 
 # Breakdown guard (supplies without current readback): a readback below COLLAPSE_FRACTION of a setpoint of at least
@@ -504,6 +504,13 @@ class Supervisor:
         self.control.end("control ended by an emergency stop")
         for channel in self.channels.values():
             channel.trip(Fault.ESTOP, "emergency stop")
+
+    def node_lost(self, now: float, reason: str) -> None:
+        """The node this supervisor serves is gone: its client's session ends and every channel latches NODE_LOST
+        (energised outputs ramp to 0 V). Nothing is energised again until a client claims control and resets."""
+        self._now(now)
+        self.control.end(reason)
+        self.trip_all(Fault.NODE_LOST, reason)
 
     def trip_all(self, fault: Fault, reason: str) -> None:
         for channel in self.channels.values():
