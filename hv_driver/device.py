@@ -70,8 +70,9 @@ class Device:
     # --- port --------------------------------------------------------------------------------------
     def open_port(self) -> None:
         try:
+            # exclusive: a second driver (another supervisor process) on the same supply is refused, not interleaved
             self._port = serial.serial_for_url(self.port_name, baudrate=self.baudrate, timeout=self.reply_timeout,
-                                               write_timeout=self.reply_timeout)
+                                               write_timeout=self.reply_timeout, exclusive=True)
         except (serial.SerialException, OSError, ValueError) as error:
             raise LinkError(f"cannot open {self.port_name!r}: {error}") from error
         self.link = Link(self._port, self.dialect, self.reply_timeout)

@@ -207,8 +207,7 @@ class RemoteSupply:
         except (TimeoutError, ipc.ChannelClosed) as error:
             sock.close()
             raise HvError(f"the HV supervisor process does not answer ({error}); another node may hold it") from None
-        finally:
-            sock.settimeout(None)
+        sock.settimeout(None)
         if "error" in reply:
             ipc.raise_remote_error(reply["error"])
         return reply["result"]

@@ -23,6 +23,7 @@ import signal
 import socket
 import sys
 import threading
+import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
@@ -118,14 +119,21 @@ class SupervisorServer:
                     os.unlink(self.path)
 
     def _serve_connection(self, connection: socket.socket, pool: ThreadPoolExecutor) -> None:
+        """Until the node's end closes (node lost) or it closes the supply. Only the keep-alive counts as the node's
+        sign of life (requests may come from a thread that outlived the rest); when it stops, NODE_LOST latches once,
+        and a node that resumes sees the faults latched and must reset them."""
         log.info("node connected")
-        connection.settimeout(self.keepalive_timeout_s)
+        last_beat, silent = time.monotonic(), False
         while not self._ended.is_set():
+            remaining = last_beat + self.keepalive_timeout_s - time.monotonic()
+            if remaining <= 0 and not silent:
+                self._node_lost(f"HV driver node lost: no keep-alive for more than {self.keepalive_timeout_s:g} s")
+                silent = True
+            connection.settimeout(max(remaining, 0.0) if not silent else None)
             try:
                 message = ipc.receive(connection)
             except TimeoutError:
-                self._node_lost(f"HV driver node lost: no keep-alive for more than {self.keepalive_timeout_s:g} s")
-                return
+                continue
             except ipc.ChannelClosed:
                 if not self._ended.is_set():
                     self._node_lost("HV driver node lost: its channel to the supervisor closed (the node's process "
@@ -136,6 +144,7 @@ class SupervisorServer:
                 continue
             method = message.get("method")
             if method == ipc.KEEPALIVE:
+                last_beat, silent = time.monotonic(), False
                 continue
             if method in ENDING_METHODS:  # the loop stops: answer from this thread, then end
                 self._reply(connection, message, self._call)

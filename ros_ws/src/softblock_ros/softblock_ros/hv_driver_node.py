@@ -144,12 +144,18 @@ class HvDriverNode(LifecycleNode):
                                 f"channel and every client is refused; only the supplies' own means still hold")
 
     def on_activate(self, state) -> TransitionCallbackReturn:
+        """Outputs on at 0 V, except those with latched faults (a supervisor taken over after its node was lost):
+        they stay off until hv/reset_faults."""
+        faulted = {c.name: c.fault_text for c in self._supply.snapshot().channels if c.faults}
         try:
             for name in self._index:
-                self._supply.enable(name)
+                if name not in faulted:
+                    self._supply.enable(name)
         except HvError as error:
             self.get_logger().error(f"activate refused: {error}")
             return FAILURE
+        for name, text in faulted.items():
+            self.get_logger().error(f"channel {name!r} stays off until hv/reset_faults: {text}")
         self._active = True
         return super().on_activate(state)
 
