@@ -9,6 +9,7 @@ of life and is not answered. The errors the driver raises on purpose cross the c
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import socket
 
@@ -22,6 +23,11 @@ from .supervisor import FaultLatchedError, LimitError
 
 MAX_MESSAGE_BYTES = 256 * 1024  # a snapshot of a many-channel rig is a few kB; anything larger is not ours
 KEEPALIVE = "keepalive"
+# The node's keep-alive thread beats every KEEPALIVE_PERIOD_S; NODE_KEEPALIVE_TIMEOUT_S of silence is ten beats
+# missed, which a node process that runs at all does not miss (its death shows at once, as the closed channel).
+KEEPALIVE_PERIOD_S = 0.1
+NODE_KEEPALIVE_TIMEOUT_S = 1.0
+MAX_WAIT_S = 60.0  # one blocking request waits at most this long; the client asks again for longer waits
 
 # Every error class a request may raise on the supervisor's side, by name (ValueError: a malformed request).
 REMOTE_ERRORS: dict[str, type[Exception]] = {cls.__name__: cls for cls in (
@@ -31,6 +37,11 @@ REMOTE_ERRORS: dict[str, type[Exception]] = {cls.__name__: cls for cls in (
 
 class ChannelClosed(ConnectionError):
     """The other end of the channel closed it (its process ended) or the channel broke."""
+
+
+def spec_digest(spec: dict) -> str:
+    """Identifies a supervisor's settings: a node takes over only a supervisor of its own settings."""
+    return hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:16]
 
 
 def socket_pair() -> tuple[socket.socket, socket.socket]:

@@ -31,12 +31,18 @@ def _lock_memory() -> str:
     return ""
 
 
+def normal_priority() -> None:
+    """Normal scheduling for the calling thread (e.g. in a child of a real-time process, before it runs)."""
+    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+
+
 def make_realtime(priority: int = DEFAULT_PRIORITY) -> bool:
     """Run the calling thread, and every thread it starts from now on, at SCHED_FIFO ``priority`` with memory
     locked; True when real-time. Otherwise one warning says what was refused; priority 0 asks for normal
     scheduling on purpose (also warned)."""
     gc.freeze()  # objects made during start-up stay out of the collector's scans
     if priority <= 0:
+        normal_priority()  # also when started by a real-time process, whose policy children inherit
         log.warning("real-time priority switched off (realtime_priority=0): the supervisor runs at normal priority")
         return False
     try:

@@ -23,7 +23,7 @@ from . import ipc
 from .driver import ChannelSnapshot, SupplySnapshot
 from .errors import HvError
 from .faults import Fault, fault_names
-from .server import KEEPALIVE_PERIOD_S, MAX_WAIT_S, spec_digest
+from .ipc import KEEPALIVE_PERIOD_S, MAX_WAIT_S, spec_digest
 
 log = logging.getLogger(__name__)
 
@@ -219,6 +219,13 @@ class RemoteSupply:
     def abort(self) -> None:
         """Every output off at once, and end the supervisor process."""
         self._end("abort", [])
+
+    def __enter__(self) -> RemoteSupply:
+        return self.open()
+
+    def __exit__(self, exc_type, exc, tb):
+        self.abort() if exc_type is not None else self.close()
+        return False
 
     def _end(self, method: str, args: list) -> None:
         if self._sock is None:

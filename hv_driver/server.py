@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import hashlib
 import json
 import logging
 import math
@@ -28,6 +27,7 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
 from . import ipc
+from .ipc import MAX_WAIT_S, NODE_KEEPALIVE_TIMEOUT_S, spec_digest
 from .config import ChannelConfig
 from .dialects import dialect
 from .driver import HvSupply, PulseHandle, RampHandle
@@ -36,12 +36,7 @@ from .realtime import DEFAULT_PRIORITY, make_realtime
 
 log = logging.getLogger("hv_supervisor")
 
-# The node's keep-alive thread beats every KEEPALIVE_PERIOD_S; NODE_KEEPALIVE_TIMEOUT_S of silence is ten beats
-# missed, which a node process that runs at all does not miss (its death shows at once, as the closed channel).
-KEEPALIVE_PERIOD_S = 0.1
-NODE_KEEPALIVE_TIMEOUT_S = 1.0
 ORPHAN_TIMEOUT_S = 30.0
-MAX_WAIT_S = 60.0  # one blocking request waits at most this long; the client asks again for longer waits
 MAX_HANDLES = 1024
 WORKERS = 16
 THREAD_STACK_BYTES = 512 * 1024  # memory may be locked: keep each thread's stack small
@@ -53,10 +48,6 @@ SUPPLY_METHODS = frozenset({"enable", "disable", "ramp_to", "pulse", "claim_cont
 HANDLE_ATTRIBUTES = frozenset({"done", "message", "succeeded", "wait", "cancel", "cycles_done", "frequency",
                                "short_pulses"})
 ENDING_METHODS = frozenset({"close", "abort"})
-
-
-def spec_digest(spec: dict) -> str:
-    return hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:16]
 
 
 def supply_from_spec(spec: dict, ports: list[str] | None = None) -> HvSupply:

@@ -7,7 +7,8 @@ import os
 import pytest
 
 from hv_driver import ControlError, HvError, LimitError, ipc, realtime
-from hv_driver.server import MAX_WAIT_S, SupervisorServer
+from hv_driver.ipc import MAX_WAIT_S
+from hv_driver.server import SupervisorServer
 
 
 def test_messages_over_the_bound_or_not_json_objects_are_refused():

@@ -28,7 +28,8 @@ from hv_driver import RemoteSupply
 supply = RemoteSupply(json.loads(sys.argv[1]), json.loads(sys.argv[2]), sys.argv[3]).open()
 token = supply.claim_control("sequencer")
 supply.enable("front")
-assert supply.ramp_to("front", 2400.0, token=token).wait(60.0)
+handle = supply.ramp_to("front", 2400.0, token=token)
+assert handle.wait(60.0) and handle.succeeded, handle.message
 print("up", flush=True)
 while True:
     supply.heartbeat(token)

@@ -5,7 +5,8 @@ import math
 
 from hv_driver import DIALECTS, ChannelConfig, HvSupply, IsegEdcp
 from hv_driver.realtime import DEFAULT_PRIORITY
-from hv_driver.server import NODE_KEEPALIVE_TIMEOUT_S, ORPHAN_TIMEOUT_S
+from hv_driver.ipc import NODE_KEEPALIVE_TIMEOUT_S
+from hv_driver.server import ORPHAN_TIMEOUT_S
 
 from .parameters import Param, ParameterError
 
@@ -49,8 +50,8 @@ PARAMETERS = (
     Param("orphan_timeout_s", ORPHAN_TIMEOUT_S, "a supervisor process without its node this long switches every "
           "output off, closes the ports and exits; a node restarted within it takes it over, faults latched", "s",
           1.0, 3600.0),
-    Param("supervisor_socket", "", "Unix socket of the supervisor process; empty = one per domain and node name "
-          "in the runtime directory", kind=str),
+    Param("supervisor_socket", "", "Unix socket of the supervisor process; empty = a new one for this node "
+          "process; a fixed path lets a restarted node take its supervisor over", kind=str),
     Param("autostart", True, "configure and activate at start (console script / python -m)", kind=bool),
 )
 
