@@ -34,15 +34,15 @@ fi
 ws_hash="$({ find ros_ws/src -type f -not -name '*.pyc' -print0; find config -maxdepth 1 -name '*.yaml' -print0; } \
     | sort -z | xargs -0 sha256sum | sha256sum | cut -c1-16)"
 if [[ "$(cat ros_ws/.build-stamp 2>/dev/null)" != "$ws_hash" || ! -f ros_ws/install/setup.bash ]]; then
-    # colcon names each package as it starts and ends; on a terminal its status line counts the time meanwhile
-    # (the message package's code generation takes minutes the first time).
+    # colcon names each package as it starts and ends, and on a terminal (only there: in a log its updates would
+    # be noise) its status line counts the time meanwhile; the message package takes minutes the first time.
     step "building ros_ws with colcon"
     (
         source "$venv/bin/activate"
         export CMAKE_PREFIX_PATH="$venv" AMENT_PREFIX_PATH="$venv"
         cd ros_ws
         colcon --log-base log build --symlink-install \
-            --event-handlers console_direct- console_cohesion- console_start_end+ status+ summary+ \
+            --event-handlers console_direct- console_cohesion- summary+ \
             --cmake-args -DBUILD_TESTING=OFF -DPython3_EXECUTABLE="$venv/bin/python" >&2
     )
     echo "$ws_hash" > ros_ws/.build-stamp
