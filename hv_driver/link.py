@@ -59,13 +59,17 @@ class Link:
         return self._read_line(deadline, line) if answered else None
 
     def _resync(self, line: str) -> None:
+        self.discard_input(f"after a failed exchange; {line!r} not sent")
+
+    def discard_input(self, context: str = "") -> None:
+        """Drop what is buffered and whatever still arrives until the line has been quiet for one reply timeout;
+        LinkError (naming ``context``) if it keeps sending for RESYNC_WINDOWS reply timeouts."""
         self._buffer.clear()
         self._call(self.port.reset_input_buffer)
         start = quiet_since = time.monotonic()
         while (now := time.monotonic()) - quiet_since < self.reply_timeout:
             if now - start > RESYNC_WINDOWS * self.reply_timeout:
-                raise LinkError(f"the device kept sending for {now - start:.3g} s after a failed exchange; "
-                                f"{line!r} not sent")
+                raise LinkError(f"the device kept sending for {now - start:.3g} s {context}".rstrip())
             waiting = self._call(lambda: self.port.in_waiting)
             if waiting:
                 self._call(self.port.read, waiting)

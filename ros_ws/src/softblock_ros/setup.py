@@ -36,6 +36,9 @@ setup(
             "sequencer = softblock_ros.sequencer_node:main",
             "sim_arm = softblock_ros.sim_arm_node:main",
             "sim_camera = softblock_ros.sim_camera_node:main",
+            "hv_console = softblock_ros.hv_console:main",
+            "run_sequence = softblock_ros.run_sequence:main",
+            "demo = softblock_ros.demo:main",
         ],
     },
 )

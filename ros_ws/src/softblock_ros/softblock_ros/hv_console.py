@@ -3,6 +3,7 @@
     python -m softblock_ros.hv_console                      # one status line per second
     python -m softblock_ros.hv_console --json               # every hv/state sample and control status, JSON lines
     python -m softblock_ros.hv_console --commands           # also take commands on stdin
+    python -m softblock_ros.hv_console --probe /dev/ttyUSB0  # which supply is on a port (read-only; no ROS)
 
 The status line checks the link to the driver: hv/state samples received per second, samples lost on the way
 (gaps in the driver's publication sequence numbers), the age of the newest, each channel, and from the
@@ -34,6 +35,9 @@ from rclpy.serialization import deserialize_message
 from softblock_interfaces.action import RampChannel
 from softblock_interfaces.msg import HvState
 from std_srvs.srv import Trigger
+
+from hv_driver import LinkError
+from hv_driver.probe import probe, report
 
 from .client import ActionClient, ClientError, call_service, run_action, status_name
 from .hv_control import HvControl
@@ -146,13 +150,29 @@ def read_commands(console: HvConsole, emit, stop: threading.Event) -> None:
     stop.set()
 
 
+def run_probe(port: str, baudrate: int | None) -> int:
+    """Identify the supply on ``port`` without changing anything: 0 found, 1 nothing answered, 2 no such port."""
+    try:
+        result = probe(port, baudrate)
+    except LinkError as error:
+        print(error, file=sys.stderr)
+        return 2
+    print(report(result), flush=True)
+    return 0 if result.found else 1
+
+
 def main(argv=None) -> int:
     argv = sys.argv if argv is None else argv
     parser = argparse.ArgumentParser(prog="python -m softblock_ros.hv_console", description=__doc__.split("\n")[0])
     parser.add_argument("--json", action="store_true", help="every sample and answer as a JSON line")
     parser.add_argument("--commands", action="store_true", help="read commands on stdin")
     parser.add_argument("--period", type=float, default=1.0, help="status line period [s] (default 1)")
+    parser.add_argument("--probe", metavar="PORT", help="identify the supply on serial PORT with each dialect's "
+                        "identification query (nothing is set), print the node parameters for it and exit")
+    parser.add_argument("--baudrate", type=int, help="with --probe: ask at this rate (default: each dialect's own)")
     args = parser.parse_args(rclpy.utilities.remove_ros_args(argv)[1:])
+    if args.probe:
+        return run_probe(args.probe, args.baudrate)
     output_lock, stop = threading.Lock(), threading.Event()
 
     def emit(record: dict) -> None:
