@@ -47,7 +47,7 @@ NODE_OF_MODULE = {spec.module: spec.name for spec in STACK.nodes if not spec.arg
 NODE_OF_EXECUTABLE = {spec.executable: spec.name for spec in STACK.nodes if not spec.arguments}
 # Programs outside this repository (and shell built-ins) a page may show; their lines are not checked.
 EXTERNAL = {"source", "cd", "export", "pip", "colcon", "for", "do", "done", "mcap", "usermod", "groups", "newgrp",
-            "udevadm", "ls", "id", "dmesg", "sudo", "echo", "cat"}
+            "udevadm", "ls", "id", "dmesg", "sudo", "echo", "cat", "groupadd", "printf", "tee", "ulimit"}
 EXTERNAL_ROS2 = {"bag", "security", "param", "topic", "node", "action", "service", "doctor"}
 # Files a page names that the reader makes (or that a command before makes); only their names are parsed.
 PLACEHOLDER_FILES = {"my_overrides.yaml"}
