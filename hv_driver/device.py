@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import serial
 
+from .clock import MONOTONIC
 from .config import ChannelConfig
 from .dialects import CurrentSensing, Dialect, ProtocolError, StatusReport
 from .errors import HvError
@@ -53,11 +54,16 @@ class DeviceSide:
 
 
 class Device:
-    """The channels of one supply on one port (a pyserial URL or device path)."""
+    """The channels of one supply on one port: a pyserial URL or device path, or a pyserial-like port object
+    (``write``, ``read``, ``in_waiting``, ``reset_input_buffer``, ``timeout``; e.g. an in-memory link to a simulated
+    supply on a simulated clock). ``clock``: what the link's deadlines read and wait on (`hv_driver.clock`)."""
 
-    def __init__(self, port: str, baudrate: int | None, dialect: Dialect, configs: list[ChannelConfig],
-                 reply_timeout: float):
+    def __init__(self, port, baudrate: int | None, dialect: Dialect, configs: list[ChannelConfig],
+                 reply_timeout: float, clock=MONOTONIC):
+        self._given_port = None if isinstance(port, str) else port
+        port = port if isinstance(port, str) else getattr(port, "name", repr(port))
         self.port_name, self.dialect, self.configs = port, dialect, list(configs)
+        self.clock = clock
         self.capabilities = dialect.capabilities
         self.baudrate = baudrate or dialect.default_baudrate
         self.reply_timeout = reply_timeout
@@ -69,12 +75,17 @@ class Device:
 
     # --- port --------------------------------------------------------------------------------------
     def open_port(self) -> None:
+        if self._given_port is not None:
+            self._port = self._given_port
+            self._port.timeout = self.reply_timeout
+            self.link = Link(self._port, self.dialect, self.reply_timeout, self.clock)
+            return
         try:
             self._port = serial.serial_for_url(self.port_name, baudrate=self.baudrate, timeout=self.reply_timeout,
                                                write_timeout=self.reply_timeout)
         except (serial.SerialException, OSError, ValueError) as error:
             raise LinkError(f"cannot open {self.port_name!r}: {error}") from error
-        self.link = Link(self._port, self.dialect, self.reply_timeout)
+        self.link = Link(self._port, self.dialect, self.reply_timeout, self.clock)
 
     def close_port(self) -> None:
         if self._port is not None:

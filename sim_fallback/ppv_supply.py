@@ -11,7 +11,6 @@ nothing else shows it. Switching mode 2 runs on the board's own clock (50 % duty
 ``SCycle`` cycles. A line it cannot execute is answered ``?`` (the note gives no error answer).
 """
 import re
-import time
 
 from hv_driver.dialects.ppv import MODE_DC, MODE_OFF, MODE_SWITCHING, PetaPicoVoltron
 
@@ -66,7 +65,7 @@ class SimulatedPpv(PtyDevice):
 
     def _cycle_text(self) -> str:
         switching = self.plant[0].switching
-        done = switching.completed(time.monotonic()) if switching is not None else 0
+        done = switching.completed(self.clock()) if switching is not None else 0
         return f"{done}/{self.cycles}"
 
     def _memory(self) -> str:
@@ -79,7 +78,7 @@ class SimulatedPpv(PtyDevice):
         if not match:
             return ERROR_REPLY
         command, arg = match["command"], match["arg"]
-        ch, now = self.plant[0], time.monotonic()
+        ch, now = self.plant[0], self.clock()
         queries = {"QVer": lambda: f"slave {FIRMWARE}", "QName": lambda: self.name, "QVmax": lambda: f"{RATING:.0f}",
                    "QJack": lambda: "1", "QPowJack": lambda: "1", "QVset": lambda: f"{ch.voltage_set:.0f}",
                    "QVnow": lambda: f"{max(0.0, ch.measured_voltage):.0f}", "QSwMode": lambda: str(self.switching_mode),
