@@ -30,6 +30,7 @@ class Sent:
     setpoint: float = 0.0
     output_on: bool = False
     emergency: bool = False  # cut for a fault; released when the fault is reset
+    cut_confirmed: bool = False  # the device has reported the cut output off since the cut (re-sent until then)
     pulse: PulseTrain | None = None        # the square train armed on the device (frequency and count sent)
     switching_since: float | None = None   # [s] when the device was told to start switching it
     armed: PulseTrain | None = None        # the last train armed (kept after it ended) ...
@@ -167,15 +168,28 @@ class Device:
                 for k, (config, voltage, current) in enumerate(zip(self.configs, voltages, currents))}
 
     def cut(self, configs: list[ChannelConfig]) -> None:
-        """Outputs of newly faulted channels to 0 V and off at once: the device's emergency off where it has one
-        (all in one line), else output off, then 0 V."""
+        """Outputs of faulted channels to 0 V and off at once: the device's emergency off where it has one (all in
+        one line), else output off, then 0 V. A line written is not a cut made (a supply that does not answer
+        settings may not have read it): the cut counts only once the device reports the output off
+        (`confirm_cut`), and is sent again every cycle until then."""
         if not configs:
             return
         indices = [c.index for c in configs]
-        self.query("emergency_off" if self.capabilities.emergency_off else "output_off", indices)
         for config in configs:
             self.sent[config.name] = Sent(0.0, False, True)
+        self.query("emergency_off" if self.capabilities.emergency_off else "output_off", indices)
         self.query("set_voltage", indices, 0.0)
+
+    def unconfirmed_cuts(self, faulted: set[str]) -> list[ChannelConfig]:
+        """The channels of ``faulted`` (names) whose cut the device has not yet confirmed: to be cut (again)."""
+        return [c for c in self.configs if c.name in faulted and not self.sent[c.name].cut_confirmed]
+
+    def confirm_cut(self, config: ChannelConfig, reading: "Reading") -> bool:
+        """Take a readback after a cut: True when the device reports the output still on (the cut did not happen);
+        an output reported off confirms the cut."""
+        sent = self.sent[config.name]
+        sent.cut_confirmed = not reading.report.output_on
+        return reading.report.output_on
 
     def apply(self, config: ChannelConfig, setpoint: float, output_on: bool, pulse: PulseTrain | None = None,
               now: float = 0.0) -> None:

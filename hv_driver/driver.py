@@ -266,6 +266,7 @@ class HvSupply:
         self._running = False  # open: the loop runs (its thread, or stepped on a simulated clock)
         self._next_cycle = 0.0  # the loop's next slot on its schedule
         self._measured = {c.name: (0.0, 0.0) for c in self.configs}
+        self._device_on = dict.fromkeys(self._measured, False)  # the output as the device last reported it
         self._applied = {c.name: _Applied() for c in self.configs}
         self._reconfigure = self._device_reset = False
         self._cycles = 0
@@ -327,6 +328,7 @@ class HvSupply:
                 if report.fault:  # a latched device fault survives reconnects until reset on purpose
                     channel.trip(Fault.DEVICE, report.fault)
                     device.sent[name].emergency = True
+                    device.sent[name].cut_confirmed = not report.output_on  # else cut in the first cycle
 
     def _configure(self, device: Device) -> None:
         """Device-side second line of defence, read back; the supervisor learns the supply's limit and ramp."""
@@ -487,7 +489,7 @@ class HvSupply:
             channels = tuple(
                 ChannelSnapshot(name=c.config.name, index=c.config.index, setpoint=c.setpoint, target=c.target,
                                 measured_voltage=self._measured[name][0], measured_current=self._measured[name][1],
-                                ceiling=c.ceiling, output_enabled=c.output_enabled, ramping=c.ramping,
+                                ceiling=c.ceiling, output_enabled=self._output_on(name, c), ramping=c.ramping,
                                 faults=c.faults, fault_text=c.fault_text, port=ports[name])
                 for name, c in self._supervisor.channels.items())
             control = self._supervisor.control
@@ -495,6 +497,12 @@ class HvSupply:
             return SupplySnapshot(self.device_id, self.port_name, self._supervisor.estop_latched,
                                   link_error, self._stamp, channels, control.owner or "",
                                   control.heartbeat_age(self._clock()), self._supervisor.heartbeat_timeout_s)
+
+    def _output_on(self, name: str, channel) -> bool:
+        """On as commanded, or as the device last reported it, or cut without the device confirming it: a snapshot
+        never claims off an output the device may still hold on."""
+        sent = self._devices[channel.config.device].sent[name]
+        return channel.output_enabled or self._device_on[name] or (sent.emergency and not sent.cut_confirmed)
 
     def wait_outputs_off(self, timeout: float | None = None) -> bool:
         """Block until every output is off (e.g. after `disable`); False if ``timeout`` [s] passed first."""
@@ -612,8 +620,7 @@ class HvSupply:
                     device.reset()  # latched faults are cut again below
                 if reconfigure:
                     self._configure(device)
-                device.cut([c for c in device.configs
-                            if commands[c.name].emergency_off and not device.sent[c.name].emergency])
+                device.cut(device.unconfirmed_cuts({n for n, c in commands.items() if c.emergency_off}))
                 for config in device.configs:
                     command = commands[config.name]
                     if not command.emergency_off:
@@ -633,7 +640,14 @@ class HvSupply:
                 for config in device.configs:
                     reading, sent = readings[config.name], device.sent[config.name]
                     fault, over_current = None, False
-                    if not sent.emergency:  # after our own cut the device flags are expected
+                    self._device_on[config.name] = reading.report.output_on
+                    if sent.emergency:  # after our own cut the device flags are expected, its output off
+                        if device.confirm_cut(config, reading):
+                            self._supervisor.channel(config.name).trip(
+                                Fault.CUT_UNCONFIRMED, f"after the cut the supply reports its output on (measured "
+                                                       f"{reading.voltage:.0f} V); cut again every cycle until it "
+                                                       f"reports it off")
+                    else:
                         fault, over_current = reading.report.fault, reading.report.over_current
                         # An output the device cut for over-current is explained by that fault.
                         if (fault is None and not over_current and sent.output_on != reading.report.output_on

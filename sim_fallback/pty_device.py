@@ -2,8 +2,10 @@
 
 `PtyDevice` owns the pty, serves it in a thread (lines in, answers out with the dialect's echo and terminators),
 steps the channels' plants on the device's clock, keeps a log of the lines received, and injects the same faults
-into every dialect: ``over_current`` (an arc: film breakdown), ``no_reply`` (silence), ``garbled`` and ``partial``
-replies, ``disconnect``, ``device_reset``, ``readback_drift`` and ``load_change`` (the load's capacitance ten times
+into every dialect: ``over_current`` (an arc: film breakdown), ``no_reply`` (silence; lines are still executed),
+``deaf`` (the device stops reading its input, as with a pulled cable on its receive line: nothing is executed or
+answered; when it resumes, `clear_faults`, it first loses the line it comes back in the middle of), ``garbled`` and
+``partial`` replies, ``disconnect``, ``device_reset``, ``readback_drift`` and ``load_change`` (the load's capacitance ten times
 larger, e.g. a short across part of the film), at once (``inject``) or as the device answers a given line
 (``inject_after``: a fault in the middle of the host's set-up). A subclass gives the framing and answers the
 command set: ``execute(line)`` returns the answer line, or None for a line the device does not answer.
@@ -25,7 +27,7 @@ from hv_driver.clock import MONOTONIC
 
 from .hv_plant import ChannelDefaults, DeaLoad, PlantChannel, PlantEvent
 
-FAULTS = ("over_current", "no_reply", "garbled", "partial", "disconnect", "device_reset", "readback_drift",
+FAULTS = ("over_current", "no_reply", "deaf", "garbled", "partial", "disconnect", "device_reset", "readback_drift",
           "load_change")
 DRIFT_RATE = 500.0       # [V/s] readback error growth under readback_drift
 LOAD_CHANGE_FACTOR = 10  # capacitance multiplier under load_change
@@ -66,6 +68,7 @@ class PtyDevice:
         self.connected = True  # False after an injected disconnect (the cable is pulled)
         self._last_command = self._last_step = clock()
         self._line = bytearray()
+        self._mid_line = False  # input resumed after ``deaf``: bytes up to the next line end are a lost line
 
     # --- lifecycle -----------------------------------------------------------------------------
     def start(self):
@@ -248,9 +251,16 @@ class PtyDevice:
     def _receive(self, data: bytes) -> bytes:
         """Take in the host's bytes (the lock held, the plants stepped); returns what the device sends back."""
         terminator, out = self.command_terminator, b""
+        if "deaf" in self._modes:
+            self._line.clear()
+            self._mid_line = True
+            return out
         for byte in data:
             self._line.append(byte)
-            if self._line.endswith(terminator):
+            if self._line.endswith(terminator) and self._mid_line:  # the tail of a line whose start was lost
+                self._line.clear()
+                self._mid_line = False
+            elif self._line.endswith(terminator):
                 line = self._line[:-len(terminator)].decode("ascii", errors="replace")
                 self._line.clear()
                 self._last_command = self.clock()
