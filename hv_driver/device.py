@@ -35,6 +35,7 @@ class Sent:
     switching_since: float | None = None   # [s] when the device was told to start switching it
     armed: PulseTrain | None = None        # the last train armed (kept after it ended) ...
     frequency: float | None = None         # ... and the device's answer to its frequency [Hz] (quantised)
+    counted: tuple[int, int] | None = None  # (done, total) of the switching train as the device last counted it
 
 
 @dataclass(frozen=True)
@@ -164,6 +165,10 @@ class Device:
         currents = ([None] * len(self.indices) if self.capabilities.current is CurrentSensing.NONE
                     else self.query("measure_current", self.indices))
         statuses = [self.query(operation, self.indices) for operation in self.capabilities.status_operations]
+        for config in self.configs:  # a train the device switches: its own count, which ends it
+            sent = self.sent[config.name]
+            if sent.pulse is not None and sent.switching_since is not None:
+                sent.counted = self.dialect.cycle_count(self.query("read_cycles", [config.index]))
         return {config.name: Reading(voltage, current, self.dialect.status_report(*(s[k] for s in statuses)))
                 for k, (config, voltage, current) in enumerate(zip(self.configs, voltages, currents))}
 
@@ -240,7 +245,7 @@ class Device:
         sent = self.sent[config.name]
         if sent.pulse is train and sent.switching_since is None and now >= train.start:
             self.query("start_switching", [config.index])
-            sent.output_on, sent.switching_since = True, now
+            sent.output_on, sent.switching_since, sent.counted = True, now, None
 
     def start_due_trains(self, pulses: dict[str, PulseTrain | None], now: float) -> None:
         """Start the armed trains whose start has come (``pulses``: channel name -> its running train): one line
@@ -250,11 +255,11 @@ class Device:
             if train is not None:
                 self._start_if_due(config, train, now)
 
-    def count_ended(self, config: ChannelConfig, now: float) -> bool:
-        """The device may have stopped switching by itself: its cycle count is (within a period) over."""
+    def count_ended(self, config: ChannelConfig) -> bool:
+        """The device has switched every cycle of the running train by its own count (and so stopped by itself)."""
         sent = self.sent[config.name]
-        return (sent.pulse is not None and sent.switching_since is not None
-                and now >= sent.switching_since + (sent.pulse.cycles - 1) * sent.pulse.period)
+        return (sent.pulse is not None and sent.counted is not None
+                and sent.counted[0] >= sent.counted[1] == sent.pulse.cycles)
 
     def reset(self) -> None:
         """The device's own reset (outputs off, Vset 0, defaults); the cut state is forgotten with it."""

@@ -651,11 +651,13 @@ class HvSupply:
                         fault, over_current = reading.report.fault, reading.report.over_current
                         # An output the device cut for over-current is explained by that fault.
                         if (fault is None and not over_current and sent.output_on != reading.report.output_on
-                                and not device.count_ended(config, now)):
+                                and not device.count_ended(config)):
                             fault = "supply output " + ("off although commanded on (reset or interlock)"
                                                         if sent.output_on else "on although commanded off")
-                    self._supervisor.channel(config.name).observe(now, reading.voltage, reading.current, fault,
-                                                                  over_current)
+                    channel = self._supervisor.channel(config.name)
+                    if device.count_ended(config):
+                        channel.device_count_ended(sent.pulse)
+                    channel.observe(now, reading.voltage, reading.current, fault, over_current)
                     current = math.nan if reading.current is None else reading.current
                     self._measured[config.name] = (reading.voltage, current)
                     ramp_id, ramping, setpoint = stepped[config.name]

@@ -169,16 +169,18 @@ class PtyDevice:
             self._master = None
 
     def watch(self, channel: int, level: float) -> None:
-        """Record the times the output of ``channel`` rises through ``level`` [V] from now on."""
+        """Record the times the output of ``channel`` rises and falls through ``level`` [V] from now on."""
         with self._lock:
             self.plant[channel].watch_level = level
             self.plant[channel].rising_edges.clear()
+            self.plant[channel].falling_edges.clear()
 
-    def edges(self, channel: int) -> list[float]:
-        """Rising crossings of the watched level (on the device's clock) so far."""
+    def edges(self, channel: int, falling: bool = False) -> list[float]:
+        """Rising (``falling``: falling) crossings of the watched level (on the device's clock) so far."""
         with self._lock:
             self._step(self.clock())
-            return list(self.plant[channel].rising_edges)
+            plant = self.plant[channel]
+            return list(plant.falling_edges if falling else plant.rising_edges)
 
     # --- the device ----------------------------------------------------------------------------
     def execute(self, line: str) -> str | None:

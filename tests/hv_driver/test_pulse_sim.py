@@ -10,6 +10,7 @@ from dialect_rig import Rig
 from hv_driver import ControlError, Fault, PulseLimitError
 from hv_driver.clock import SimulatedClock
 from hv_driver.dialects import DIALECTS
+from hv_driver.supervisor import DEFAULT_PERIOD_S, DEVICE_CLOCK_TOLERANCE, DEVICE_COUNT_MARGIN_S
 
 # A host-ramped supply (Keithley, PPV) follows each streamed setpoint step with its regulation lag: the charging
 # current of 2 nF at 16 kV/s peaks above the default 50 uA trip, so the trip is set for this load.
@@ -21,8 +22,8 @@ LIMITS = dict(max_voltage_v=3000.0, slew_rate_v_per_s=16000.0, mismatch_toleranc
 def make_rig():
     rigs = []
 
-    def make(name):
-        rigs.append(Rig(name, LIMITS, link_timeout_s=1.0, clock=SimulatedClock()))
+    def make(name, **options):
+        rigs.append(Rig(name, LIMITS, link_timeout_s=1.0, clock=SimulatedClock(), **options))
         for channel in "ab":
             rigs[-1].supply.enable(channel)
         return rigs[-1]
@@ -47,8 +48,8 @@ def test_ppv_board_switches_the_train_itself_at_the_requested_frequency(make_rig
     for channel in "ab":
         edges = rig.edges(channel)
         assert len(edges) == 10, edges
-        # The board's own clock (the first rise waits for the amplitude, sent just after switching starts).
-        assert frequency_from_edges(edges[1:]) == pytest.approx(5.0, rel=1e-3)
+        # The board's own clock, counted in simulated time (the first rise follows the start line exactly).
+        assert frequency_from_edges(edges) == pytest.approx(5.0, rel=1e-9)
     sim, _ = rig.where["a"]
     settings = [line for _, line in sim.command_log if not line.startswith("Q")]
     armed = settings.index("SVset 600")
@@ -57,6 +58,49 @@ def test_ppv_board_switches_the_train_itself_at_the_requested_frequency(make_rig
                                     "SSwMode 1"]
     snapshot = rig.supply.snapshot()
     assert not any(c.faults for c in snapshot.channels) and all(c.output_enabled for c in snapshot.channels)
+
+
+def test_a_counted_train_ends_by_the_boards_own_count_with_every_pulse_complete(make_rig):
+    """A board whose timer runs 500 ppm slow (within the fallback's tolerance) and that begins each period with its
+    off half: only its own count (QCycle) tells when its last pulse is over, 10 ms after the host's clock says for
+    100 cycles at 5 Hz. Every pulse, the last one too, is on for its half period before the host ends the train."""
+    cycles = 100
+    rig = make_rig("ppv", exchange_s=0.001, off_first=True, clock_error=-5e-4)
+    rig.watch("a", 300.0)
+    handle = rig.supply.pulse(["a", "b"], 600.0, 5.0, duty=0.5, cycles=cycles, edge="square", token=rig.token)
+    assert handle.wait(cycles / 5.0 + 5.0) and handle.succeeded, handle.message
+    rises, falls = rig.edges("a"), rig.edges("a", falling=True)
+    assert len(rises) == len(falls) == cycles, (rises, falls)
+    # Each pulse on for its full half period (crossing 300 V within the output's lag of its edges; the last one
+    # discharges through the bleeder once the board has switched off).
+    assert np.all((falls - rises >= 0.1 - 0.005) & (falls - rises <= 0.1 + 0.02)), falls - rises
+    sim, _ = rig.where["a"]
+    assert sim.execute("QCycle") == f"{cycles}/{cycles}"  # the board counted them all, and so switched off itself
+    end = next(t for t, line in sim.command_log if line == "SVset 0" and t > rises[0])
+    assert end >= sim.plant[0].off_at  # the host ended the train after that
+
+
+def test_the_host_ends_a_train_whose_count_never_comes_within_its_bounded_fallback(make_rig):
+    """A board that takes the count but does not keep it (it switches on, its QCycle never reaching the total): the
+    host ends the train itself, no later than the fallback margin after its own clock's end."""
+    rig = make_rig("ppv")
+    sim, _ = rig.where["a"]
+    execute = sim.execute
+
+    def miscounting(line):
+        if line == "SCycle 10":
+            execute("SCycle 0")  # switches without end
+            return "10"
+        return "9/10" if line == "QCycle" else execute(line)
+    sim.execute = miscounting
+    handle = rig.supply.pulse(["a"], 600.0, 5.0, duty=0.5, cycles=10, edge="square", token=rig.token)
+    train = handle.trains["a"]
+    assert handle.wait(10.0) and handle.succeeded, handle.message
+    ended = next(t for t, line in sim.command_log if line == "SVset 0" and t > train.start)
+    fallback = train.stop + DEVICE_COUNT_MARGIN_S + DEVICE_CLOCK_TOLERANCE * (train.stop - train.start)
+    assert fallback <= ended <= fallback + 2 * DEFAULT_PERIOD_S
+    rig.supply.run_for(0.5)
+    assert rig.plant("a").switching is None and rig.plant("a").voltage < 50.0
 
 
 @pytest.mark.parametrize("name", list(DIALECTS))
