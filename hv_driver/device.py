@@ -176,14 +176,16 @@ class Device:
         """Outputs of faulted channels to 0 V and off at once: the device's emergency off where it has one (all in
         one line), else output off, then 0 V. A line written is not a cut made (a supply that does not answer
         settings may not have read it): the cut counts only once the device reports the output off
-        (`confirm_cut`), and is sent again every cycle until then."""
+        (`confirm_cut`), and is sent again every cycle until then. Behind a failed exchange the lines go out at once,
+        unanswered, rather than after the line has fallen quiet for a reply timeout."""
         if not configs:
             return
         indices = [c.index for c in configs]
         for config in configs:
             self.sent[config.name] = Sent(0.0, False, True)
-        self.query("emergency_off" if self.capabilities.emergency_off else "output_off", indices)
-        self.query("set_voltage", indices, 0.0)
+        send = self.link.send if self.link.stale else self.query
+        send("emergency_off" if self.capabilities.emergency_off else "output_off", indices)
+        send("set_voltage", indices, 0.0)
 
     def unconfirmed_cuts(self, faulted: set[str]) -> list[ChannelConfig]:
         """The channels of ``faulted`` (names) whose cut the device has not yet confirmed: to be cut (again)."""

@@ -47,6 +47,19 @@ class Link:
             self._stale = True
             raise
 
+    @property
+    def stale(self) -> bool:
+        """The last exchange failed: the next one first waits for the line to fall quiet (`_resync`)."""
+        return self._stale
+
+    def send(self, operation: str, channels=(), value: float | None = None) -> None:
+        """Write ``operation`` at once, without waiting for the line to fall quiet or reading its answer (which the
+        next exchange's resynchronisation discards): a cut that must not wait a reply timeout behind a failed
+        exchange. Nothing is learnt from it; the device's status confirms what it did."""
+        line = self.dialect.encode(operation, channels, value)
+        self._stale = True
+        self._call(self.port.write, line.encode("ascii") + self.dialect.command_terminator)
+
     def _exchange(self, line: str, answered: bool) -> str | None:
         if self._stale:
             self._resync(line)

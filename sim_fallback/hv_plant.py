@@ -198,23 +198,28 @@ class PlantChannel:
         # Target in the middle of the step: a step begins or ends on a switching edge, whose own time would
         # fall on either side of it by rounding.
         target = self.target(now - dt / 2)
-        rate = tau = None  # how the output moves in this step, for the exact time of a watched crossing
+        # How the output moves in this step (a ramp at ``rate``, or a first-order approach with time constant ``tau``
+        # towards ``towards``), for the exact time of a watched crossing.
+        rate = tau = None
+        towards = target
         if self.arcing and self.output_on:
-            self.voltage *= math.exp(-dt / load.arc_collapse_time)
+            tau, towards = load.arc_collapse_time, 0.0
+            self.voltage *= math.exp(-dt / tau)
         elif self.output_on and self.ramp_up is not None:
             delta = target - self.voltage
-            limit = (self.ramp_up if delta > 0 else self.ramp_down) * dt
-            self.voltage += max(-limit, min(limit, delta))
             rate = self.ramp_up if delta > 0 else self.ramp_down
+            self.voltage += max(-rate * dt, min(rate * dt, delta))
         elif self.output_on:
             tau = self.defaults.regulation_time_s * load.capacitance / NOMINAL_CAPACITANCE
             self.voltage += (target - self.voltage) * -math.expm1(-dt / tau)
         elif self.ramping_down:
-            self.voltage = max(0.0, self.voltage - self.ramp_down * dt)
+            rate = self.ramp_down
+            self.voltage = max(0.0, self.voltage - rate * dt)
             self.ramping_down = self.voltage > 0.0
         else:
-            self.voltage *= math.exp(-dt / (load.discharge_resistance * load.capacitance))
-        self._record_edge(now - dt, dt, before, target, rate, tau)
+            tau, towards = load.discharge_resistance * load.capacitance, 0.0
+            self.voltage *= math.exp(-dt / tau)
+        self._record_edge(now - dt, dt, before, towards, rate, tau)
         self.current = load.capacitance * (self.voltage - before) / dt + self.voltage / load.leakage_resistance
         if self.arcing and self.output_on:
             self.current += load.arc_current
