@@ -1,4 +1,5 @@
-"""HvSupply: owns the serial links of one or more supplies, runs the supervised control loop in its own thread.
+"""HvSupply: owns the serial links of one or more supplies, runs the supervised control loop in its own thread (or,
+on a simulated clock, stepped by its caller: `hv_driver.clock`).
 
 Thread model: one loop thread does all serial I/O; the public methods (thread-safe) only change the supervisor's
 state under a lock and wake the loop, which applies the change within one cycle. Each supply (one port, a
