@@ -2,7 +2,7 @@
 import math
 
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hv_driver import (ChannelConfig, ConfigurationError, ControlError, FaultLatchedError, HvError, HvSupply, LimitError,
@@ -18,6 +18,7 @@ def test_the_driver_errors_share_one_base_and_keep_their_builtin_kinds():
         assert issubclass(error, HvError) and issubclass(error, builtin)
 
 
+@settings(deadline=None)  # hypothesis's per-example deadline is wall-clock time
 @given(st.sampled_from(["max_voltage_v", "slew_rate_v_per_s", "current_trip_a", "mismatch_tolerance_v",
                         "mismatch_time_s"]),
        st.one_of(st.floats(max_value=0.0), st.just(math.nan), st.just(math.inf)))
