@@ -126,7 +126,8 @@ class RampHandle:
 
 class PulseHandle:
     """A running pulse train on one or more channels: ``wait``, ``done``, ``cancel`` (back to 0 V), ``cycles_done``
-    (periods begun on the driver's clock), ``frequency`` (as the device quantised it, or as generated)."""
+    (as the device counted them where it switches the train, else periods begun on the driver's clock),
+    ``frequency`` (as the device quantised it, or as generated)."""
 
     def __init__(self, supply: "HvSupply", trains: dict[str, PulseTrain], ramp_ids: dict[str, int]):
         self._supply, self.trains, self._ramp_ids = supply, trains, ramp_ids
@@ -179,6 +180,11 @@ class PulseHandle:
 
     @property
     def cycles_done(self) -> int:
+        with self._supply._lock:
+            counted = [d.sent[n].counted for d in self._supply._devices for n in self.trains
+                       if n in d.sent and d.sent[n].armed is self.trains[n]]
+        if counted and all(count is not None for count in counted):  # the device's own count (QCycle)
+            return min(done for done, _ in counted)
         if self._ended_at is None and self.done:
             self._ended_at = self._supply._clock()
         at = self._supply._clock() if self._ended_at is None else self._ended_at
