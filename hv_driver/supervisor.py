@@ -52,6 +52,13 @@ COLLAPSE_READBACKS = 2
 PULSE_GUARD_MIN_CYCLES = 3
 PULSE_GUARD_PERIODS = 2.0
 
+# A train the device switches ends by the device's own count (`ChannelSupervisor.device_count_ended`); the host ends it
+# itself only as a fallback, this long after its own clock's end: the start line's latency (a loop period or a late
+# cycle), the board's clock running slow against the host's (DEVICE_CLOCK_TOLERANCE of the train's duration) and one
+# more readback of the count.
+DEVICE_COUNT_MARGIN_S = 0.25
+DEVICE_CLOCK_TOLERANCE = 1e-3
+
 # The control loop's nominal period [s] unless told otherwise (the time step unit of the slew credit, the readback
 # check and the pulse guard).
 DEFAULT_PERIOD_S = 0.01
@@ -116,6 +123,7 @@ class ChannelSupervisor:
         self._low_for = 0.0              # [s] observed time a running pulse train has not reached its guard level
         self._last_observed: float | None = None
         self.pulse_tally: PulseTally | None = None  # the last streamed train's short pulses (kept after it ends)
+        self._counted_out: PulseTrain | None = None  # the device-switched train the device reported counted out
         self.ramp_id = 0  # counts accepted ramp requests, so a waiting caller sees being superseded
 
     # --- state -------------------------------------------------------------------------------
@@ -239,6 +247,10 @@ class ChannelSupervisor:
         self.ramp_id += 1
         self.pulse_tally = None if train.on_device else PulseTally(train, self.ramp_id)
         return self.ramp_id
+
+    def device_count_ended(self, train: PulseTrain) -> None:
+        """The device reports every cycle of ``train`` (the one it switches) switched: the train is over."""
+        self._counted_out = train
 
     def _stop_device_switching(self) -> None:
         """A square train the device switches stops at 0 V at once, one more edge of the kind it was making."""
@@ -364,8 +376,13 @@ class ChannelSupervisor:
         if self.target > ceiling:  # the ceiling dropped under a running ramp: re-plan towards it
             self._start_ramp(now, ceiling, self._ramp.slew_rate if self._ramp else self.config.slew_rate_v_per_s)
         desired = self._ramp.value(now) if self._ramp else self.target
+        finished = self._ramp is not None and self._ramp.finished(now)
         train = self.pulse_train
         device_switched = train is not None and train.on_device
+        if device_switched and now >= train.start:  # on until the device's count ends it (or the fallback)
+            finished = self._counted_out is train or now >= train.stop + DEVICE_COUNT_MARGIN_S + (
+                DEVICE_CLOCK_TOLERANCE * (train.stop - train.start))
+            desired = train.end if finished else train.amplitude
         if not device_switched:  # the device's own square edges are not the host's to slew
             allowance = self.config.slew_rate_v_per_s * dt
             desired = min(max(desired, self.setpoint - allowance), self.setpoint + allowance)
@@ -373,7 +390,7 @@ class ChannelSupervisor:
         tally = self.pulse_tally
         if tally is not None and self._ramp is tally.train:
             tally.add(now, self.setpoint)
-        if self._ramp is not None and self._ramp.finished(now) and self.setpoint == self._ramp.end:
+        if finished and self.setpoint == self._ramp.end:
             self.target, self._ramp = self._ramp.end, None
         if self._off_at_zero and self._ramp is None and self.setpoint == 0.0:
             self.output_enabled = self._off_at_zero = False

@@ -5,7 +5,7 @@ release, on a lapsed heartbeat and at an e-stop; the watchdog is on unless switc
 import math
 
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hv_driver import ChannelConfig, ControlError, Fault, Supervisor
@@ -187,6 +187,7 @@ def test_bad_client_names_are_refused_naming_the_rule(client):
         Supervisor([CONFIG], link_timeout_s=1.0).claim_control(client, 0.0)
 
 
+@settings(deadline=None)  # hypothesis's per-example deadline is wall-clock time
 @given(st.one_of(st.none(), st.text(max_size=80), st.binary(max_size=40), st.integers(), st.floats()))
 def test_no_token_but_the_live_one_is_accepted(token):
     claim = ControlClaim(timeout_s=2.0)
@@ -199,6 +200,7 @@ def test_no_token_but_the_live_one_is_accepted(token):
     assert claim.owner == "sequencer"
 
 
+@settings(deadline=None)  # hypothesis's per-example deadline is wall-clock time
 @given(timeout=st.floats(min_value=0.05, max_value=5.0),
        gaps=st.lists(st.floats(min_value=0.0, max_value=15.0), min_size=1, max_size=30))
 def test_control_lapses_exactly_when_a_heartbeat_gap_exceeds_the_timeout(timeout, gaps):
@@ -252,6 +254,7 @@ def test_a_client_that_died_before_a_stall_still_lapses_after_it():
     assert supervisor.control.owner is None and supervisor.channel("front").faults == Fault.HEARTBEAT
 
 
+@settings(deadline=None)  # hypothesis's per-example deadline is wall-clock time
 @given(timeout=st.floats(min_value=0.05, max_value=5.0),
        cycles=st.lists(st.tuples(st.floats(min_value=0.001, max_value=3.0), st.booleans()), min_size=1, max_size=80))
 def test_a_silent_client_lapses_no_earlier_than_the_timeout_and_no_later_than_the_drivers_stalls_allow(

@@ -3,7 +3,7 @@ time grid, and the supervisor's checks while the device switches."""
 import math
 
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hv_driver import ChannelConfig, Fault, PulseLimitError, SettingError, StateError
@@ -69,6 +69,7 @@ def test_the_smooth_waveform_has_minimum_jerk_edges_within_each_period():
     assert train.cycles_done(start + 0.45) == 2
 
 
+@settings(deadline=None)  # hypothesis's per-example deadline is wall-clock time
 @given(now=st.floats(min_value=0.0, max_value=1e5), delay=st.floats(min_value=0.0, max_value=0.5))
 def test_trains_of_one_frequency_share_a_time_grid(now, delay):
     """Two trains sent at different times (e.g. the two diagonal leg pairs of a gait) keep their phase relation."""

@@ -125,8 +125,11 @@ class DriverInputs(RuleBasedStateMachine):
     def estop(self):
         assert call(self.fuzz.services["estop"], Trigger.Request()).success
         self.live = ""
-        state = self._state(lambda s: s.estop)
-        assert all(not c.output_enabled and c.faults & c.FAULT_ESTOP for c in state.channels)
+        # Shown off once the device confirmed the cut; over a failing link (an injected no_reply or deaf) it stays
+        # shown on until LINK names why.
+        state = self._state(lambda s: s.estop and all(not c.output_enabled or c.faults & c.FAULT_LINK
+                                                      for c in s.channels))
+        assert all(c.faults & c.FAULT_ESTOP and c.setpoint == 0.0 for c in state.channels)
 
     @rule()
     def reset_faults(self):
