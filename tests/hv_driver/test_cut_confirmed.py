@@ -88,3 +88,18 @@ def test_the_device_reporting_its_output_on_after_a_cut_latches_cut_unconfirmed_
     sim.execute = execute
     assert made.supply.wait_for(lambda: not made.supply.snapshot().channel("a").output_enabled, 0.1)
     assert not made.plant("a").output_on
+
+
+def test_a_second_cut_after_a_reset_is_sent_and_confirmed_again(rig):
+    """A confirmed cut, a reset, the output up again: the next fault's cut goes out and must be confirmed anew (a
+    confirmation that outlived the reset left the second e-stop unsent, the output at its voltage)."""
+    _, made = rig
+    for round_ in range(3):
+        made.ramp(600.0)
+        assert made.plant("a").output_on and made.plant("a").voltage > 500.0  # up (a regulated output still settling)
+        made.supply.estop()
+        assert made.supply.wait_for(lambda: not made.supply.snapshot().channel("a").output_enabled, 1.0), round_
+        assert not made.plant("a").output_on and not made.plant("b").output_on, round_
+        made.supply.reset_faults()
+        made.token = made.supply.claim_control("test")  # the e-stop ended the session
+        made.supply.run_for(0.05)

@@ -119,8 +119,9 @@ def test_the_estop_is_open_to_every_client_and_ends_the_session(ready):
         assert call(stranger.create_client(Trigger, "hv/estop"), Trigger.Request()).success
     finally:
         spinner.close()
-    state = ready.latest_state(lambda s: s.estop)
-    assert all(not c.output_enabled for c in state.channels)
+    # shown off once the device confirmed the cut
+    state = ready.latest_state(lambda s: s.estop and all(not c.output_enabled for c in s.channels))
+    assert all(c.faults & HvChannelState.FAULT_ESTOP for c in state.channels)
     assert "control ended by an emergency stop" in ready.ramp_result("back", 100.0, token).message
 
 
