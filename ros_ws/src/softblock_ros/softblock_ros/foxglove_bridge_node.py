@@ -52,7 +52,7 @@ def is_loopback(host: str) -> bool:
         return host == "localhost"
 
 
-class _Subscriptions:
+class _Viewers:
     """The server's listener: remembers which channels clients subscribed to (called on the server's thread)."""
 
     def __init__(self):
@@ -75,11 +75,11 @@ class FoxgloveBridgeNode(Node):
         value = declare(self, PARAMETERS)
         host, port = value["host"], value["port"]
         self._wanted = {self.resolve_topic_name(topic) for topic in value["topics"]}
-        self._context = foxglove.Context()  # this node's channels only (tests run several nodes in one process)
-        self._subscriptions = _Subscriptions()
+        self._live = foxglove.Context()  # this node's channels only (tests run several nodes in one process)
+        self._viewers = _Viewers()
         try:
-            self._server = foxglove.start_server(name="softblock", host=host, port=port, context=self._context,
-                                                 server_listener=self._subscriptions)
+            self._server = foxglove.start_server(name="softblock", host=host, port=port, context=self._live,
+                                                 server_listener=self._viewers)
         except RuntimeError as error:
             raise OSError(f"cannot serve the live view on {host}:{port}: {error}") from None
         self.port = self._server.port
@@ -115,7 +115,7 @@ class FoxgloveBridgeNode(Node):
         except (UnknownMessageTypeError, DefinitionNotFoundError) as error:
             self._skip(topic, str(error))
             return
-        channel = foxglove.Channel(topic, schema=schema, message_encoding=MESSAGE_ENCODING, context=self._context)
+        channel = foxglove.Channel(topic, schema=schema, message_encoding=MESSAGE_ENCODING, context=self._live)
         qos = recording_qos(offered)
         kept = deque(maxlen=LATCHED_KEPT) if qos.durability == DurabilityPolicy.TRANSIENT_LOCAL else None
 
@@ -130,7 +130,7 @@ class FoxgloveBridgeNode(Node):
         self.get_logger().info(f"serving {topic} ({type_name})")
 
     def _serve_latched(self) -> None:
-        new = self._subscriptions.take()
+        new = self._viewers.take()
         for channel, _, kept in self._bridged.values():
             if kept is not None and channel.id() in new:
                 for data, log_time in list(kept):
