@@ -3,7 +3,7 @@
     python -m softblock_ros.demo --out out/demo          (what `make demo` runs)
 
 1. starts hv_driver (sim backend), assembly_state, planner, sim_arm, sim_camera (a side view of the front left
-   finger, its blocks slightly off their design), estimator (angles and mistakes from that view), sequencer
+   finger, its blocks slightly off their design), estimator (angles and mistakes from that view), sequencer,
    the MCAP recorder and the live view for Foxglove (foxglove_bridge, ws://127.0.0.1:8765) (config/stack.yaml);
 2. asks the planner for the paper's gripper fingers for the asymmetric sample object: front fingers of
    4 blocks with the top 2 stiff, back fingers of 5 blocks with the top 3 stiff (Figure 5);
