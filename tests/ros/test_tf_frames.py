@@ -10,7 +10,9 @@ from ros_testing import Inbox, wait_for
 from scipy.spatial.transform import Rotation
 from softblock_interfaces.msg import HvChannelState, HvState
 from tf2_msgs.msg import TFMessage
+from tf_testing import in_root
 
+from planner.assembly import load_assembly
 from planner.frames import link_transforms
 from planner.kinematics import assembly_centerlines
 from planner.table import load_table
@@ -19,33 +21,10 @@ from softblock_ros.paths import resolve_path
 from softblock_ros.qos import LATCHED
 from softblock_ros.recording.recorder_node import RecorderNode
 from softblock_ros.tf_frames import ESTIMATED_PREFIX, blocks_msg, chain_frame, mounts_msg
-from planner.assembly import load_assembly
 
 GRIPPER = load_assembly(resolve_path("config/assemblies/gripper.yaml"))
-ROOT = "gripper_base"
+ROOT = "gripper_base"  # assembly_state's frame_id
 VOLTAGES = {"front": 1800.0, "back": 600.0}
-
-
-def matrix(transform) -> np.ndarray:
-    t, q = transform.transform.translation, transform.transform.rotation
-    frame = np.eye(4)
-    frame[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-    frame[:3, 3] = [t.x, t.y, t.z]
-    return frame
-
-
-def in_root(transforms, root: str = ROOT) -> dict[str, np.ndarray]:
-    """Every child frame in ``root``, composed along its parents as a TF listener does."""
-    parents = {t.child_frame_id: t for t in transforms}
-    assert len(parents) == len(transforms), "a frame has two parents"
-
-    def compose(frame: str) -> np.ndarray:
-        if frame == root:
-            return np.eye(4)
-        link = parents[frame]
-        return compose(link.header.frame_id) @ matrix(link)
-
-    return {frame: compose(frame) for frame in parents}
 
 
 def test_link_transforms_compose_back_to_the_frames():
@@ -63,7 +42,7 @@ def test_link_transforms_compose_back_to_the_frames():
 
 def test_the_tf_frames_of_the_gripper_match_the_planners_kinematics():
     shapes = assembly_centerlines(GRIPPER, load_table(), VOLTAGES)
-    frames = in_root(mounts_msg(GRIPPER.chains, ROOT).transforms + blocks_msg(shapes).transforms)
+    frames = in_root(mounts_msg(GRIPPER.chains, ROOT).transforms + blocks_msg(shapes).transforms, ROOT)
     assert len(frames) == sum(len(chain.blocks) + 1 for chain in GRIPPER.chains)
     for chain in GRIPPER.chains:
         shape = shapes[chain.name]
@@ -74,7 +53,7 @@ def test_the_tf_frames_of_the_gripper_match_the_planners_kinematics():
     # the tip of the front left finger moves with its channel's voltage
     tip = chain_frame("front_left", len(GRIPPER.chains[0].blocks))
     at_rest = in_root(mounts_msg(GRIPPER.chains, ROOT).transforms
-                      + blocks_msg(assembly_centerlines(GRIPPER, load_table(), {})).transforms)
+                      + blocks_msg(assembly_centerlines(GRIPPER, load_table(), {})).transforms, ROOT)
     assert np.linalg.norm(at_rest[tip][:3, 3] - frames[tip][:3, 3]) > 1e-3
 
 
@@ -114,7 +93,7 @@ def test_tf_follows_the_measured_voltage(recording):
 
     def at_voltage(message):
         hv.publish(HvState(channels=[HvChannelState(name="front", measured_voltage=1800.0)]))
-        frames = in_root(list(mounts_msg(GRIPPER.chains, ROOT).transforms) + list(message.transforms))
+        frames = in_root(list(mounts_msg(GRIPPER.chains, ROOT).transforms) + list(message.transforms), ROOT)
         return np.allclose(frames[tip][:3, 3], shapes["front_left"].positions[-1], atol=1e-9)
 
     assert inbox.wait(at_voltage)
