@@ -8,8 +8,9 @@ channel voltage; the result is published as an AssemblyState on ``assembly/estim
 and centerline of the chain that explains the image, in the assembly frame; not the prediction's
 ``assembly/state``) and as a DiagnosticStatus on ``/diagnostics``: OK "as built", WARN with the mistakes
 found, ERROR for an image the chain does not explain or a refused image (the reason named; the node stays up).
-The estimated chain's frames go on ``/tf`` under the prefix ``estimated/`` (its mount on ``/tf_static``, latched;
-``softblock_ros.tf_frames``), beside the predicted ones.
+With each estimate, the estimated chain's frames, its mount included, go on ``/tf`` under the prefix
+``estimated/`` (``softblock_ros.tf_frames``), beside the predicted ones. (Only assembly_state publishes on the latched
+``/tf_static``: two latched samples published moments apart could reach a replay's reader as one.)
 
 ``estimator/calibrate`` (std_srvs/Trigger): per-block calibration offsets from the last
 ``calibration_images`` images of the current chain (``estimation.calibrate_chain``); the reply lists them,
@@ -95,7 +96,6 @@ class EstimatorNode(Node):
         self._estimate_pub = self.create_publisher(AssemblyState, "assembly/estimated", 10)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._tf_pub = self.create_publisher(TFMessage, "/tf", 10)
-        self._tf_static_pub = self.create_publisher(TFMessage, "/tf_static", LATCHED)
         self.create_subscription(Assembly, "assembly/current", self._on_assembly, LATCHED)
         self.create_subscription(HvState, "hv/state", self._on_hv_state, qos_profile_sensor_data)
         self.create_subscription(Image, "camera/silhouette", self._on_image, IMAGE_QOS)
@@ -110,8 +110,6 @@ class EstimatorNode(Node):
             return
         self._assembly = assembly
         self._recent.clear()
-        mounts = mounts_msg([c for c in assembly.chains if c.name == self._chain_name], self._frame_id, ESTIMATED_PREFIX)
-        self._tf_static_pub.publish(stamped(mounts, message.header.stamp))
 
     def _on_hv_state(self, message: HvState) -> None:
         self._voltages = channel_voltages(message)
@@ -147,7 +145,9 @@ class EstimatorNode(Node):
         header = Header(stamp=message.header.stamp, frame_id=self._frame_id)
         state, shape = self._estimated(header, result, voltage)
         self._estimate_pub.publish(state)
-        self._tf_pub.publish(stamped(blocks_msg({chain.name: shape}, ESTIMATED_PREFIX), header.stamp))
+        mount = mounts_msg([result.chain], self._frame_id, ESTIMATED_PREFIX)
+        blocks = blocks_msg({result.chain.name: shape}, ESTIMATED_PREFIX)
+        self._tf_pub.publish(stamped(TFMessage(transforms=[*mount.transforms, *blocks.transforms]), header.stamp))
         self._report(LEVELS[result.status], result.message, self._values(result), header.stamp)
 
     def _estimated(self, header: Header, result, voltage: float) -> tuple[AssemblyState, object]:
