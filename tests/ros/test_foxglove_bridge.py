@@ -1,6 +1,7 @@
 """The live view through a Foxglove WebSocket client (protocol foxglove.sdk.v1, on 127.0.0.1 only): the
 stack's topics advertised with the schemas a recording holds, a subscription receiving hv/state, the latched
 mounts reaching a late viewer, a taken port refused by name, and the shipped layout reading served topics."""
+import inspect
 import json
 import struct
 from contextlib import contextmanager
@@ -12,12 +13,13 @@ from rclpy.serialization import deserialize_message
 from ros_testing import wait_for
 from softblock_interfaces.msg import HvChannelState, HvHeartbeat, HvState
 from tf2_msgs.msg import TFMessage
+from foxglove.websocket import ServerListener
 from websockets.sync.client import connect
 
 from recording.message_definitions import full_definition
 from softblock_ros import foxglove_layout
 from softblock_ros.assembly_state_node import AssemblyStateNode
-from softblock_ros.foxglove_bridge_node import LIVE_TOPICS, FoxgloveBridgeNode, is_loopback
+from softblock_ros.foxglove_bridge_node import LIVE_TOPICS, FoxgloveBridgeNode, _Viewers, is_loopback
 
 SUBPROTOCOL = "foxglove.sdk.v1"  # foxglove-sdk 0.30 names the Foxglove WebSocket protocol so (it refuses foxglove.websocket.v1)
 MESSAGE_DATA = 0x01  # binary opcode of a message on a subscription
@@ -126,6 +128,17 @@ def test_a_late_viewer_receives_the_latched_mounts(bridge, viewer):
 def test_a_taken_port_is_refused_by_name(ros_context, bridge):
     with pytest.raises(OSError, match=f"cannot serve the live view on {HOST}:{bridge.port}: .*in use"):
         FoxgloveBridgeNode(context=ros_context, parameter_overrides=[Parameter("port", value=bridge.port)])
+
+
+def test_the_listener_answers_every_callback_of_the_servers_protocol():
+    # The server calls each (on_unsubscribe when a viewer leaves); a missing one failed every such call.
+    listener = _Viewers()
+    callbacks = [name for name, _ in inspect.getmembers(ServerListener, inspect.isfunction) if name.startswith("on_")]
+    assert "on_unsubscribe" in callbacks
+    assert all(callable(getattr(listener, name, None)) for name in callbacks)
+    listener.on_unsubscribe(None, None)
+    listener.on_subscribe(None, type("Channel", (), {"id": 7})())
+    assert listener.take() == {7} and listener.take() == set()
 
 
 def test_only_loopback_hosts_count_as_this_machine():

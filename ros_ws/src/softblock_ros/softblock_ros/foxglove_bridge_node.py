@@ -18,6 +18,7 @@ import threading
 from collections import deque
 
 import foxglove
+from foxglove.websocket import ServerListener
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy
 
@@ -52,8 +53,10 @@ def is_loopback(host: str) -> bool:
         return host == "localhost"
 
 
-class _Viewers:
-    """The server's listener: remembers which channels clients subscribed to (called on the server's thread)."""
+class _Viewers(ServerListener):
+    """The server's listener: remembers which channels clients subscribed to (called on the server's thread).
+    The protocol's other callbacks keep its defaults (the server calls each, e.g. on_unsubscribe when a viewer
+    leaves)."""
 
     def __init__(self):
         self._lock = threading.Lock()
