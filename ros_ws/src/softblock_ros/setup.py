@@ -27,6 +27,7 @@ setup(
         "console_scripts": [
             "assembly_state = softblock_ros.assembly_state_node:main",
             "estimator = softblock_ros.estimator_node:main",
+            "foxglove_bridge = softblock_ros.foxglove_bridge_node:main",
             "hv_driver = softblock_ros.hv_driver_node:main",
             "planner = softblock_ros.planner_node:main",
             "launcher = softblock_ros.launcher:main",

@@ -181,7 +181,8 @@ def markdown_table(schema: tuple[Param, ...]) -> str:
 NODE_SCHEMAS = {"hv_driver": "softblock_ros.hv_parameters", "assembly_state": "softblock_ros.assembly_state_node",
                 "planner": "softblock_ros.planner_node", "sim_arm": "softblock_ros.sim_arm_node",
                 "sequencer": "softblock_ros.sequencer_node", "recorder": "softblock_ros.recording.recorder_node",
-                "sim_camera": "softblock_ros.sim_camera_node", "estimator": "softblock_ros.estimator_node"}
+                "sim_camera": "softblock_ros.sim_camera_node", "estimator": "softblock_ros.estimator_node",
+                "foxglove_bridge": "softblock_ros.foxglove_bridge_node"}
 
 
 def node_schema(node: str) -> tuple[Param, ...]:
