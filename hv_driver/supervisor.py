@@ -288,7 +288,7 @@ class ChannelSupervisor:
         if not (_finite(voltage) and (current is None or _finite(current))):
             self.trip(Fault.LINK, f"readback not a finite number ({voltage!r} V, {current!r} A)")
             return
-        if current is not None and current > self.config.current_trip_a:
+        if current is not None and abs(current) > self.config.current_trip_a:  # negative-polarity modules
             self.trip(Fault.OVER_CURRENT, f"measured {current:.3g} A above the trip level "
                                           f"{self.config.current_trip_a:.3g} A")
         if device_over_current:
