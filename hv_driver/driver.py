@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 from .clock import SimulatedClock, as_clock
 from .config import ChannelConfig
+from .control import pulse_command
 from .device import ConfigurationError, Device
 from .dialects import CurrentSensing, Dialect, IsegEdcp, ProtocolError
 from .errors import SettingError, StateError
@@ -444,13 +445,15 @@ class HvSupply:
         def plan(config, now):
             return plan_pulse_train(config, self.dialect.capabilities, self.dialect.name, now, self._period,
                                     amplitude_v, frequency_hz, duty, phase, cycles, edge, slew_rate_v_per_s)
-        trains, ramp_ids = self._change(lambda now: self._supervisor.pulse(list(channels), now, plan, token=token))
+        command = pulse_command(channels, amplitude_v, frequency_hz, duty, phase, cycles, edge, slew_rate_v_per_s)
+        trains, ramp_ids = self._change(
+            lambda now: self._supervisor.pulse(list(channels), now, plan, token=token, command=command))
         return PulseHandle(self, trains, ramp_ids)
 
-    def claim_control(self, client: str) -> str:
-        """Take control as ``client`` (a name); returns the session token that ramps and heartbeats carry.
-        ControlError while another client holds control."""
-        return self._change(lambda now: self._supervisor.claim_control(client, now))
+    def claim_control(self, client: str, nonce: str = "") -> str:
+        """Take control as ``client`` (a name); returns the session token that signs ramps and heartbeats
+        (`hv_driver.control`). ControlError while another client holds control; ``nonce``: `ControlClaim.claim`."""
+        return self._change(lambda now: self._supervisor.claim_control(client, now, nonce))
 
     def release_control(self, token: str) -> str:
         """End the control session of ``token``; outputs it left energised ramp to 0 V. Returns the client name."""
