@@ -91,8 +91,8 @@ def test_finger_grasp_runs_to_success(stack, hv):
     assert len(result.step_names) == len(result.step_durations) == 12
     assert [ramp for ramp in hv.ramps] == [("back", 2400.0), ("back", 0.0), ("front", 2400.0), ("front", 0.0),
                                            ("back", 2400.0), ("back", 0.0)]
-    assert channels_off(hv) and hv.heartbeats > 0  # heartbeats with the session's token
-    assert hv.token == ""  # control released at the end
+    assert channels_off(hv) and hv.heartbeats > 0  # heartbeats signed for the session
+    assert hv.control.owner is None and hv.control.ended == "control released by 'sequencer'"
     assert [(f.step_index, f.phase) for f in run.feedback if f.phase == "succeeded"] == [(i, "succeeded")
                                                                                        for i in range(12)]
     assert all(f.step_count == 12 for f in run.feedback)
@@ -192,11 +192,11 @@ def test_goals_name_sequences_and_never_read_other_files(stack, hv, goal):
 
 
 def test_a_sequence_is_refused_while_another_client_holds_hv_control(stack, hv):
-    hv.token = "session-of-another-client"
+    hv.control.claim("another client", time.monotonic())
     status, result = Run(stack["action"], scaled("finger_grasp", stack["dir"], speed=2.0)).result()
     assert status == GoalStatus.STATUS_ABORTED and not result.success
-    assert result.message == "hv/claim_control refused: control is held by another client"
-    assert hv.ramps == [] and hv.token == "session-of-another-client"
+    assert result.message.startswith("hv/claim_control refused: control is held by 'another client'")
+    assert hv.ramps == [] and hv.control.owner == "another client"
 
 
 def test_second_goal_is_rejected_while_one_runs(stack, hv):

@@ -34,6 +34,7 @@ from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
 from hv_driver import HvError, RemoteSupply
+from hv_driver.control import session_id, signed
 
 from . import PUBLICATION_MODE, PUBLICATION_MODE_VARIABLE
 from .hv_conversions import diagnostics_msg, hv_state_msg
@@ -231,10 +232,11 @@ class HvDriverNode(LifecycleNode):
 
     def _on_claim(self, request, response):
         try:
-            response.token = self._supply.claim_control(request.client)
+            response.token = self._supply.claim_control(request.client, request.nonce)
         except HvError as error:  # another client holds control, or a name that cannot be shown
             response.success, response.message = False, str(error)
             return response
+        response.session = session_id(response.token)
         response.heartbeat_timeout = self._supply.snapshot().heartbeat_timeout_s
         response.success, response.message = True, f"control held by {request.client!r}"
         self.get_logger().info(response.message)
@@ -242,8 +244,8 @@ class HvDriverNode(LifecycleNode):
 
     def _on_release(self, request, response):
         try:
-            client = self._supply.release_control(request.token)
-        except HvError as error:  # not the live session's token
+            client = self._supply.release_control(signed(request.session, request.counter, request.mac))
+        except HvError as error:  # not the live session's, or a copied or replayed release
             response.success, response.message = False, str(error)
             return response
         response.success, response.message = True, f"control released by {client!r}; its energised outputs ramp to 0 V"
@@ -252,8 +254,8 @@ class HvDriverNode(LifecycleNode):
 
     def _on_heartbeat(self, msg: HvHeartbeat) -> None:
         try:
-            self._supply.heartbeat(msg.token)
-        except HvError as error:  # another client, an ended session, a replayed recording
+            self._supply.heartbeat(signed(msg.session, msg.counter, msg.mac))
+        except HvError as error:  # another client, an ended session, a copied heartbeat, a replayed recording
             self.get_logger().warning(f"hv/heartbeat ignored: {error}", throttle_duration_sec=REFUSAL_LOG_PERIOD)
 
     def _on_inject(self, request, response):
