@@ -59,6 +59,7 @@ class SupplySnapshot:
     controller: str = ""       # name of the client holding control, "" when none
     heartbeat_age_s: float | None = None  # since the controlling client's last sign of life
     heartbeat_timeout_s: float = DEFAULT_HEARTBEAT_TIMEOUT_S  # inf = watchdog off
+    control_ended: str = ""    # why the last control session ended, e.g. "control of 'demo' lapsed: ..."
 
     def channel(self, name: str) -> ChannelSnapshot:
         return next(c for c in self.channels if c.name == name)
@@ -511,7 +512,8 @@ class HvSupply:
             link_error = "; ".join(d.link_error for d in self._devices if d.link_error)
             return SupplySnapshot(self.device_id, self.port_name, self._supervisor.estop_latched,
                                   link_error, self._stamp, channels, control.owner or "",
-                                  control.heartbeat_age(self._clock()), self._supervisor.heartbeat_timeout_s)
+                                  control.heartbeat_age(self._clock()), self._supervisor.heartbeat_timeout_s,
+                                  control.ended)
 
     def _output_on(self, name: str, channel) -> bool:
         """On as commanded, or as the device last reported it, or cut without the device confirming it: a snapshot

@@ -26,6 +26,7 @@ from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
+from rclpy.logging import LoggingSeverity
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from softblock_interfaces.action import PulseChannels, RampChannel
 from softblock_interfaces.msg import HvHeartbeat, HvState
@@ -35,6 +36,7 @@ from std_srvs.srv import Trigger
 
 from hv_driver import HvError, RemoteSupply
 from hv_driver.control import session_id, signed
+from hv_driver.events import snapshot_events
 
 from . import PUBLICATION_MODE, PUBLICATION_MODE_VARIABLE
 from .hv_conversions import diagnostics_msg, hv_state_msg
@@ -96,7 +98,7 @@ class HvDriverNode(LifecycleNode):
             return FAILURE
         ports = [port for port in self._supply.snapshot().port.split(", ") if port]
         self._index = {c.name: (c.index, c.device) for c in channels}
-        self._published, self._diag_time = None, 0
+        self._published, self._diag_time, self._logged = None, 0, None
         self._state_pub = self.create_publisher(HvState, "hv/state", stream_qos(self._param("publish_rate_hz")))
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         g = self._group
@@ -158,6 +160,7 @@ class HvDriverNode(LifecycleNode):
         for name, text in faulted.items():
             self.get_logger().error(f"channel {name!r} stays off until hv/reset_faults: {text}")
         self._active = True
+        self.get_logger().info("active: outputs on at 0 V")
         return super().on_activate(state)
 
     def on_deactivate(self, state) -> TransitionCallbackReturn:
@@ -167,18 +170,24 @@ class HvDriverNode(LifecycleNode):
         if not self._supply.wait_outputs_off(timeout=30.0):
             self.get_logger().error("deactivate: outputs still on after 30 s")
             return FAILURE
+        self.get_logger().info("inactive: outputs ramped to 0 V and off")
         return super().on_deactivate(state)
 
     def on_cleanup(self, state) -> TransitionCallbackReturn:
         self._stop()
+        self.get_logger().info("unconfigured: outputs off, supplies closed")
         return SUCCESS
 
-    on_shutdown = on_cleanup
+    def on_shutdown(self, state) -> TransitionCallbackReturn:
+        self._stop()
+        self.get_logger().info("shut down: outputs off, supplies closed")
+        return SUCCESS
 
     def on_error(self, state) -> TransitionCallbackReturn:
         if self._supply is not None:
             self._supply.abort()
         self._stop()
+        self.get_logger().error("error: outputs switched off at once, supplies closed")
         return SUCCESS
 
     def _stop(self) -> None:
@@ -206,6 +215,9 @@ class HvDriverNode(LifecycleNode):
     # --- topics, services, action ----------------------------------------------------------------
     def _publish(self) -> None:
         snapshot, stamp = self._supply.snapshot(), self.get_clock().now().to_msg()
+        for level, line in snapshot_events(self._logged, snapshot):  # faults latched, control lapsed
+            self.get_logger().log(line, LoggingSeverity(level))
+        self._logged = snapshot
         self._state_pub.publish(hv_state_msg(snapshot, self._param("backend"), stamp))
         shown = (snapshot.controller, tuple(int(c.faults) for c in snapshot.channels))
         now = self.get_clock().now().nanoseconds
