@@ -12,7 +12,7 @@ from action_msgs.msg import GoalStatus
 from geometry_msgs.msg import PoseStamped
 from fake_hv import FakeHv
 from rclpy.parameter import Parameter
-from ros_testing import Inbox, wait_for
+from ros_testing import Inbox, Spinner, wait_for
 from sequence_files import scaled
 from softblock_interfaces.action import RunSequence
 from softblock_interfaces.msg import SequenceEvent
@@ -53,7 +53,7 @@ def stack(ros_context, spin, tmp_path_factory):
     action = ActionClient(client, RunSequence, "sequencer/run")
     spin(sequencer, arm, hv, client)
     assert action.wait_for_server(timeout_sec=10.0)
-    return {"dir": directory, "hv": hv, "events": events, "action": action, "poses": poses}
+    return {"dir": directory, "hv": hv, "events": events, "action": action, "poses": poses, "client": client}
 
 
 @pytest.fixture
@@ -207,6 +207,25 @@ def test_second_goal_is_rejected_while_one_runs(stack, hv):
     first.handle.cancel_goal_async()
     status, _ = first.result()
     assert status == GoalStatus.STATUS_CANCELED
+
+
+def test_while_two_sequencers_serve_sequencer_run_both_reject_the_goal_and_nothing_runs(stack, hv):
+    """Two sequencers used to accept one finger_grasp goal: one ran it to 2.4 kV, the caller got ABORTED from
+    the other. Now the caller gets one clear answer, rejected, until one of them is gone."""
+    spinner = Spinner(stack["client"].context, num_threads=4)
+    try:
+        spinner.add(make_sequencer(stack["dir"], context=stack["client"].context))
+        wait_for(lambda: stack["client"].count_publishers("/sequencer/run/_action/status") == 2,
+                 what="the second sequencer's action server")
+        run = Run(stack["action"], scaled("finger_grasp", stack["dir"], speed=2.0))
+        assert not run.handle.accepted
+    finally:
+        spinner.close()
+    wait_for(lambda: stack["client"].count_publishers("/sequencer/run/_action/status") == 1,
+             what="the second sequencer gone")
+    assert hv.ramps == [] and hv.control.owner is None
+    status, result = Run(stack["action"], scaled("trunk_flower", stack["dir"], speed=2.0)).result()
+    assert status == GoalStatus.STATUS_SUCCEEDED, result.message
 
 
 def test_legged_gait_pulses_the_legs(stack, hv):
