@@ -13,6 +13,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from action_msgs.msg import GoalStatus
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.lifecycle import TransitionCallbackReturn
+from rcl_interfaces.msg import Log
 from rclpy.parameter import Parameter
 from ros_testing import Inbox, Spinner, call, wait_for
 from softblock_interfaces.action import PulseChannels, RampChannel
@@ -48,6 +49,7 @@ class Clients:
         self.state = Inbox(n, HvState, "hv/state")
         self.diagnostics = Inbox(n, DiagnosticArray, "/diagnostics")
         self.heartbeats = Inbox(n, HvHeartbeat, "hv/heartbeat", 100)
+        self.rosout = Inbox(n, Log, "/rosout", 1000)
         spin(self.driver, n)
         assert self.driver.trigger_configure() == TransitionCallbackReturn.SUCCESS
         assert self.driver.trigger_activate() == TransitionCallbackReturn.SUCCESS
@@ -223,6 +225,22 @@ def test_of_two_clients_claiming_at_once_under_one_name_exactly_one_gets_control
     winner = first if outcomes[first] == sessions[0] else second
     assert ready.ramp_result("front", 300.0, winner).success
     winner.release()
+
+
+def test_faults_and_control_changes_reach_rosout_at_their_level(ready):
+    def logged(level: int, text: str) -> Log:
+        return ready.rosout.wait(lambda m: m.name.endswith("hv_driver") and m.level == level and text in m.msg)
+    ready.rosout.messages.clear()
+    ready.owner.claim()
+    logged(Log.INFO, "control held by 'sequencer'")
+    assert ready.ramp_result("front", 800.0, ready.owner).success
+    assert call(ready.inject, InjectFault.Request(channel="front", fault="over_current")).success
+    logged(Log.ERROR, "channel 'front': fault latched: over_current")
+    assert call(ready.inject, InjectFault.Request(fault="clear")).success
+    ready.owner._key = None  # the owner dies
+    logged(Log.WARN, f"control of 'sequencer' lapsed: no heartbeat for more than {HEARTBEAT_TIMEOUT:g} s")
+    assert call(ready.reset, Trigger.Request()).success
+    logged(Log.INFO, "channel 'front': faults over_current cleared")
 
 
 def test_a_claim_with_an_unusable_name_is_refused(ready):
