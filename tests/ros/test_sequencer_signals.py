@@ -53,6 +53,7 @@ def test_a_signal_mid_sequence_runs_the_safe_stop_first_then_exits_cleanly(rig, 
         sent = rig["action"].send_goal_async(RunSequence.Goal(sequence=name))
         handle = wait_for(sent.done, TIMEOUT, what="the goal response") and sent.result()
         assert handle.accepted
+        rig["state"].messages.clear()
         rig["state"].wait(lambda s: any(c.measured_voltage > 1000.0 for c in s.channels), TIMEOUT)
         result = handle.get_result_async()
         process.send_signal(signum)
