@@ -15,6 +15,7 @@ everyone.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import os
 import shutil
 import sys
@@ -26,7 +27,6 @@ from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
-from rclpy.logging import LoggingSeverity
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from softblock_interfaces.action import PulseChannels, RampChannel
 from softblock_interfaces.msg import HvHeartbeat, HvState
@@ -216,7 +216,7 @@ class HvDriverNode(LifecycleNode):
     def _publish(self) -> None:
         snapshot, stamp = self._supply.snapshot(), self.get_clock().now().to_msg()
         for level, line in snapshot_events(self._logged, snapshot):  # faults latched, control lapsed
-            self.get_logger().log(line, LoggingSeverity(level))
+            self._log(level, line)
         self._logged = snapshot
         self._state_pub.publish(hv_state_msg(snapshot, self._param("backend"), stamp))
         shown = (snapshot.controller, tuple(int(c.faults) for c in snapshot.channels))
@@ -224,6 +224,15 @@ class HvDriverNode(LifecycleNode):
         if shown != self._published or now - self._diag_time >= 1e9:  # 1 Hz, and at once on a fault or owner change
             self._published, self._diag_time = shown, now
             self._diag_pub.publish(diagnostics_msg(snapshot, self.get_name(), self._param("backend"), stamp))
+
+    def _log(self, level: int, line: str) -> None:
+        """``line`` at a `logging` level (rclpy wants one severity per call site)."""
+        if level >= logging.ERROR:
+            self.get_logger().error(line)
+        elif level >= logging.WARNING:
+            self.get_logger().warning(line)
+        else:
+            self.get_logger().info(line)
 
     def _on_estop(self, request, response):
         self._supply.estop()
