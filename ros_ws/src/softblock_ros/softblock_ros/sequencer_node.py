@@ -30,6 +30,7 @@ from .ros_robot import RosRobot
 from .runner import run_node
 
 FEEDBACK_PHASES = {"precondition", "running", "succeeded"}
+RESULT_GRACE_S = 1.0  # [s] after a goal stopped by a signal ended, for its result to reach the caller
 EVENT_PHASES = {"running": "started", "succeeded": "succeeded", "failed": "failed", "canceled": "canceled"}
 
 PARAMETERS = (
@@ -82,6 +83,10 @@ class SequencerNode(Node):
                                     callback_group=group)
         self._server_name = self.resolve_topic_name("sequencer/run")
 
+    def destroy_node(self):
+        self._server.destroy()  # rclpy's destroy_node leaves action servers serving
+        return super().destroy_node()
+
     def stop_safely_on_signals(self) -> None:
         """SIGINT / SIGTERM: the running sequence's safe stop first, then shutdown (call from the main thread).
 
@@ -101,7 +106,8 @@ class SequencerNode(Node):
     def _stop_when_asked(self) -> None:
         self._stop_asked.wait()
         name = signal.Signals(self._stop_signal).name
-        if self._busy.locked():
+        running = self._busy.locked()
+        if running:
             self.get_logger().warning(f"{name}: canceling sequence {self._running_name!r} (safe stop: every channel "
                                       f"to 0 V, control released), then shutting down")
             self._cancel.set()
@@ -110,6 +116,9 @@ class SequencerNode(Node):
             if self._stop_now.is_set() or time.monotonic() > deadline:
                 self.get_logger().error(f"{name}: shutting down before the safe stop ended")
                 break
+        else:
+            if running:  # its result leaves in an executor task after its callback returned: let it go out
+                self._stop_now.wait(RESULT_GRACE_S)
         self.get_logger().info(f"{name}: shutting down")
         self.context.try_shutdown()
 
