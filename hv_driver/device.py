@@ -209,7 +209,7 @@ class Device:
                 self.query("emergency_clear", ch)
             if self.has("clear_events"):
                 self.query("clear_events", ch)
-            sent.emergency = False
+            sent.emergency = sent.cut_confirmed = False  # the next cut must be confirmed anew
         if output_on and pulse is not None:
             self._switch(config, pulse, now)
             return

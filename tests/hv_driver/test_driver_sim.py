@@ -159,6 +159,18 @@ def test_faults_stay_latched_until_reset_then_outputs_stay_off_until_enabled(sim
     assert supply.ramp_to("front", 500.0, token=token).wait(5.0) and sim.plant[0].output_on
 
 
+def test_a_second_estop_after_a_reset_cuts_again(sim, supply, token):
+    """The first cut's confirmation must not stand for the next: a second e-stop after a reset left 800 V on."""
+    for _ in range(2):
+        ramp_both(supply, token, 800.0)
+        supply.estop()
+        assert supply.wait_for(lambda: all_off(sim) and not any(c.output_enabled for c in supply.snapshot().channels))
+        supply.reset_faults()
+        for name in ("front", "back"):
+            supply.enable(name)
+        token = supply.claim_control("test")  # the e-stop ended the session
+
+
 def test_device_reset_only_with_outputs_off_and_limits_are_restored(sim, supply):
     supply.enable("front")
     with pytest.raises(RuntimeError, match="switch every output off first"):
