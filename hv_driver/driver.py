@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 from .clock import SimulatedClock, as_clock
 from .config import ChannelConfig
+from .control import pulse_command
 from .device import ConfigurationError, Device
 from .dialects import CurrentSensing, Dialect, IsegEdcp, ProtocolError
 from .errors import SettingError, StateError
@@ -58,6 +59,7 @@ class SupplySnapshot:
     controller: str = ""       # name of the client holding control, "" when none
     heartbeat_age_s: float | None = None  # since the controlling client's last sign of life
     heartbeat_timeout_s: float = DEFAULT_HEARTBEAT_TIMEOUT_S  # inf = watchdog off
+    control_ended: str = ""    # why the last control session ended, e.g. "control of 'demo' lapsed: ..."
 
     def channel(self, name: str) -> ChannelSnapshot:
         return next(c for c in self.channels if c.name == name)
@@ -444,13 +446,15 @@ class HvSupply:
         def plan(config, now):
             return plan_pulse_train(config, self.dialect.capabilities, self.dialect.name, now, self._period,
                                     amplitude_v, frequency_hz, duty, phase, cycles, edge, slew_rate_v_per_s)
-        trains, ramp_ids = self._change(lambda now: self._supervisor.pulse(list(channels), now, plan, token=token))
+        command = pulse_command(channels, amplitude_v, frequency_hz, duty, phase, cycles, edge, slew_rate_v_per_s)
+        trains, ramp_ids = self._change(
+            lambda now: self._supervisor.pulse(list(channels), now, plan, token=token, command=command))
         return PulseHandle(self, trains, ramp_ids)
 
-    def claim_control(self, client: str) -> str:
-        """Take control as ``client`` (a name); returns the session token that ramps and heartbeats carry.
-        ControlError while another client holds control."""
-        return self._change(lambda now: self._supervisor.claim_control(client, now))
+    def claim_control(self, client: str, nonce: str = "") -> str:
+        """Take control as ``client`` (a name); returns the session token that signs ramps and heartbeats
+        (`hv_driver.control`). ControlError while another client holds control; ``nonce``: `ControlClaim.claim`."""
+        return self._change(lambda now: self._supervisor.claim_control(client, now, nonce))
 
     def release_control(self, token: str) -> str:
         """End the control session of ``token``; outputs it left energised ramp to 0 V. Returns the client name."""
@@ -508,7 +512,8 @@ class HvSupply:
             link_error = "; ".join(d.link_error for d in self._devices if d.link_error)
             return SupplySnapshot(self.device_id, self.port_name, self._supervisor.estop_latched,
                                   link_error, self._stamp, channels, control.owner or "",
-                                  control.heartbeat_age(self._clock()), self._supervisor.heartbeat_timeout_s)
+                                  control.heartbeat_age(self._clock()), self._supervisor.heartbeat_timeout_s,
+                                  control.ended)
 
     def _output_on(self, name: str, channel) -> bool:
         """On as commanded, or as the device last reported it, or cut without the device confirming it: a snapshot

@@ -11,7 +11,7 @@ Rules enforced here:
 - the setpoint rises and falls no faster than the channel's slew limit (a stalled loop catches up by
   at most two nominal periods' worth per cycle), except that it drops at once when the ceiling drops
   below it or a fault latches;
-- only the client holding control (its session token) may ramp or feed the heartbeat watchdog; the
+- only the client holding control (commands signed with its session token) may ramp or feed the heartbeat watchdog; the
   watchdog is on unless switched off on purpose (heartbeat_timeout_s=math.inf), and a stall of the driver's
   own loop is not counted as the client's silence (`ControlClaim.cycle`);
 - the readback must follow the commands at the device's own ramp (`ReadbackCheck`);
@@ -30,7 +30,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from .config import ChannelConfig
-from .control import ControlClaim
+from .control import HEARTBEAT, ControlClaim, ramp_command
 from .errors import HvError, SettingError, StateError
 from .faults import Fault, fault_names
 from .pulse import PulseTally, PulseTrain
@@ -288,7 +288,7 @@ class ChannelSupervisor:
         if not (_finite(voltage) and (current is None or _finite(current))):
             self.trip(Fault.LINK, f"readback not a finite number ({voltage!r} V, {current!r} A)")
             return
-        if current is not None and current > self.config.current_trip_a:
+        if current is not None and abs(current) > self.config.current_trip_a:  # negative-polarity modules
             self.trip(Fault.OVER_CURRENT, f"measured {current:.3g} A above the trip level "
                                           f"{self.config.current_trip_a:.3g} A")
         if device_over_current:
@@ -464,15 +464,16 @@ class Supervisor:
         self._link_failing[device] = (since, failed + 1)
 
     # --- who may command ---------------------------------------------------------------------
-    def claim_control(self, client: str, now: float) -> str:
-        """Take control as ``client``; returns the session token (ControlError while another holds it). What a
-        lapsed session left energised trips first: a new client never inherits outputs it did not raise."""
+    def claim_control(self, client: str, now: float, nonce: str = "") -> str:
+        """Take control as ``client``; returns the session token (ControlError while another holds it; ``nonce``:
+        `ControlClaim.claim`). What a lapsed session left energised trips first: a new client never inherits
+        outputs it did not raise."""
         now = self._now(now)
         self._watch_control(now)
-        return self.control.claim(client, now)
+        return self.control.claim(client, now, nonce)
 
     def release_control(self, token: str, now: float) -> str:
-        """End the session of ``token``; every output it left energised ramps to 0 V (no client watches it)."""
+        """End the session of ``token`` (the session token or a signed release, `ControlClaim.release`); every output it left energised ramps to 0 V (no client watches it)."""
         now = self._now(now)
         owner = self.control.release(token, now)
         for channel in self.channels.values():
@@ -481,8 +482,9 @@ class Supervisor:
         return owner
 
     def heartbeat(self, now: float, token: str) -> None:
-        """Sign of life of the controlling client (ControlError for any other token)."""
-        self.control.confirm(token, self._now(now))
+        """Sign of life of the controlling client (``token``: its session token or a signed HEARTBEAT; ControlError
+        for anything else)."""
+        self.control.confirm(token, self._now(now), HEARTBEAT)
 
     # --- requests ----------------------------------------------------------------------------
     def enable(self, name: str, now: float) -> None:
@@ -491,22 +493,24 @@ class Supervisor:
 
     def ramp_to(self, name: str, now: float, target_v: float, slew_rate_v_per_s: float | None = None, *,
                 token: str) -> int:
-        """Start a ramp on one channel for the client holding control; the request counts as its sign of life."""
+        """Start a ramp on one channel for the client holding control (``token``: its session token or the signed
+        `ramp_command`); the request counts as its sign of life."""
         now = self._now(now)
         channel = self.channel(name)
-        self.control.confirm(token, now)
+        self.control.confirm(token, now, ramp_command(name, target_v, slew_rate_v_per_s))
         return channel.ramp_to(now, target_v, slew_rate_v_per_s)
 
     def pulse(self, names: list[str], now: float, plan: Callable[[ChannelConfig, float], PulseTrain], *,
-              token: str) -> tuple[dict[str, PulseTrain], dict[str, int]]:
+              token: str, command: tuple = ("pulse",)) -> tuple[dict[str, PulseTrain], dict[str, int]]:
         """Start a pulse train, ``plan(config, now)`` (e.g. `plan_pulse_train`), on each channel of ``names`` for
-        the client holding control (all or none); returns the train and the ramp id of each. The request counts as
+        the client holding control (all or none); returns the train and the ramp id of each. ``token``: the session
+        token, or a signed ``command`` (`pulse_command` of the request ``plan`` was made from). The request counts as
         the client's sign of life."""
         now = self._now(now)
         channels = [self.channel(name) for name in names]
         if not channels or len(set(names)) != len(names):
             raise SettingError(f"channels={names!r}: one or more distinct channel names")
-        self.control.confirm(token, now)
+        self.control.confirm(token, now, command)
         trains = {channel.config.name: plan(channel.config, now) for channel in channels}
         for channel in channels:  # every check before anything changes
             channel.check_pulse(trains[channel.config.name])

@@ -72,15 +72,15 @@ def test_a_claim_answers_a_fresh_token_and_is_refused_while_another_client_holds
 def test_a_claim_repeated_before_the_first_sign_of_life_gets_the_same_session_and_after_it_is_refused():
     supervisor = Supervisor([CONFIG], link_timeout_s=1.0)
     supervisor.enable("front", 0.0)
-    token = supervisor.claim_control("sequencer", 0.0)
-    assert supervisor.claim_control("sequencer", 9.0) == token  # its first reply was lost; it asks again
+    token = supervisor.claim_control("sequencer", 0.0, nonce="n1")
+    assert supervisor.claim_control("sequencer", 9.0, nonce="n1") == token  # its first reply was lost; it asks again
     assert supervisor.control.heartbeat_age(9.0) == 0.0  # the repeat is a sign of life, not yet a use
-    assert supervisor.claim_control("sequencer", 18.0) == token  # within 10 s of the repeat: still held
+    assert supervisor.claim_control("sequencer", 18.0, nonce="n1") == token  # within 10 s of the repeat: still held
     with pytest.raises(ControlError, match="control is held by 'sequencer'"):
         supervisor.claim_control("demo", 18.5)
     supervisor.ramp_to("front", 18.5, 500.0, token=token)  # used: from now on a repeat is refused
     with pytest.raises(ControlError, match="control is held by 'sequencer' .*release it first or stay silent for 2 s"):
-        supervisor.claim_control("sequencer", 18.6)
+        supervisor.claim_control("sequencer", 18.6, nonce="n1")
 
 
 def test_a_ramp_without_the_live_token_is_refused_naming_the_owner():

@@ -64,7 +64,7 @@ class Client:
 
     def send_ramp(self, channel, target, feedback=None):
         assert self.ramp.wait_for_server(timeout_sec=10.0)
-        goal = RampChannel.Goal(channel=channel, target=target, token=self.control.token)
+        goal = self.control.ramp_goal(channel, target)
         future = self.ramp.send_goal_async(goal, feedback_callback=feedback)
         goal = wait_for(future.done) and future.result()
         assert goal.accepted

@@ -167,20 +167,20 @@ def run_grasp(client: DemoClient) -> dict:
 
 def fault_drill(client: DemoClient) -> dict:
     """The fault drill with the demo holding control of the HV driver (claimed, then released)."""
-    token = client.control.claim()
+    client.control.claim()
     try:
-        return inject_fault_mid_ramp(client, token)
+        return inject_fault_mid_ramp(client)
     finally:
         say(f"  HV control: {client.control.release()}")
 
 
-def inject_fault_mid_ramp(client: DemoClient, token: str) -> dict:
+def inject_fault_mid_ramp(client: DemoClient) -> dict:
     """Ramp a channel, inject an over-current (film breakdown) into the simulated supply mid-ramp,
     and time how long the driver takes to switch the output off with a named fault."""
     say(f"fault drill: ramping {FAULT_CHANNEL} toward 1.2 kV, then injecting {FAULT}")
     outcome = {}
     ramp = threading.Thread(target=lambda: outcome.setdefault("ramp", run_action(
-        client.ramp, RampChannel.Goal(channel=FAULT_CHANNEL, target=1200.0, token=token), timeout=60.0,
+        client.ramp, client.control.ramp_goal(FAULT_CHANNEL, 1200.0), timeout=60.0,
         server_timeout=SERVICE_TIMEOUT)), daemon=True)
     ramp.start()
     wait_until(lambda: (c := client.channel(FAULT_CHANNEL)) and c.measured_voltage > 600.0, 30.0,

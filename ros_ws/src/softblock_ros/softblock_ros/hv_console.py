@@ -13,7 +13,7 @@ Commands, one per line, each answered with one line (a JSON object with --json):
     reset                     hv/reset_faults
     estop                     hv/estop
     claim <client name>       hv/claim_control; heartbeats follow while the console holds control
-    ramp <channel> <volts>    hv/ramp with the console's token, waits for the result
+    ramp <channel> <volts>    hv/ramp signed for the console's session, waits for the result
     release                   hv/release_control
     quit                      (also end of input): control still held is released first (after Ctrl-C the
                               driver's heartbeat watchdog ends it)
@@ -130,11 +130,11 @@ class HvConsole:
             return reply.success, reply.message
         if command == "claim" and arguments:
             self.control.client = " ".join(arguments)
-            return True, f"control held, token {self.control.claim()[:8]}..."
+            return True, f"control held, session {self.control.claim()}"
         if command == "release" and not arguments:
             return True, self.control.release()
         if command == "ramp" and len(arguments) == 2:
-            goal = RampChannel.Goal(channel=arguments[0], target=float(arguments[1]), token=self.control.token)
+            goal = self.control.ramp_goal(arguments[0], float(arguments[1]))
             status, result = run_action(self._ramp, goal, RAMP_TIMEOUT, server_timeout=SERVICE_TIMEOUT)
             return result.success, f"{status_name(status)}: {result.message}"
         raise ValueError(f"unknown command {' '.join([command, *arguments])!r}; "
@@ -198,7 +198,7 @@ def main(argv=None) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        if console.control.token and rclpy.ok():
+        if console.control.session and rclpy.ok():
             try:
                 console.control.release()
             except ClientError as error:

@@ -15,6 +15,7 @@ everyone.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import os
 import shutil
 import sys
@@ -34,6 +35,8 @@ from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
 from hv_driver import HvError, RemoteSupply
+from hv_driver.control import session_id, signed
+from hv_driver.events import snapshot_events
 
 from . import PUBLICATION_MODE, PUBLICATION_MODE_VARIABLE
 from .hv_conversions import diagnostics_msg, hv_state_msg
@@ -95,7 +98,7 @@ class HvDriverNode(LifecycleNode):
             return FAILURE
         ports = [port for port in self._supply.snapshot().port.split(", ") if port]
         self._index = {c.name: (c.index, c.device) for c in channels}
-        self._published, self._diag_time = None, 0
+        self._published, self._diag_time, self._logged = None, 0, None
         self._state_pub = self.create_publisher(HvState, "hv/state", stream_qos(self._param("publish_rate_hz")))
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         g = self._group
@@ -157,6 +160,7 @@ class HvDriverNode(LifecycleNode):
         for name, text in faulted.items():
             self.get_logger().error(f"channel {name!r} stays off until hv/reset_faults: {text}")
         self._active = True
+        self.get_logger().info("active: outputs on at 0 V")
         return super().on_activate(state)
 
     def on_deactivate(self, state) -> TransitionCallbackReturn:
@@ -166,18 +170,24 @@ class HvDriverNode(LifecycleNode):
         if not self._supply.wait_outputs_off(timeout=30.0):
             self.get_logger().error("deactivate: outputs still on after 30 s")
             return FAILURE
+        self.get_logger().info("inactive: outputs ramped to 0 V and off")
         return super().on_deactivate(state)
 
     def on_cleanup(self, state) -> TransitionCallbackReturn:
         self._stop()
+        self.get_logger().info("unconfigured: outputs off, supplies closed")
         return SUCCESS
 
-    on_shutdown = on_cleanup
+    def on_shutdown(self, state) -> TransitionCallbackReturn:
+        self._stop()
+        self.get_logger().info("shut down: outputs off, supplies closed")
+        return SUCCESS
 
     def on_error(self, state) -> TransitionCallbackReturn:
         if self._supply is not None:
             self._supply.abort()
         self._stop()
+        self.get_logger().error("error: outputs switched off at once, supplies closed")
         return SUCCESS
 
     def _stop(self) -> None:
@@ -205,12 +215,24 @@ class HvDriverNode(LifecycleNode):
     # --- topics, services, action ----------------------------------------------------------------
     def _publish(self) -> None:
         snapshot, stamp = self._supply.snapshot(), self.get_clock().now().to_msg()
+        for level, line in snapshot_events(self._logged, snapshot):  # faults latched, control lapsed
+            self._log(level, line)
+        self._logged = snapshot
         self._state_pub.publish(hv_state_msg(snapshot, self._param("backend"), stamp))
         shown = (snapshot.controller, tuple(int(c.faults) for c in snapshot.channels))
         now = self.get_clock().now().nanoseconds
         if shown != self._published or now - self._diag_time >= 1e9:  # 1 Hz, and at once on a fault or owner change
             self._published, self._diag_time = shown, now
             self._diag_pub.publish(diagnostics_msg(snapshot, self.get_name(), self._param("backend"), stamp))
+
+    def _log(self, level: int, line: str) -> None:
+        """``line`` at a `logging` level (rclpy wants one severity per call site)."""
+        if level >= logging.ERROR:
+            self.get_logger().error(line)
+        elif level >= logging.WARNING:
+            self.get_logger().warning(line)
+        else:
+            self.get_logger().info(line)
 
     def _on_estop(self, request, response):
         self._supply.estop()
@@ -231,10 +253,11 @@ class HvDriverNode(LifecycleNode):
 
     def _on_claim(self, request, response):
         try:
-            response.token = self._supply.claim_control(request.client)
+            response.token = self._supply.claim_control(request.client, request.nonce)
         except HvError as error:  # another client holds control, or a name that cannot be shown
             response.success, response.message = False, str(error)
             return response
+        response.session = session_id(response.token)
         response.heartbeat_timeout = self._supply.snapshot().heartbeat_timeout_s
         response.success, response.message = True, f"control held by {request.client!r}"
         self.get_logger().info(response.message)
@@ -242,8 +265,8 @@ class HvDriverNode(LifecycleNode):
 
     def _on_release(self, request, response):
         try:
-            client = self._supply.release_control(request.token)
-        except HvError as error:  # not the live session's token
+            client = self._supply.release_control(signed(request.session, request.counter, request.mac))
+        except HvError as error:  # not the live session's, or a copied or replayed release
             response.success, response.message = False, str(error)
             return response
         response.success, response.message = True, f"control released by {client!r}; its energised outputs ramp to 0 V"
@@ -252,8 +275,8 @@ class HvDriverNode(LifecycleNode):
 
     def _on_heartbeat(self, msg: HvHeartbeat) -> None:
         try:
-            self._supply.heartbeat(msg.token)
-        except HvError as error:  # another client, an ended session, a replayed recording
+            self._supply.heartbeat(signed(msg.session, msg.counter, msg.mac))
+        except HvError as error:  # another client, an ended session, a copied heartbeat, a replayed recording
             self.get_logger().warning(f"hv/heartbeat ignored: {error}", throttle_duration_sec=REFUSAL_LOG_PERIOD)
 
     def _on_inject(self, request, response):

@@ -5,6 +5,7 @@ from __future__ import annotations
 from softblock_interfaces.action import PulseChannels
 
 from hv_driver import HvError, HvSupply
+from hv_driver.control import signed
 
 from .hv_ramp_goal import abort_goal, end_goal
 
@@ -22,7 +23,8 @@ def execute_pulse_goal(supply: HvSupply, goal_handle) -> PulseChannels.Result:
             raise ValueError(f"edge={goal.edge}: EDGE_SMOOTH ({PulseChannels.Goal.EDGE_SMOOTH}) or EDGE_SQUARE "
                              f"({PulseChannels.Goal.EDGE_SQUARE})")
         handle = supply.pulse(list(goal.channels), goal.amplitude, goal.frequency, goal.duty, goal.phase,
-                              goal.cycles, edge, goal.slew_rate or None, token=goal.token)
+                              goal.cycles, edge, goal.slew_rate or None,
+                              token=signed(goal.session, goal.counter, goal.mac))
     except (HvError, ValueError) as error:
         result.message = str(error)
         goal_handle.abort()

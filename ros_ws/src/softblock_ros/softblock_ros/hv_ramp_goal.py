@@ -4,6 +4,7 @@ from __future__ import annotations
 from softblock_interfaces.action import RampChannel
 
 from hv_driver import HvError, HvSupply
+from hv_driver.control import signed
 
 FEEDBACK_PERIOD = 0.05  # [s]
 
@@ -13,7 +14,8 @@ def execute_ramp_goal(supply: HvSupply, goal_handle) -> RampChannel.Result:
     control) aborts with the reason."""
     goal, result = goal_handle.request, RampChannel.Result()
     try:
-        handle = supply.ramp_to(goal.channel, goal.target, goal.slew_rate or None, token=goal.token)
+        handle = supply.ramp_to(goal.channel, goal.target, goal.slew_rate or None,
+                                 token=signed(goal.session, goal.counter, goal.mac))
     except HvError as error:  # a limit, a latched fault, the output off, an unknown channel, not in control
         result.message = str(error)
         goal_handle.abort()
