@@ -12,10 +12,10 @@ import rclpy
 from processes import start, stop
 from ros_testing import Inbox
 from softblock_interfaces.action import RampChannel
-from softblock_interfaces.msg import HvChannelState, HvHeartbeat, HvState
-from softblock_interfaces.srv import ClaimControl
+from softblock_interfaces.msg import HvChannelState, HvState
 
-from softblock_ros.client import ActionClient, call_repeatable, run_action
+from softblock_ros.client import ActionClient, run_action
+from softblock_ros.hv_control import HvControl
 
 NAMESPACE = "/killed"
 TIMEOUT = 60.0  # [s] for a node process to start, a ramp to end, an event to show; the host may be loaded
@@ -41,19 +41,15 @@ def front(state: HvState) -> HvChannelState:
 def test_a_killed_driver_node_leaves_every_output_ramped_down_and_latched(ros_context, spin, supervisor_socket):
     client = rclpy.create_node("killed_client", namespace=NAMESPACE, context=ros_context)
     states = Inbox(client, HvState, "hv/state", 100)
-    claim = client.create_client(ClaimControl, "hv/claim_control")
+    control = HvControl(client, "sequencer", timeout_s=TIMEOUT)  # beats at 10 Hz while it holds control
     ramp = ActionClient(client, RampChannel, "hv/ramp")
-    beats = client.create_publisher(HvHeartbeat, "hv/heartbeat", 10)
     spin(client)
     first = driver(supervisor_socket)
     second = None
     try:
-        reply = call_repeatable(claim, ClaimControl.Request(client="sequencer"), TIMEOUT, resend_s=1.0)
-        assert reply.success, reply.message
-        client.create_timer(0.1, lambda: beats.publish(HvHeartbeat(token=reply.token)))  # the client lives on
+        control.claim()  # and the client lives on, beating, after the node's death
         states.wait(lambda s: front(s).output_enabled, TIMEOUT)
-        status, result = run_action(ramp, RampChannel.Goal(channel="front", target=2400.0, token=reply.token),
-                                    TIMEOUT, server_timeout=TIMEOUT)
+        status, result = run_action(ramp, control.ramp_goal("front", 2400.0), TIMEOUT, server_timeout=TIMEOUT)
         assert result.success, result.message
         os.kill(first.pid, signal.SIGKILL)
         first.wait()
