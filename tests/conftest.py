@@ -44,6 +44,25 @@ def ros_domain_per_module():
     os.environ["ROS_DOMAIN_ID"] = _domain(next(_MODULES))
 
 
+# The tiers are the markers pyproject.toml registers; tests/test_tiers.py checks that every test has one.
+_TIERS_OF = pytest.StashKey[dict]()
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """Before `-m` deselects any: the tier markers of every collected test (`make test` and `make test-fast`
+    collect the whole suite, whichever tier they run)."""
+    tiers = {line.split(":")[0] for line in config.getini("markers")}
+    config.stash[_TIERS_OF] = {item.nodeid: [mark.name for mark in item.iter_markers() if mark.name in tiers]
+                               for item in items}
+
+
+@pytest.fixture
+def collected_tiers(request) -> dict[str, list[str]]:
+    """node id -> its tier markers, of every test this run collected."""
+    return request.config.stash[_TIERS_OF]
+
+
 adopt_orphans()  # a test process killed with its children alive leaves them in this tree, not to init
 _TIMED_OUT = pytest.StashKey[bool]()
 

@@ -18,6 +18,8 @@ from sim_fallback.hv_plant import ChannelDefaults
 from sim_fallback.hv_supply import SimulatedSupply
 from stalls import stall_this_process
 
+pytestmark = pytest.mark.integration
+
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 

@@ -9,6 +9,8 @@ from hv_driver.dialects import Command, Dialect, Keithley2290
 from hv_driver.dialects.iseg_edcp import ChannelEvent, ChannelStatus
 from hv_driver.link import Link
 
+pytestmark = pytest.mark.fast
+
 EDCP = IsegEdcp()
 
 

@@ -28,6 +28,8 @@ from softblock_ros.client import ActionClient
 from softblock_ros.hv_driver_node import HvDriverNode
 from softblock_ros.qos import LATCHED
 
+pytestmark = pytest.mark.integration
+
 MAX_VOLTAGE = 3000.0
 TOLERANCE = 100.0  # [V] readback tolerance: the measured voltage may lag a falling ceiling by this much
 LIVE = object()  # strategy marker: use the live session's token

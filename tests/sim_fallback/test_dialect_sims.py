@@ -10,6 +10,8 @@ from sim_fallback.hv_supply_process import SimulatedSupplyProcess
 from sim_fallback.keithley_supply import SimulatedKeithley2290
 from sim_fallback.ppv_supply import SimulatedPpv
 
+pytestmark = pytest.mark.integration
+
 
 def ppv_exchange(link, line: str) -> str:
     """As the reference library: write ``line`` + CR, read one line, drop its CR LF."""

@@ -14,6 +14,8 @@ from hv_driver.dialects.iseg_edcp import ChannelStatus
 from sim_fallback.hv_plant import ChannelDefaults, DeaLoad, PlantChannel
 from sim_fallback.hv_supply import ERROR_REPLY, SimulatedSupply, channel_status
 
+pytestmark = pytest.mark.integration
+
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
