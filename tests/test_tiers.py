@@ -7,6 +7,7 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
 
 pytestmark = pytest.mark.fast
 
@@ -29,3 +30,8 @@ def test_every_collected_test_has_exactly_one_tier(collected_tiers):
 def test_no_tier_is_empty(tier):
     """`pytest -m <tier>` with nothing to run exits 5, which would fail `make test`."""
     assert any(f"pytest.mark.{tier}" in path.read_text() for path in TESTS.rglob("test_*.py"))
+
+
+def test_hypothesis_examples_have_no_wall_clock_deadline():
+    """No test asserts a wall-clock duration, hypothesis' per-example deadline included (tests/conftest.py)."""
+    assert settings().deadline is None
