@@ -41,7 +41,7 @@ kill_leftovers() {
     # process groups). Each was started from the clone's venv, so its command line names the clone folder.
     local pids=() proc
     for proc in /proc/[0-9]*; do
-        tr '\0' ' ' <"$proc/cmdline" 2>/dev/null | grep -qF "$1/" && pids+=("${proc#/proc/}")
+        { tr '\0' ' ' <"$proc/cmdline"; } 2>/dev/null | grep -qF "$1/" && pids+=("${proc#/proc/}")
     done
     if ((${#pids[@]})); then
         echo "[stress] killing ${#pids[@]} process(es) the run left behind" >&2
