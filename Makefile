@@ -1,6 +1,8 @@
 # The two commands of the README: `make demo` (the whole stack on the simulated backend)
-# and `make test`. Both run the idempotent set-up first.
-.PHONY: setup demo test bench
+# and `make test`. Both run the idempotent set-up first. `make test-fast` is the quick gate: the fast tier.
+.PHONY: setup demo test test-fast bench
+
+PYTEST := scripts/with_env.sh python -m pytest
 
 setup:
 	bash scripts/setup_env.sh
@@ -8,9 +10,16 @@ setup:
 demo: setup
 	scripts/with_env.sh python -m softblock_ros.demo --out out/demo
 
+# The tiers (pyproject.toml's markers), cheapest first, so that a broken basic stops the run early.
+# Integration modules stay on one worker each (--dist loadfile): they share module-wide nodes and ROS domains.
+# The stack tests run alone, so that they neither starve nor are starved by other tests.
 test: setup
-	scripts/with_env.sh python -m pytest -n 2 --dist loadfile -m "not serial" tests
-	scripts/with_env.sh python -m pytest -m serial tests
+	$(PYTEST) -n 2 -m fast tests
+	$(PYTEST) -n 2 --dist loadfile -m integration tests
+	$(PYTEST) -m stack tests
+
+test-fast: setup
+	$(PYTEST) -n 2 -m fast tests
 
 bench: setup
 	scripts/with_env.sh bash benchmarks/run_all.sh

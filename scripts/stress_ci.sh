@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
 # Fresh-clone stress test: clone this repository's committed HEAD into an empty temporary folder N times and
-# run the CI command there (`.ci/run`: set-up + `make test`), or `make demo` with --demo. Reports how many
-# runs passed and keeps the log of every failed run.
+# run the CI command there (`.ci/run`: set-up + `make test`), or `make demo` with --demo, optionally with K busy
+# loops (--busy K) running beside each run. Reports how many runs passed and keeps the log of every failed run.
 #
 #   scripts/stress_ci.sh 10              # 10 CI runs, one after the other
-#   scripts/stress_ci.sh 3 --busy        # the same with one extra busy loop on the machine
+#   scripts/stress_ci.sh 3 --busy 2      # the same with two busy loops beside each run
 #   scripts/stress_ci.sh 5 --demo        # `make demo` instead of .ci/run
 #
 # Results go to out/stress/<time>/ (or --results DIR): run-<i>.log of each failed run (and the demo's
@@ -13,14 +13,14 @@
 set -euo pipefail
 repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 
-usage() { echo "usage: $0 N [--busy] [--demo] [--timeout SECONDS] [--results DIR]" >&2; exit 2; }
+usage() { echo "usage: $0 N [--busy K] [--demo] [--timeout SECONDS] [--results DIR]" >&2; exit 2; }
 [[ $# -ge 1 && $1 =~ ^[1-9][0-9]*$ ]] || usage
 runs=$1
 shift
-busy=false demo=false timeout_s=3600 results="$repo/out/stress/$(date -u +%Y%m%dT%H%M%SZ)"
+busy=0 demo=false timeout_s=3600 results="$repo/out/stress/$(date -u +%Y%m%dT%H%M%SZ)"
 while [[ $# -gt 0 ]]; do
     case $1 in
-        --busy) busy=true ;;
+        --busy) [[ ${2:-} =~ ^(0|[1-9][0-9]*)$ ]] || usage; busy=$2; shift ;;
         --demo) demo=true ;;
         --timeout) [[ ${2:-} =~ ^[1-9][0-9]*$ ]] || usage; timeout_s=$2; shift ;;
         --results) [[ -n ${2:-} ]] || usage; results=$2; shift ;;
@@ -41,7 +41,7 @@ kill_leftovers() {
     # process groups). Each was started from the clone's venv, so its command line names the clone folder.
     local pids=() proc
     for proc in /proc/[0-9]*; do
-        tr '\0' ' ' <"$proc/cmdline" 2>/dev/null | grep -qF "$1/" && pids+=("${proc#/proc/}")
+        { tr '\0' ' ' <"$proc/cmdline"; } 2>/dev/null | grep -qF "$1/" && pids+=("${proc#/proc/}")
     done
     if ((${#pids[@]})); then
         echo "[stress] killing ${#pids[@]} process(es) the run left behind" >&2
@@ -49,17 +49,17 @@ kill_leftovers() {
     fi
 }
 
-busy_pid="" workdir=""
+busy_pids=() workdir=""
 cleanup() {
-    if [[ -n $busy_pid ]]; then kill "$busy_pid" 2>/dev/null || true; fi
+    if ((${#busy_pids[@]})); then kill "${busy_pids[@]}" 2>/dev/null || true; fi
     if [[ -n $workdir ]]; then kill_leftovers "$workdir"; rm -rf "$workdir"; fi
 }
 trap cleanup EXIT
 trap 'exit 130' INT TERM
-if $busy; then
-    python3 -c 'while True: pass' &  # one core's worth of competing load, as another CI job would add
-    busy_pid=$!
-fi
+for ((k = 0; k < busy; k++)); do
+    python3 -c 'while True: pass' &  # one core's worth of competing load each, as another CI job would add
+    busy_pids+=($!)
+done
 
 passed=0
 for ((i = 1; i <= runs; i++)); do
@@ -96,11 +96,11 @@ table, out, commit, command, busy = sys.argv[1:]
 runs = [dict(zip(("run", "status", "seconds", "log"), line.rstrip("\n").split("\t"))) for line in open(table)]
 runs = [{"run": int(r["run"]), "passed": r["status"] == "0", "status": int(r["status"]),
          "seconds": int(r["seconds"]), "log": r["log"] or None} for r in runs]
-summary = {"commit": commit, "command": command, "busy_loop": busy == "true", "runs": len(runs),
+summary = {"commit": commit, "command": command, "busy_loops": int(busy), "runs": len(runs),
            "passed": sum(r["passed"] for r in runs), "cpus": os.cpu_count(),
            "load_average_at_end": os.getloadavg(), "results": runs}
 json.dump(summary, open(out, "w"), indent=2)
 EOF
 rm "$table"
-echo "[stress] ${command[*]}: $passed of $runs passed$($busy && echo ' with one busy loop'); results in $results" >&2
+echo "[stress] ${command[*]}: $passed of $runs passed with $busy busy loop(s); results in $results" >&2
 [[ $passed == "$runs" ]]

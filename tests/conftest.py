@@ -8,6 +8,7 @@ import sys
 import threading
 
 import pytest
+from hypothesis import settings
 from processes import adopt_orphans, descendants, kill_tree, reap
 from ros_domains import domain_for
 
@@ -15,6 +16,12 @@ os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("MPLBACKEND", "Agg")
 # Message setters check field types (as the nodes do, see softblock_ros/__init__.py); read at message import.
 os.environ.setdefault("ROS_PYTHON_CHECK_FIELDS", "1")
+
+# Hypothesis' deadline per example (200 ms by default) is a wall-clock assertion: on a loaded host it fails
+# correct code (seen: 260 ms for a pure geometry example at a load average of 20). Examples are bounded by
+# pytest-timeout instead, as every test is.
+settings.register_profile("suite", deadline=None)
+settings.load_profile("suite")
 
 # Parallel runs never cross-talk: each pytest-xdist worker owns a block of the domains (10-99 by default)
 # and gives each of its modules the next one, counted from an offset derived from the run's id (a plain
@@ -42,6 +49,25 @@ def ros_domain_per_module():
     """A fresh domain for each module: nodes an earlier module left in the DDS graph (a killed process
     stays listed until its lease runs out) never show up in this one's topic lists."""
     os.environ["ROS_DOMAIN_ID"] = _domain(next(_MODULES))
+
+
+# The tiers are the markers pyproject.toml registers; tests/test_tiers.py checks that every test has one.
+_TIERS_OF = pytest.StashKey[dict]()
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """Before `-m` deselects any: the tier markers of every collected test (`make test` and `make test-fast`
+    collect the whole suite, whichever tier they run)."""
+    tiers = {line.split(":")[0] for line in config.getini("markers")}
+    config.stash[_TIERS_OF] = {item.nodeid: [mark.name for mark in item.iter_markers() if mark.name in tiers]
+                               for item in items}
+
+
+@pytest.fixture
+def collected_tiers(request) -> dict[str, list[str]]:
+    """node id -> its tier markers, of every test this run collected."""
+    return request.config.stash[_TIERS_OF]
 
 
 adopt_orphans()  # a test process killed with its children alive leaves them in this tree, not to init

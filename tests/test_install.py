@@ -8,6 +8,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
+pytestmark = pytest.mark.integration
+
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("config", "planner", "hv_driver", "sim_fallback", "sequencing", "recording", "estimation", "netlab")
 

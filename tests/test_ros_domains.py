@@ -5,6 +5,8 @@ import itertools
 import pytest
 from ros_domains import domain_for
 
+pytestmark = pytest.mark.fast
+
 
 @pytest.mark.parametrize("first, last", [(10, 99), (160, 220), (100, 160), (0, 232), (5, 7)])
 @pytest.mark.parametrize("workers", [1, 2, 3])

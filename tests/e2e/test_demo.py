@@ -20,8 +20,8 @@ from recording.playback import PlaybackOptions
 from softblock_ros.recording.player_node import PlayerNode
 from softblock_ros.recording.recorder_node import RecorderNode
 
-# serial: `make test` runs the demo alone, after the parallel part, as a user runs it
-pytestmark = pytest.mark.serial
+# stack: `make test` runs the demo alone, after the other tiers, as a user runs it
+pytestmark = pytest.mark.stack
 
 DEMO_TIMEOUT = 240.0  # [s] liveness bound only; the demo takes about a minute on an idle 2-core machine
 FINGER_GRASP_STEPS = ["above_object", "open_back", "surround_object", "close_back", "grip_front", "lift_object",

@@ -10,6 +10,8 @@ from estimation.calibrate import CalibrationImage, calibrate_chain
 from estimation.render import framing, render_chain, to_binary
 from planner.block_calibration import load_block_calibration, parse_block_calibration
 
+pytestmark = pytest.mark.fast
+
 IDS = [36, 15, 15]
 SERIALS = ["SB-0101", "SB-0102", "SB-0103"]
 OFFSETS_DEG = np.array([1.5, -2.0, 0.8])

@@ -10,6 +10,8 @@ import yaml
 from estimation.cli import main
 from planner.block_calibration import load_block_calibration
 
+pytestmark = pytest.mark.fast
+
 ASSEMBLY = """\
 name: rig
 chains:

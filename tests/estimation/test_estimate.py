@@ -13,6 +13,8 @@ from estimation.hypotheses import MistakeKind
 from estimation.render import blurred, render_chain, to_binary, with_pixel_noise
 from estimation.view import ImagePose
 
+pytestmark = pytest.mark.fast
+
 CHAINS = {
     2: [57, 15],
     3: [36, 15, 22],

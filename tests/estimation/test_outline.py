@@ -11,6 +11,8 @@ from estimation.view import ImagePose
 
 from estimation_scenes import PIXEL
 
+pytestmark = pytest.mark.fast
+
 CHAINS = {
     "arc": (np.radians([32, 20, 40]), [15e-3, 10e-3, 12.5e-3], [0, 0, 0]),
     "worm": (np.radians([32, 20, 40]), [15e-3, 10e-3, 12.5e-3], [0, math.pi, 0]),

@@ -8,6 +8,8 @@ from estimation.render import blurred, framing, occluded, render_silhouette, wit
 from estimation.view import ImagePose
 from planner.geometry import PAPER_GEOMETRY
 
+pytestmark = pytest.mark.fast
+
 PIXEL = 0.25e-3
 R, CAP = PAPER_GEOMETRY.radius, PAPER_GEOMETRY.cap_length
 

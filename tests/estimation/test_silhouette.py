@@ -11,6 +11,8 @@ from estimation.view import ImagePose
 
 from estimation_scenes import PIXEL
 
+pytestmark = pytest.mark.fast
+
 R, CAP = 12.5e-3, 2.5e-3
 
 

@@ -8,6 +8,8 @@ from hypothesis import strategies as st
 
 from estimation.view import ImagePose
 
+pytestmark = pytest.mark.fast
+
 
 def test_a_chain_growing_down_bends_to_the_left_unless_mirrored():
     # camera looking along the chain's +y: image x right, y down; the chain grows down (+z -> image +y)

@@ -12,6 +12,8 @@ from hv_driver import ChannelConfig, ControlError, Fault, Supervisor
 from hv_driver.control import FIRST_SIGN_OF_LIFE_S, LOOP_STALL_FRACTION, MAX_CLIENT_NAME, ControlClaim
 from hv_driver.supervisor import DEFAULT_HEARTBEAT_TIMEOUT_S
 
+pytestmark = pytest.mark.fast
+
 CONFIG = ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=1000.0)
 
 

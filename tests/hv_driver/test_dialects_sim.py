@@ -16,6 +16,8 @@ from hv_driver.supervisor import DEFAULT_PERIOD_S, ChannelSupervisor
 from sim_fallback.hv_plant import PlantChannel
 from sim_fallback.keithley_supply import SimulatedKeithley2290
 
+pytestmark = pytest.mark.integration
+
 # The trip leaves room for the charging current of a host-ramped supply (Keithley): its output follows each setpoint
 # step with a 10 ms lag into 2 nF, and a cycle whose exchange with one supply ran late sends the other two steps of up
 # to two periods' slew each almost at once (see the test below); an arc (2 mA) and ten times the load still trip it.

@@ -20,6 +20,8 @@ from sim_fallback.hv_plant import ChannelDefaults, PlantEvent
 from sim_fallback.hv_supply import SimulatedSupply
 from sim_fallback.memory_port import MemoryPort
 
+pytestmark = pytest.mark.integration
+
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 

@@ -10,6 +10,8 @@ from hv_driver import (ChannelConfig, ConfigurationError, ControlError, FaultLat
 from sim_fallback.hv_supply import IDENTITY
 from sim_fallback.memory_port import MemoryPort
 
+pytestmark = pytest.mark.integration
+
 
 def test_the_driver_errors_share_one_base_and_keep_their_builtin_kinds():
     for error, builtin in ((SettingError, ValueError), (LimitError, ValueError), (StateError, RuntimeError),

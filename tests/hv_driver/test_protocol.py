@@ -10,6 +10,8 @@ from hv_driver.dialects.iseg_edcp import ChannelEvent, ChannelStatus
 from hv_driver.clock import SimulatedClock
 from hv_driver.link import Link
 
+pytestmark = pytest.mark.fast
+
 EDCP = IsegEdcp()
 
 

@@ -8,6 +8,8 @@ from hv_driver.device import ConfigurationError, Device
 from hv_driver.dialects import IsegEdcp, Keithley2290, PetaPicoVoltron
 from hv_driver.link import Link
 
+pytestmark = pytest.mark.fast
+
 KEITHLEY, PPV = Keithley2290(), PetaPicoVoltron()
 CONFIG = ChannelConfig("leg", 0, max_voltage_v=3000.0, slew_rate_v_per_s=1000.0, current_trip_a=50e-6)
 

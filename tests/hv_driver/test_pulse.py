@@ -12,6 +12,8 @@ from hv_driver.pulse import LEAD_S, MAX_TRAIN_S, MIN_FREQUENCY_HZ, plan_pulse_tr
 from hv_driver.ramp import MIN_JERK_PEAK_RATE
 from hv_driver.supervisor import ChannelSupervisor
 
+pytestmark = pytest.mark.fast
+
 CONFIG = ChannelConfig("leg", 0, max_voltage_v=3000.0, slew_rate_v_per_s=16000.0)
 PERIOD = 0.01
 

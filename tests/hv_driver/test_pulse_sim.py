@@ -12,6 +12,8 @@ from hv_driver.clock import SimulatedClock
 from hv_driver.dialects import DIALECTS
 from hv_driver.supervisor import DEFAULT_PERIOD_S, DEVICE_CLOCK_TOLERANCE, DEVICE_COUNT_MARGIN_S
 
+pytestmark = pytest.mark.integration
+
 # A host-ramped supply (Keithley, PPV) follows each streamed setpoint step with its regulation lag: the charging
 # current of 2 nF at 16 kV/s peaks above the default 50 uA trip, so the trip is set for this load.
 LIMITS = dict(max_voltage_v=3000.0, slew_rate_v_per_s=16000.0, mismatch_tolerance_v=150.0, mismatch_time_s=0.2,

@@ -12,6 +12,8 @@ from hypothesis import strategies as st
 from hv_driver import ChannelConfig, Fault
 from hv_driver.supervisor import SLEW_CREDIT_PERIODS, ChannelSupervisor
 
+pytestmark = pytest.mark.fast
+
 GAIT = ChannelConfig("leg", 0, max_voltage_v=3000.0, slew_rate_v_per_s=16000.0)  # the legged gait's 16 kV/s
 DEVICE_MARGIN = 1.2  # the driver sets the device ramp to 1.2 x the slew limit
 

@@ -13,6 +13,8 @@ from hv_driver.ramp import MinimumJerkRamp
 from hv_driver.supervisor import (COLLAPSE_FRACTION, COLLAPSE_SETTLE_S, DEFAULT_PERIOD_S, IMMEDIATE_FAULTS,
                                   SLEW_CREDIT_PERIODS, ChannelCommand, ChannelSupervisor)
 
+pytestmark = pytest.mark.fast
+
 CONFIG = ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=1000.0, current_trip_a=50e-6,
                        mismatch_tolerance_v=100.0, mismatch_time_s=0.5, creep_voltage_v=2000.0, max_time_at_voltage_s=60.0)
 

@@ -4,6 +4,8 @@ import pytest
 from hv_driver.supervisor import DEFAULT_PERIOD_S, SLEW_CREDIT_PERIODS
 from netlab.stack import STALL_S, driver_stalls
 
+pytestmark = pytest.mark.fast
+
 CREDIT_S = SLEW_CREDIT_PERIODS * DEFAULT_PERIOD_S
 
 

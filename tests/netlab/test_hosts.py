@@ -15,7 +15,8 @@ from netlab import Conditions, EmulatedHosts, unavailable_reason
 from netlab.hosts import mac_address
 
 reason = unavailable_reason()
-pytestmark = pytest.mark.skipif(reason is not None, reason=f"two emulated hosts: {reason}")
+pytestmark = [pytest.mark.skipif(reason is not None, reason=f"two emulated hosts: {reason}"),
+              pytest.mark.integration]
 
 PORT = 40000
 RATE_HZ = 10.0

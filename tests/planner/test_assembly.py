@@ -7,6 +7,8 @@ from planner.assembly import (
     Assembly, Chain, PlacedBlock, assembly_from_dict, assembly_to_dict, load_assembly, save_assembly,
 )
 
+pytestmark = pytest.mark.fast
+
 CONFIG = Path(__file__).resolve().parents[2] / "config" / "assemblies"
 
 

@@ -5,6 +5,8 @@ import pytest
 
 from planner.block_calibration import DEFAULT_CALIBRATION_PATH, load_block_calibration, parse_block_calibration
 
+pytestmark = pytest.mark.fast
+
 
 def test_shipped_file_loads():
     assert DEFAULT_CALIBRATION_PATH.is_file()

@@ -20,6 +20,8 @@ from planner.geometry import PRESTRETCH_AXIAL_VALUES
 from planner.materials import ELASTOSIL_2030, VHB_4910, material_by_name
 from planner.table import design_id, load_table
 
+pytestmark = pytest.mark.fast
+
 DEG = math.pi / 180.0
 
 

@@ -9,6 +9,8 @@ from planner.cli import build_parser, main
 from planner.table import DEFAULT_TABLE_PATH, load_table
 from softblock_config import config_file
 
+pytestmark = pytest.mark.fast
+
 
 def test_registry_collects_command_modules():
     commands = build_parser()._subparsers._group_actions[0].choices

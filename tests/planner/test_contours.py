@@ -5,6 +5,8 @@ from PIL import Image
 
 from planner.contours import OBJECTS_CATALOG, clean_mask, extract_contours, load_catalog_object, load_mask
 
+pytestmark = pytest.mark.fast
+
 
 def rectangle(rows=40, columns=50, top=10, bottom=30, left=15, right=27):
     mask = np.zeros((rows, columns), dtype=bool)

@@ -12,6 +12,8 @@ from planner.contours import OBJECTS_CATALOG, load_mask
 from planner.kinematics import chain_blocks, chain_shape
 from planner.table import load_table
 
+pytestmark = pytest.mark.fast
+
 BUDGET = 3.0  # [s] for problems the tests do not need certified: whatever the budget, a collision-free finger
 
 

@@ -7,6 +7,8 @@ import pytest
 
 from planner.optimize import field_cache
 
+pytestmark = pytest.mark.fast
+
 
 @pytest.fixture
 def cache(tmp_path, monkeypatch):

@@ -17,6 +17,8 @@ from planner.optimize.finger_search import (_block_update, _leaf_bounds, _leaf_c
                                             search_problem)
 from planner.table import load_table
 
+pytestmark = pytest.mark.fast
+
 TABLE = load_table()
 # a shelf of 12 distinct designs (3 stiff) keeps brute force small; each may be used up to 3 times
 SHELF = {i: 3 for i in (2, 8, 14, 19, 27, 33, 40, 45, 61, 64, 71, 78)}

@@ -7,6 +7,8 @@ import pytest
 
 from planner.cli import main
 
+pytestmark = pytest.mark.fast
+
 ASSEMBLIES = Path(__file__).resolve().parents[2] / "config" / "assemblies"
 
 

@@ -24,6 +24,8 @@ from planner.kinematics import (
 )
 from planner.table import load_table
 
+pytestmark = pytest.mark.fast
+
 C = CAP_LENGTH
 
 

@@ -11,6 +11,8 @@ from planner.optimize import design_space
 from planner.optimize.lookahead import COVER_MARGIN, block_shapes, lookahead_fields
 from planner.table import load_table
 
+pytestmark = pytest.mark.fast
+
 SHELF = {i: 3 for i in (2, 8, 14, 19, 27, 33, 40, 45, 61, 64, 71, 78)}
 CONTINUOUS_STEP = 5e-5  # [m] arc-length step of the reference centerline
 

@@ -7,6 +7,8 @@ from planner.ogden import biaxial_cauchy_stress, pure_shear_nominal_stress, unia
 from planner.ogden_fit import OgdenTestData, fit_ogden, load_test_data, synthesize_test_data, write_test_data
 from softblock_config import config_file
 
+pytestmark = pytest.mark.fast
+
 
 @pytest.fixture(scope="module")
 def noisy_csv(tmp_path_factory):

@@ -10,6 +10,8 @@ from planner.objectives import COLLISION_PENALTY, path_target
 from planner.optimize import Status, design_costs, design_space, solve_exact, solve_pso
 from planner.optimize.exact import _beam, _Prefixes
 
+pytestmark = pytest.mark.fast
+
 
 def small_table():
     """Six designs, two of them stiff; IDs 5 and 6 share a shape (merged)."""

@@ -7,6 +7,8 @@ import pytest
 import planner.table
 from planner.table import DEFAULT_TABLE_PATH, design_id, design_indices, design_parameters, load_table
 
+pytestmark = pytest.mark.fast
+
 
 @pytest.fixture(scope="module")
 def table():

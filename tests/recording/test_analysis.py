@@ -18,6 +18,8 @@ from recording.playback import PlaybackOptions
 from softblock_ros.recording.player_node import PlayerNode
 from softblock_ros.recording.recorder_node import RecorderNode
 
+pytestmark = pytest.mark.integration
+
 START = 1_700_000_000_000_000_000
 TENTH = 100_000_000
 FRONT = [0, 500, 1000, 2000, 3000, 2500, 1000, 0, 0, 0, 0]  # [V], one sample per 0.1 s

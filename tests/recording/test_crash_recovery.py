@@ -20,6 +20,8 @@ from recording import mcap_file
 from recording.mcap_file import describe, recover
 from softblock_ros.recording.cli import main
 
+pytestmark = pytest.mark.integration
+
 
 def start_recorder(path: Path) -> subprocess.Popen:
     return subprocess.Popen(

@@ -1,5 +1,9 @@
 """Lost samples from the publishers' sample counters: gaps, a restarted publisher, interleaving publishers."""
+import pytest
+
 from recording.gaps import checkable, find_gaps
+
+pytestmark = pytest.mark.fast
 
 
 def numbered(*sequences):

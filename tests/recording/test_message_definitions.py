@@ -8,6 +8,8 @@ from ament_index_python.packages import get_package_share_directory
 from recording.message_definitions import (DELIMITER, DefinitionNotFoundError,
                                                          field_dependencies, full_definition)
 
+pytestmark = pytest.mark.fast
+
 
 def msg_text(package: str, name: str) -> str:
     path = os.path.join(get_package_share_directory(package), "msg", name + ".msg")

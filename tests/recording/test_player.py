@@ -26,6 +26,8 @@ from softblock_ros.recording.player_node import PlayerNode
 from softblock_ros.recording.qos_metadata import (offered_qos_yaml, parse_offered_qos,
                                                   playback_qos)
 
+pytestmark = pytest.mark.integration
+
 START = 1_700_000_000_000_000_000
 STEP = 10_000_000  # 10 ms between hv/state samples
 SAMPLES = 20

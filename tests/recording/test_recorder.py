@@ -16,6 +16,8 @@ from std_msgs.msg import Float64, String
 from softblock_ros.qos import LATCHED
 from softblock_ros.recording.recorder_node import RecorderNode
 
+pytestmark = pytest.mark.integration
+
 COUNT = 40
 STREAMED = {"/hv/state": HvState, "/sequencer/events": SequenceEvent,
             "/assembly/state": AssemblyState, "/notes": String}

@@ -21,6 +21,8 @@ from softblock_ros.conversions import assembly_msg
 from softblock_ros.paths import resolve_path
 from softblock_ros.qos import LATCHED
 
+pytestmark = pytest.mark.integration
+
 LATE_JOINERS = itertools.count()
 GRIPPER = load_assembly(resolve_path("config/assemblies/gripper.yaml"))
 

@@ -28,6 +28,8 @@ from softblock_ros.conversions import (
 from softblock_ros.markers import INVALID_COLOR, assembly_markers
 from softblock_ros.paths import resolve_path
 
+pytestmark = pytest.mark.fast
+
 TABLE = load_table()
 GRIPPER = load_assembly(resolve_path("config/assemblies/gripper.yaml"))
 

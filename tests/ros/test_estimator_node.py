@@ -28,6 +28,8 @@ from softblock_ros.estimator_node import VIEW_PARAMETERS, EstimatorNode
 from softblock_ros.qos import LATCHED
 from softblock_ros.tf_frames import chain_frame
 
+pytestmark = pytest.mark.integration
+
 PIXEL_SIZE = 2.5e-4  # [m]
 RIG = Chain("rig", "front", (PlacedBlock(15, 0, "R-1"), PlacedBlock(15, 0, "R-2"), PlacedBlock(15, 0, "R-3")))
 OFFSETS = np.radians([1.5, -1.0, 2.0])

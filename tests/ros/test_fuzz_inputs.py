@@ -36,6 +36,8 @@ from softblock_ros.qos import LATCHED
 from softblock_ros.sequencer_node import SequencerNode
 from softblock_ros.sim_arm_node import SimArmNode
 
+pytestmark = pytest.mark.integration
+
 FUZZ = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 ANSWER = 20.0  # [s] liveness bound on one answer; answers take milliseconds to a second
 TABLE = load_table()

@@ -29,6 +29,8 @@ from softblock_ros.hv_driver_node import HvDriverNode
 from softblock_ros.recording.player_node import PlayerNode
 from softblock_ros.recording.recorder_node import RecorderNode
 
+pytestmark = pytest.mark.integration
+
 HEARTBEAT_TIMEOUT = 1.0  # [s]
 RAMP_TIMEOUT = 20.0  # [s] for a ramp's result on two loaded cores
 

@@ -29,6 +29,8 @@ from softblock_ros.client import ActionClient
 from softblock_ros.hv_driver_node import HvDriverNode
 from softblock_ros.qos import LATCHED
 
+pytestmark = pytest.mark.integration
+
 MAX_VOLTAGE = 3000.0
 TOLERANCE = 100.0  # [V] readback tolerance: the measured voltage may lag a falling ceiling by this much
 LIVE, REPLAYED = object(), object()  # strategy markers: sign afresh for the live session; re-send its last signature

@@ -24,6 +24,8 @@ from softblock_ros.hv_control import HvControl
 from softblock_ros.hv_driver_node import HvDriverNode
 from softblock_ros.qos import LATCHED
 
+pytestmark = pytest.mark.integration
+
 
 class Client:
     """The test's client node with one handle per interface of the driver."""

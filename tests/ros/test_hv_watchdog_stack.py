@@ -19,6 +19,8 @@ from softblock_ros.hv_driver_node import HvDriverNode
 from softblock_ros.launcher import Stack
 from softblock_ros.parameters import ParameterError
 
+pytestmark = pytest.mark.integration
+
 NAMESPACE = "/watchdog"
 QUICK_START_PARAMS = config_file("sequencer.yaml")
 STARTUP_TIMEOUT = 60.0  # [s] three node processes on two loaded cores

@@ -14,6 +14,8 @@ from softblock_interfaces.msg import Assembly
 from softblock_ros.launcher import NodeDied, Stack, main
 from softblock_ros.qos import LATCHED
 
+pytestmark = pytest.mark.integration
+
 
 @pytest.fixture
 def params(tmp_path):

@@ -17,6 +17,8 @@ from softblock_config import config_file
 
 from softblock_ros.parameters import NODE_SCHEMAS, Param, ParameterError, declare, markdown_table, node_schema
 
+pytestmark = pytest.mark.integration
+
 DOCS = Path(__file__).resolve().parents[2] / "docs"
 NODE_MODULES = {"hv_driver": "softblock_ros.hv_driver_node", "sequencer": "softblock_ros.sequencer_node",
                 "planner": "softblock_ros.planner_node", "sim_arm": "softblock_ros.sim_arm_node",

@@ -1,7 +1,6 @@
 """Planner node through real rclpy clients: finger design from a file and from an image message, bad
 requests refused with a clear message (the node carries on), a DesignPath round trip, and other requests
 answered while a long optimization runs."""
-import io
 import math
 import threading
 from collections import OrderedDict
@@ -20,8 +19,9 @@ from planner.kinematics import chain_shape
 from planner.optimize import lookahead
 from planner.table import load_table
 from softblock_ros.conversions import BLOCK_DESIGN_FIELDS, image_msg
-from softblock_ros.launcher import Stack
 from softblock_ros.planner_node import PlannerNode
+
+pytestmark = pytest.mark.integration
 
 MAX_BLOCKS = 6
 TABLE = load_table()
@@ -257,22 +257,41 @@ def test_other_requests_are_answered_while_an_optimization_runs(client, monkeypa
     assert reply.success, reply.message
 
 
-def test_stopping_the_node_cancels_a_running_optimization(ros_context, spin, tmp_path):
-    params = tmp_path / "params.yaml"
-    params.write_text("/**/planner:\n  ros__parameters:\n    default_time_budget_s: 0.0\n")  # no limit
-    output = io.StringIO()
-    client = rclpy.create_node("planner_stop_client", context=ros_context)
-    spin(client)
-    # Own namespace: the in-process planner of this module serves planner/design_fingers too.
-    with Stack(nodes=["planner"], params=params, output=output, stop_timeout=90.0, namespace="/stop_test") as stack:
-        fingers_client = client.create_client(DesignFingers, "/stop_test/planner/design_fingers")
-        assert fingers_client.wait_for_service(timeout_sec=90.0)
-        request = fingers_request(image_path="config/objects/asymmetric.png", pixel_size=0.00025, num_blocks=5,
-                                  num_stiff_top=2, time_budget=0.0)
-        request.image = image_msg(np.zeros((0, 0), dtype=np.uint8))
-        fingers_client.call_async(request)
-        # Liveness bounds only: the planner runs niced, so a loaded machine slows it down a lot.
-        wait_for(lambda: "design_fingers: 5 blocks per finger" in output.getvalue(), timeout=90.0,
-                 what="the optimization to start")
-        codes = stack.stop()
-    assert codes == {"planner": 0}, output.getvalue()
+@pytest.mark.parametrize("stop", ["destroy_node", "context shutdown"])
+def test_stopping_the_node_cancels_a_running_optimization(monkeypatch, stop):
+    """A request without a time limit runs until the node stops: a stop signal shuts the process's context down
+    (tests/ros/test_runner.py), then the runner destroys the node. Either ends the search at its next progress
+    report, and the request is answered as canceled. The search is held at its first report until the stop."""
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = PlannerNode(context=context, parameter_overrides=[Parameter("prepare_finger_search", value=False),
+                                                             Parameter("default_time_budget_s", value=0.0)])
+    searching, stopped = threading.Event(), threading.Event()
+    real_design_fingers = planner.design.design_fingers
+
+    def held_at_its_first_report(*args, callback, **kwargs):
+        def report(progress):
+            searching.set()
+            stopped.wait(60.0)
+            callback(progress)
+
+        return real_design_fingers(*args, callback=report, **kwargs)
+
+    monkeypatch.setattr(planner.design, "design_fingers", held_at_its_first_report)
+    response = DesignFingers.Response()
+    worker = threading.Thread(target=node._serve, args=(node._design_fingers, fingers_request(time_budget=0.0),
+                                                        response))
+    worker.start()
+    try:
+        wait_for(searching.is_set, what="the search's first progress report")
+        if stop == "destroy_node":
+            node.destroy_node()
+        else:
+            context.shutdown()
+    finally:
+        stopped.set()
+        worker.join(timeout=60.0)
+        rclpy.try_shutdown(context=context)
+    assert not worker.is_alive()
+    assert not response.success
+    assert "left: canceled" in response.message and "right: canceled" in response.message

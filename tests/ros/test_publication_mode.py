@@ -9,11 +9,14 @@ import os
 import subprocess
 import sys
 
+import pytest
 from rclpy.lifecycle import TransitionCallbackReturn
 from rclpy.parameter import Parameter
 
 from softblock_ros import PUBLICATION_MODE_VARIABLE
 from softblock_ros.hv_driver_node import HvDriverNode
+
+pytestmark = pytest.mark.integration
 
 PROBE = f"import os, softblock_ros; print(os.environ[{PUBLICATION_MODE_VARIABLE!r}])"
 

@@ -2,10 +2,13 @@
 import itertools
 import threading
 
+import pytest
 import rclpy
 from ros_testing import Inbox
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
+
+pytestmark = pytest.mark.integration
 
 
 def test_an_inbox_receives_while_another_callback_of_its_node_is_running(ros_context, spin):

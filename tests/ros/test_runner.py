@@ -14,6 +14,8 @@ from ros_testing import Inbox, call
 from std_msgs.msg import Int32
 from std_srvs.srv import Trigger
 
+pytestmark = pytest.mark.integration
+
 PROBE = textwrap.dedent("""
     import os, signal, sys, time
     import rclpy

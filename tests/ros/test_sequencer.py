@@ -3,8 +3,6 @@ the finger grasp succeeds, an HV fault mid-sequence and a cancel both end in the
 sequences are refused with a clear message, a second goal is rejected, the legged gait pulses its legs.
 
 The shipped strategies run with their timings scaled down (sequence_files.scaled)."""
-import time
-
 import pytest
 import rclpy
 import yaml
@@ -21,6 +19,8 @@ from softblock_ros import run_sequence
 from softblock_ros.client import ActionClient
 from softblock_ros.sequencer_node import SequencerNode
 from softblock_ros.sim_arm_node import SimArmNode
+
+pytestmark = pytest.mark.integration
 
 CHANNELS = ["front", "back", "trunk", "leg_front_left", "leg_front_right", "leg_rear_left", "leg_rear_right"]
 RUN_TIMEOUT = 40.0
@@ -107,15 +107,17 @@ def test_finger_grasp_runs_to_success(stack, hv):
 
 def test_a_goal_sent_before_the_arm_is_up_runs_once_the_arm_appears(ros_context, spin, tmp_path):
     """Start-up order does not matter: the sequencer waits the default server_timeout_s for a server it has not
-    discovered yet (a stack started at once on a loaded host can take seconds), here an arm started 3 s late."""
+    discovered yet (a stack started at once on a loaded host can take seconds), here an arm started once the
+    sequence's first step, a move, has begun."""
     namespace = "/late_arm"
     hv = FakeHv(CHANNELS, context=ros_context, namespace=namespace)
     client = rclpy.create_node("late_arm_client", context=ros_context, namespace=namespace)
+    events = Inbox(client, SequenceEvent, "sequencer/events", 100)
     action = ActionClient(client, RunSequence, "sequencer/run")
     spin(make_sequencer(tmp_path, context=ros_context, namespace=namespace), hv, client)
     assert action.wait_for_server(timeout_sec=10.0)
     run = Run(action, scaled("finger_grasp", tmp_path, speed=2.0))
-    time.sleep(3.0)
+    events.wait(lambda msg: (msg.step_index, msg.phase) == (0, "started"))
     spin(make_arm(context=ros_context, namespace=namespace))
     status, result = run.result()
     assert status == GoalStatus.STATUS_SUCCEEDED and result.success, result.message

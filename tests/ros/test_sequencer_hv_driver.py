@@ -21,6 +21,8 @@ from softblock_ros.hv_driver_node import HvDriverNode
 from softblock_ros.sequencer_node import SequencerNode
 from softblock_ros.sim_arm_node import SimArmNode
 
+pytestmark = pytest.mark.integration
+
 RUN_TIMEOUT = 40.0
 # Every node here shares the test's process, so a stall of that process (a garbage collection, a loaded host)
 # silences the sequencer's heartbeat and hv/state and pauses the driver's watchdog alike: one in a fresh-clone

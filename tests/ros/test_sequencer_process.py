@@ -13,6 +13,8 @@ from softblock_interfaces.action import RunSequence
 
 from softblock_ros.client import ActionClient
 
+pytestmark = pytest.mark.integration
+
 NAMESPACE = "/crafted_files"
 ANSWER_TIMEOUT = 20.0  # [s] liveness bound; an answer takes milliseconds
 

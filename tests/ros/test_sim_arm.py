@@ -14,6 +14,8 @@ from softblock_ros.client import ActionClient
 from softblock_ros.conversions import pose_msg
 from softblock_ros.sim_arm_node import SimArmNode
 
+pytestmark = pytest.mark.integration
+
 DOWN = (1.0, 0.0, 0.0, 0.0)
 
 

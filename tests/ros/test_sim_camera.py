@@ -19,6 +19,8 @@ from softblock_ros.estimator_node import EstimatorNode
 from softblock_ros.qos import LATCHED
 from softblock_ros.sim_camera_node import SimCameraNode
 
+pytestmark = pytest.mark.integration
+
 OFFSETS = [0.03, -0.02, 0.025]  # [rad]
 VOLTAGE = 1500.0  # [V]
 VIEW = [Parameter("chain", value="finger"), Parameter("base_pose", value=[0.05, 0.005, math.pi / 2])]

@@ -15,6 +15,8 @@ from softblock_config import config_file
 from softblock_ros.launcher import Stack
 from softblock_ros.stack import load_stack
 
+pytestmark = pytest.mark.fast
+
 PACKAGE = Path(__file__).resolve().parents[2] / "ros_ws" / "src" / "softblock_ros"
 
 

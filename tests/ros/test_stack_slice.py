@@ -22,6 +22,8 @@ from softblock_ros.launcher import Stack
 from softblock_ros.paths import resolve_path
 from softblock_ros.qos import LATCHED
 
+pytestmark = pytest.mark.integration
+
 NAMESPACE = "/slice"  # apart from in-process nodes of other test modules
 TABLE = load_table()
 GRIPPER = load_assembly(resolve_path("config/assemblies/gripper.yaml"))

@@ -13,6 +13,8 @@ from softblock_ros.hv_driver_node import HvDriverNode
 from softblock_ros.qos import LATCHED, REPAIR_HISTORY_S, stream_qos
 from softblock_ros.sim_arm_node import SimArmNode
 
+pytestmark = pytest.mark.integration
+
 
 def publisher_profile(node, topic: str):
     return next(p.qos_profile for p in node.publishers if p.topic_name == topic)

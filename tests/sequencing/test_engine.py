@@ -11,6 +11,8 @@ from sequencing.engine import SequenceEngine
 from sequencing.ports import ChannelReading, Outcome, RobotError, RunOptions
 from sequencing.schema import load_sequence, parse_sequence
 
+pytestmark = pytest.mark.fast
+
 SEQUENCES = Path(__file__).resolve().parents[2] / "config" / "sequences"
 FAST = RunOptions(poll_period_s=0.002, settle_time_s=0.02, safe_stop_timeout_s=0.5)
 FINGER_GRASP = load_sequence("finger_grasp", SEQUENCES)

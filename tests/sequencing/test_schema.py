@@ -13,6 +13,8 @@ from sequencing.schema import (
     Limits, MoveArmStep, ParallelStep, PulseTrainStep, RampStep, SequenceError, WaitStep, load_sequence,
     load_sequence_file, parse_sequence)
 
+pytestmark = pytest.mark.fast
+
 SEQUENCES = Path(__file__).resolve().parents[2] / "config" / "sequences"
 
 

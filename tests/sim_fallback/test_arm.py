@@ -9,6 +9,8 @@ from scipy.spatial.transform import Rotation
 
 from sim_fallback.arm import ArmLimits, Pose, SimulatedArm
 
+pytestmark = pytest.mark.fast
+
 DT = 0.01
 LIMITS = ArmLimits(max_speed_m_per_s=0.2, max_acceleration_m_per_s2=0.5, max_angular_speed_rad_per_s=1.0, max_angular_acceleration_rad_per_s2=2.0)
 

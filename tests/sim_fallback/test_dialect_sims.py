@@ -13,6 +13,8 @@ from sim_fallback.keithley_supply import SimulatedKeithley2290
 from sim_fallback.memory_port import MemoryPort
 from sim_fallback.ppv_supply import SimulatedPpv
 
+pytestmark = pytest.mark.integration
+
 
 class Wire:
     """The host's end of an in-memory link to a simulator on a simulated clock: write lines, read answer lines."""

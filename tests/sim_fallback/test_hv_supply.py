@@ -16,6 +16,8 @@ from sim_fallback.hv_plant import ChannelDefaults, DeaLoad, PlantChannel
 from sim_fallback.hv_supply import ERROR_REPLY, SimulatedSupply, channel_status
 from sim_fallback.memory_port import MemoryPort
 
+pytestmark = pytest.mark.integration
+
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 

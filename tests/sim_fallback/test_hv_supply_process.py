@@ -4,6 +4,8 @@ import serial
 
 from sim_fallback.hv_supply_process import SimulatedSupplyProcess
 
+pytestmark = pytest.mark.integration
+
 
 def query(port: serial.Serial, command: str) -> str:
     port.write(command.encode() + b"\r\n")

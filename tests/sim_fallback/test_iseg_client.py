@@ -12,6 +12,8 @@ from iseg_nhr.transport import SerialTransport
 
 from sim_fallback.hv_supply import FIRMWARE_NAME, FIRMWARE_RELEASE, IDENTITY, NOMINAL_CURRENT, SimulatedSupply
 
+pytestmark = pytest.mark.integration
+
 
 @pytest.fixture
 def sim():

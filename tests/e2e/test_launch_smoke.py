@@ -1,0 +1,50 @@
+"""Each node of the shipped stack, launched alone as the launcher starts it (its stack files, its niceness), comes
+up, serves its parameters and stops cleanly on Ctrl-C. What the nodes do is tested in-process (tests/ros)."""
+import io
+
+import pytest
+import rclpy
+from rcl_interfaces.srv import GetParameters
+from rclpy.executors import SingleThreadedExecutor
+
+from softblock_ros.client import wait_until
+from softblock_ros.launcher import Stack
+from softblock_ros.stack import load_stack
+
+# stack: `make test` runs these alone, after the other tiers, as a user launches the nodes
+pytestmark = pytest.mark.stack
+
+START_TIMEOUT = 120.0  # [s] liveness bound only: the planner prepares its search at niceness 10 on a loaded host
+
+
+@pytest.fixture(scope="module")
+def client():
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node("launch_smoke_client", context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    yield node, executor
+    executor.shutdown()
+    node.destroy_node()
+    rclpy.try_shutdown(context=context)
+
+
+@pytest.mark.parametrize("name", load_stack().names)
+def test_the_node_starts_alone_serves_its_parameters_and_stops_cleanly(client, tmp_path, name):
+    params = tmp_path / "params.yaml"  # nothing written into the work tree
+    params.write_text(f"/**/recorder:\n  ros__parameters:\n    output: {tmp_path / 'recording.mcap'}\n")
+    node, executor = client
+    output = io.StringIO()
+    with Stack(nodes=[name], params=params, output=output, namespace=f"/smoke_{name}") as stack:
+        parameters = node.create_client(GetParameters, f"/smoke_{name}/{name}/get_parameters")
+        wait_until(lambda: parameters.wait_for_service(timeout_sec=1.0) or stack.dead(), START_TIMEOUT,
+                   f"{name}'s parameter service")
+        assert stack.dead() == {}, output.getvalue()[-3000:]
+        # a node's services answer once it is built and spun: the node is up, not only its process
+        reply = parameters.call_async(GetParameters.Request(names=["use_sim_time"]))
+        executor.spin_until_future_complete(reply, timeout_sec=START_TIMEOUT)
+        assert reply.done(), f"{name} did not answer get_parameters\n" + output.getvalue()[-3000:]
+        assert reply.result().values[0].bool_value is False
+    assert stack.stop() == {name: 0}, output.getvalue()[-3000:]
+    assert "Traceback" not in output.getvalue(), output.getvalue()[-3000:]
