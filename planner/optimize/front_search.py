@@ -257,6 +257,7 @@ def solve_finger_front(targets, weights, space: DesignSpace, *, current=None, st
     path = np.full(blocks, -1, np.int64)
     status, nit = Status.CERTIFIED, 0
     try:
+        control.report(0.0, best[blocks], 0)
         while frames:
             depth = len(frames) - 2  # blocks placed at the node whose children this frame holds
             frame = frames[-1]
@@ -307,8 +308,6 @@ def solve_finger_front(targets, weights, space: DesignSpace, *, current=None, st
     for frame in frames:  # prefixes not yet visited
         for bound, _, after in frame[1][frame[0]:]:
             lower[after:] = np.minimum(lower[after:], bound)
-    if status == Status.CERTIFIED:
-        control.report(1.0, best[blocks], stats["placements"], timed=False) if callback else None
     swaps = np.array([int(np.sum(best_shapes[s] != current)) if best_shapes[s, 0] >= 0 else -1
                       for s in range(blocks + 1)])
     optimal = np.full(blocks + 1, status == Status.CERTIFIED)
