@@ -20,6 +20,7 @@ smallest bound of the prefixes not yet visited with at most that many swaps.
 """
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -131,6 +132,16 @@ def _object_states(problems):
     return states
 
 
+def _mixtures(current, starts):
+    """The current finger, each start, and each start with any subset of its positions kept as they are
+    now (a first finger for every swap budget)."""
+    yield current
+    for start in starts or ():
+        start = np.asarray(start, np.int64)
+        for keep in itertools.product((False, True), repeat=len(start)):
+            yield np.where(np.array(keep) & (current >= 0), current, start)
+
+
 def _evaluate(problems, roots, shapes):
     """Each object's cost (inf: colliding at every base) and best base for one complete finger."""
     costs, bases = np.full(len(problems), np.inf), np.full(len(problems), -1, np.int64)
@@ -200,7 +211,7 @@ def solve_finger_front(targets, weights, space: DesignSpace, *, current=None, st
     every position counts as a swap). ``stock`` / ``stiff_stock`` (one count per shape) limit how often a
     shape may be used (stiff positions draw on ``stiff_stock``). ``callback(Progress)`` may raise
     StopIteration; ``time_budget`` [s]. ``starts``: complete fingers (shape indices) to prune with from the
-    start, e.g. each object's own optimum. Certified unless stopped (then every budget carries a proven bound)."""
+    start, e.g. each object's own optimum; each is also tried with every subset of its positions as now. Certified unless stopped (then every budget carries a proven bound)."""
     weights, current, stock, stiff_stock = _check_inputs(targets, weights, space, current, stock, stiff_stock)
     settings = DEFAULT_OPTIONS | (options or {})
     control = RunControl(time_budget, callback)
@@ -246,7 +257,7 @@ def solve_finger_front(targets, weights, space: DesignSpace, *, current=None, st
             stiff_counts[s] += sign
 
     roots = _object_states(problems)
-    for seed in [current] + [np.asarray(f, np.int64) for f in (starts or ())]:  # first fingers to prune with
+    for seed in _mixtures(current, starts):  # first fingers to prune with, for every budget
         costs, bases = _evaluate(problems, roots, seed)
         if np.all(seed >= 0) and np.all(np.isfinite(costs)) and _within(seed, space, stock, stiff_stock):
             record(seed.copy(), costs, bases)
