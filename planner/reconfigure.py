@@ -230,7 +230,7 @@ def plan_reconfiguration(assembly: Assembly, shelf: dict[int, int], objects, *, 
     pool = Counter(shelf) + in_robot
     fingers = [_Finger(slot, assembly.chain(slot.chain), objects, pool, Counter(shelf), table, min_stiff_rod_diameter)
                for slot in slots]
-    fronts, candidates, seeds, canceled = {}, {f.slot.chain: [] for f in fingers}, {}, False
+    fronts, candidates, seeds, floors, canceled = {}, {f.slot.chain: [] for f in fingers}, {}, {}, False
 
     def search(finger, limits, index, count):
         nonlocal canceled
@@ -238,13 +238,15 @@ def plan_reconfiguration(assembly: Assembly, shelf: dict[int, int], objects, *, 
         if time_budget is not None:
             budget = max((time_budget - (time.perf_counter() - started)) / (count - index), 1e-3)
         earlier = candidates[finger.slot.chain]
-        if not earlier:  # each object's own certified optimum (the compiled single-object search) to start from
-            seeds[finger.slot.chain] = [solve_finger(t, finger.space, time_budget=budget).shapes
-                                        for t in finger.targets]
+        if not earlier:  # each object's own optimum (the compiled single-object search) to start from; when
+            own = [solve_finger(t, finger.space, time_budget=budget) for t in finger.targets]  # all certified,
+            seeds[finger.slot.chain] = [r.shapes for r in own]  # their weighted sum bounds every finger
+            floors[finger.slot.chain] = float(finger.weights @ [r.lower_bound for r in own])
         front = solve_finger_front(finger.targets, finger.weights, finger.space, current=finger.current,
                                    stock=limits[0], stiff_stock=limits[1], time_budget=budget,
                                    callback=_cancel if canceled else _share(callback, index, count),
-                                   starts=seeds[finger.slot.chain] + [s for f in earlier for s in f.shapes if s[0] >= 0])
+                                   starts=seeds[finger.slot.chain] + [s for f in earlier for s in f.shapes if s[0] >= 0],
+                                   floor=floors[finger.slot.chain])
         canceled |= front.status == Status.CANCELED
         candidates[finger.slot.chain].append(front)
         return front

@@ -205,13 +205,15 @@ def _check_inputs(targets, weights, space, current, stock, stiff_stock):
 
 
 def solve_finger_front(targets, weights, space: DesignSpace, *, current=None, stock=None, stiff_stock=None,
-                       time_budget=None, callback=None, options=None, starts=()) -> FrontResult:
+                       time_budget=None, callback=None, options=None, starts=(), floor: float = 0.0) -> FrontResult:
     """Minimise sum_i weights[i] * cost_i over the fingers of ``space`` (planar, unlimited: its lookahead
     fields are the prepared ones), for every swap budget 0..N from ``current`` (N shape indices; -1 or None:
     every position counts as a swap). ``stock`` / ``stiff_stock`` (one count per shape) limit how often a
     shape may be used (stiff positions draw on ``stiff_stock``). ``callback(Progress)`` may raise
     StopIteration; ``time_budget`` [s]. ``starts``: complete fingers (shape indices) to prune with from the
-    start, e.g. each object's own optimum; each is also tried with every subset of its positions as now. Certified unless stopped (then every budget carries a proven bound)."""
+    start, e.g. each object's own optimum; each is also tried with every subset of its positions as now.
+    ``floor``: a proven lower bound on every finger [m] (e.g. the weighted sum of the objects' own certified
+    optima), reported where the search's own bound is lower. Certified unless stopped (then every budget carries a proven bound)."""
     weights, current, stock, stiff_stock = _check_inputs(targets, weights, space, current, stock, stiff_stock)
     settings = DEFAULT_OPTIONS | (options or {})
     control = RunControl(time_budget, callback)
@@ -321,7 +323,8 @@ def solve_finger_front(targets, weights, space: DesignSpace, *, current=None, st
             lower[after:] = np.minimum(lower[after:], bound)
     swaps = np.array([int(np.sum(best_shapes[s] != current)) if best_shapes[s, 0] >= 0 else -1
                       for s in range(blocks + 1)])
-    optimal = np.full(blocks + 1, status == Status.CERTIFIED)
+    lower = np.maximum(lower, floor)
+    optimal = np.full(blocks + 1, status == Status.CERTIFIED) | (best <= lower + 1e-12)
     found = np.isfinite(best)
     if status == Status.CERTIFIED and not found[-1]:
         status = Status.INFEASIBLE

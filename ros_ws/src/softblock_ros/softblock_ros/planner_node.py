@@ -181,6 +181,10 @@ class PlannerNode(Node):
         budget = goal.time_budget or self._settings["default_time_budget_s"]
         if not budget >= 0.0:
             raise ValueError(f"time_budget must be >= 0 s, got {goal.time_budget}")
+        swaps_possible = sum(len(built.chain(slot.chain).blocks) for slot in slots if slot.chain in
+                             {c.name for c in built.chains})
+        if not -1 <= goal.max_swaps <= swaps_possible:
+            raise ValueError(f"max_swaps must be -1..{swaps_possible}, got {goal.max_swaps}")
         self.get_logger().info(f"plan_reconfiguration: {len(objects)} objects, {len(slots)} fingers")
         plan = reconfigure.plan_reconfiguration(built, shelf, objects, slots=slots, table=self._table,
                                                 time_budget=budget or None, callback=callback)
@@ -191,8 +195,6 @@ class PlannerNode(Node):
         result.objectives = [float(p.objective) for p in points]
         result.lower_bounds = [float(p.lower_bound) for p in points]
         result.optimal = [bool(p.optimal) for p in points]
-        if not -1 <= goal.max_swaps < len(points):
-            raise ValueError(f"max_swaps must be -1..{len(points) - 1}, got {goal.max_swaps}")
         chosen = points[goal.max_swaps]
         if chosen.assembly is None:
             result.success = False
