@@ -96,9 +96,11 @@ def main() -> None:
     front_results = {}
     for count, shelf in shelves.items():
         print(f"shelf of {count} blocks per design", flush=True)
-        front_results |= {f"{name}, shelf {count}": data for name, data in fronts(shelf, args.repeats, args.cap).items()}
+        for name, data in fronts(shelf, args.repeats, args.cap).items():
+            front_results[f"{name}, shelf {count}"] = data
     multi = multi_object(shelves[SHELF_COUNTS[-1]], args.cap)
-    summary = {"shelf_blocks_per_design": SHELF_COUNTS, "multi_object_shelf": SHELF_COUNTS[-1], "cap_s": args.cap, "repeats": args.repeats,
+    summary = {"shelf_blocks_per_design": SHELF_COUNTS, "multi_object_shelf": SHELF_COUNTS[-1], "cap_s": args.cap,
+               "repeats": args.repeats,
                "load_average_1min": [started_load, os.getloadavg()[0]], "cpu_count": os.cpu_count(),
                "pareto_fronts": front_results, "multi_object": multi}
     FIGURES.mkdir(parents=True, exist_ok=True)
@@ -108,7 +110,8 @@ def main() -> None:
     for name, data in front_results.items():
         points = data["points"]
         left.step([p["max_swaps"] for p in points], [p["objective_m"] for p in points], where="post",
-                  label=f"{name} ({data['median_time_s']:.1f} s, {data['certified_budgets']}/{data['budgets']} certified)")
+                  label=f"{name} ({data['median_time_s']:.1f} s, "
+                        f"{data['certified_budgets']}/{data['budgets']} certified)")
         left.plot([p["max_swaps"] for p in points], [p["lower_bound_m"] for p in points], "k:", lw=0.8)
     left.set(xlabel="block swaps allowed", ylabel="objective, both fingers [m]",
              title="front pair from the built gripper (dotted: proven bound)")

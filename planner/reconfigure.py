@@ -245,7 +245,8 @@ def plan_reconfiguration(assembly: Assembly, shelf: dict[int, int], objects, *, 
         front = solve_finger_front(finger.targets, finger.weights, finger.space, current=finger.current,
                                    stock=limits[0], stiff_stock=limits[1], time_budget=budget,
                                    callback=_cancel if canceled else _share(callback, index, count),
-                                   starts=seeds[finger.slot.chain] + [s for f in earlier for s in f.shapes if s[0] >= 0],
+                                   starts=seeds[finger.slot.chain] + [s for f in earlier for s in f.shapes
+                                                                      if s[0] >= 0],
                                    floor=floors[finger.slot.chain])
         canceled |= front.status == Status.CANCELED
         candidates[finger.slot.chain].append(front)

@@ -213,7 +213,8 @@ def solve_finger_front(targets, weights, space: DesignSpace, *, current=None, st
     StopIteration; ``time_budget`` [s]. ``starts``: complete fingers (shape indices) to prune with from the
     start, e.g. each object's own optimum; each is also tried with every subset of its positions as now.
     ``floor``: a proven lower bound on every finger [m] (e.g. the weighted sum of the objects' own certified
-    optima), reported where the search's own bound is lower. Certified unless stopped (then every budget carries a proven bound)."""
+    optima), reported where the search's own bound is lower. Certified unless stopped (then every budget
+    carries a proven bound)."""
     weights, current, stock, stiff_stock = _check_inputs(targets, weights, space, current, stock, stiff_stock)
     settings = DEFAULT_OPTIONS | (options or {})
     control = RunControl(time_budget, callback)
