@@ -6,6 +6,8 @@ from softblock_interfaces.action import RampChannel
 from hv_driver import HvError, HvSupply
 from hv_driver.control import signed
 
+from .goals import settle
+
 FEEDBACK_PERIOD = 0.05  # [s]
 
 
@@ -47,9 +49,5 @@ def end_goal(goal_handle, result, handle, canceled: bool, canceled_message: str)
     result.success, result.message = handle.succeeded and not canceled, handle.message
     if canceled:
         result.message = canceled_message
-        goal_handle.canceled()
-    elif result.success:
-        goal_handle.succeed()
-    else:
-        goal_handle.abort()
+    settle(goal_handle, canceled, result.success)
     return result

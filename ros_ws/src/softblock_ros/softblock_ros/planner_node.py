@@ -1,8 +1,10 @@
-"""Planner node: designs fingers for an object image and chains along 3D paths (planner.design).
+"""Planner node: designs fingers for an object image and chains along 3D paths (planner.design), and plans
+reconfigurations from the robot as built (planner.reconfigure).
 
-Optimizations run in the service callbacks on a reentrant group of a MultiThreadedExecutor, so other
+Optimizations run in service and action callbacks on a reentrant group of a MultiThreadedExecutor, so other
 requests, parameter services and shutdown are served meanwhile. A bad request gets success=false and the
-core's message; the node carries on. Shutting down cancels running optimizations.
+core's message; the node carries on. Shutting down cancels running optimizations; the actions
+(``planner/design_fingers``, ``planner/plan_reconfiguration``) also report progress and can be canceled.
 """
 from __future__ import annotations
 
@@ -11,16 +13,22 @@ import threading
 import time
 from functools import partial
 
+from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
+from softblock_interfaces import action
+from softblock_interfaces.msg import Assembly as AssemblyMsg
 from softblock_interfaces.srv import DesignFingers, DesignPath
 
-from planner import design
-from planner.contours import load_mask
+from planner import design, reconfigure
+from planner.contours import extract_contours, load_mask
 from planner.table import load_table
 
-from .conversions import designed_chain_msg, inventory_from_lists, mask_from_image, path_from_points
+from .conversions import (assembly_from_msg, assembly_msg, designed_chain_msg, inventory_from_lists,
+                          mask_from_image, path_from_points)
+from .qos import LATCHED
+from .goals import settle
 from .parameters import Param, declare
 from .paths import resolve_path
 from .runner import run_node, where
@@ -54,6 +62,12 @@ class PlannerNode(Node):
                             callback_group=group)
         self.create_service(DesignPath, "planner/design_path", partial(self._serve, self._design_path),
                             callback_group=group)
+        self._built: AssemblyMsg | None = None  # the latest assembly/current, the default robot of a plan
+        self.create_subscription(AssemblyMsg, "assembly/current", self._on_assembly, LATCHED, callback_group=group)
+        for kind, name, solve in ((action.DesignFingers, "planner/design_fingers", self._design_fingers),
+                                  (action.PlanReconfiguration, "planner/plan_reconfiguration", self._plan)):
+            ActionServer(self, kind, name, execute_callback=partial(self._execute, kind, solve),
+                         cancel_callback=lambda _goal: CancelResponse.ACCEPT, callback_group=group)
         self.get_logger().info(f"ready, table of {len(self._table.ids)} designs")
 
     def _prepare_finger_search(self) -> None:
@@ -81,7 +95,30 @@ class PlannerNode(Node):
             self.get_logger().error(f"{response.message} (at {where(error)})")
         return response
 
-    def _options(self, request) -> dict:
+    def _on_assembly(self, message) -> None:
+        self._built = message
+
+    def _execute(self, kind, solve, goal_handle):
+        """An action goal: ``solve`` with a callback that publishes feedback and stops on cancel or shutdown;
+        the result's success and message as the service would answer them."""
+        def progress(report):
+            self._cancel_on_shutdown()
+            if goal_handle.is_cancel_requested:
+                raise StopIteration
+            goal_handle.publish_feedback(self._feedback(kind, report))
+
+        result = self._serve(partial(solve, callback=progress), goal_handle.request, kind.Result())
+        settle(goal_handle, goal_handle.is_cancel_requested, result.success)
+        return result
+
+    @staticmethod
+    def _feedback(kind, report):
+        if kind is action.DesignFingers:
+            return kind.Feedback(fraction=report.fraction, best_cost=report.best_cost, evaluations=report.nfev,
+                                 elapsed=report.elapsed)
+        return kind.Feedback(fraction=report.fraction, best_objective=report.best_cost, elapsed=report.elapsed)
+
+    def _options(self, request, callback=None) -> dict:
         max_blocks = self._settings["max_blocks"]
         if not 1 <= request.num_blocks <= max_blocks:
             raise ValueError(f"num_blocks must be 1..{max_blocks}, got {request.num_blocks}")
@@ -92,14 +129,14 @@ class PlannerNode(Node):
         if method not in design.METHODS:
             raise ValueError(f"method must be one of {', '.join(design.METHODS)}, got {method!r}")
         return dict(method=method, time_budget=budget or None,
-                    seed=request.seed, table=self._table, callback=self._cancel_on_shutdown)
+                    seed=request.seed, table=self._table, callback=callback or self._cancel_on_shutdown)
 
     def _cancel_on_shutdown(self, *_):
         if self._stopping.is_set() or not self.context.ok():
             raise StopIteration
 
-    def _design_fingers(self, request, response) -> None:
-        options = self._options(request)
+    def _design_fingers(self, request, response, callback=None) -> None:
+        options = self._options(request, callback)
         self.get_logger().info(f"design_fingers: {request.num_blocks} blocks per finger, {options['method']}")
         if request.image.height:
             mask = load_mask(mask_from_image(request.image))
@@ -126,6 +163,61 @@ class PlannerNode(Node):
                 setattr(response, f"{side}_min_clearance", float(finger.min_clearance_m))
                 setattr(response, f"{side}_lower_bound", float(finger.lower_bound_m))
         self.get_logger().info(f"design_fingers: {result.message} ({result.solve_time:.2f} s)")
+
+    def _plan(self, goal, result, callback) -> None:
+        """planner/plan_reconfiguration: the Pareto set of swaps against the objective, the chosen point's steps."""
+        robot = goal.robot if goal.robot.chains else self._built
+        if robot is None:
+            raise ValueError("no robot given and no assembly/current received yet")
+        built, _ = assembly_from_msg(robot, self._table)
+        shelf = inventory_from_lists(goal.shelf_ids, goal.shelf_counts) or {}
+        objects = self._plan_objects(goal)
+        slots = reconfigure.GRIPPER_SLOTS
+        if goal.finger_chains:
+            if not len(goal.finger_chains) == len(goal.finger_sides) == len(goal.finger_stiff_top):
+                raise ValueError("finger_chains, finger_sides and finger_stiff_top must have the same length")
+            slots = tuple(reconfigure.FingerSlot(c, s, int(n))
+                          for c, s, n in zip(goal.finger_chains, goal.finger_sides, goal.finger_stiff_top))
+        budget = goal.time_budget or self._settings["default_time_budget_s"]
+        if not budget >= 0.0:
+            raise ValueError(f"time_budget must be >= 0 s, got {goal.time_budget}")
+        swaps_possible = sum(len(built.chain(slot.chain).blocks) for slot in slots if slot.chain in
+                             {c.name for c in built.chains})
+        if not -1 <= goal.max_swaps <= swaps_possible:
+            raise ValueError(f"max_swaps must be -1..{swaps_possible}, got {goal.max_swaps}")
+        self.get_logger().info(f"plan_reconfiguration: {len(objects)} objects, {len(slots)} fingers")
+        plan = reconfigure.plan_reconfiguration(built, shelf, objects, slots=slots, table=self._table,
+                                                time_budget=budget or None, callback=callback)
+        result.success, result.message, result.solve_time = plan.success, plan.message, plan.solve_time
+        points = plan.points
+        result.max_swaps = [p.max_swaps for p in points]
+        result.swaps = [max(p.swaps, 0) for p in points]
+        result.objectives = [float(p.objective) for p in points]
+        result.lower_bounds = [float(p.lower_bound) for p in points]
+        result.optimal = [bool(p.optimal) for p in points]
+        chosen = points[goal.max_swaps]
+        if chosen.assembly is None:
+            result.success = False
+            result.message += f"; no gripper within the shelf with at most {chosen.max_swaps} swaps"
+            return
+        result.target = assembly_msg(chosen.assembly, self._table)
+        steps = reconfigure.swap_steps(built, chosen.assembly, shelf)
+        result.steps = [step.describe() for step in steps]
+        result.step_chains = [step.chain for step in steps]
+        result.step_positions = [step.position for step in steps]
+        result.step_remove = [-1 if step.remove is None else step.remove for step in steps]
+        result.step_insert = [-1 if step.insert is None else step.insert for step in steps]
+        result.step_rotation_steps = [step.rotation_steps for step in steps]
+        self.get_logger().info(f"plan_reconfiguration: {plan.message} ({plan.solve_time:.2f} s)")
+
+    def _plan_objects(self, goal) -> list:
+        paths, sizes = goal.object_image_paths, goal.pixel_sizes
+        weights = list(goal.weights) or [1.0] * len(paths)
+        if not paths or not len(paths) == len(sizes) == len(weights):
+            raise ValueError("give one or more object_image_paths, with as many pixel_sizes (and weights, if any)")
+        return [reconfigure.TargetObject(path, extract_contours(load_mask(resolve_path(path)), size), weight=w,
+                                         contact_tolerance_m=goal.contact_tolerance)
+                for path, size, w in zip(paths, sizes, weights)]
 
     def _design_path(self, request, response) -> None:
         options = self._options(request)

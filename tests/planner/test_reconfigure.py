@@ -1,0 +1,205 @@
+"""Multi-object finger design and reconfiguration plans: the certified swap fronts against brute force (sample
+and generated objects), the shelf never over-drawn (hypothesis), steps that rebuild the planned robot, and a
+robot that already fits."""
+import itertools
+from collections import Counter
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from planner import design
+from planner.assembly import Assembly, Chain, PlacedBlock
+from planner.contours import extract_contours, load_catalog_object
+from planner.generated_objects import PIXEL_SIZE, lumpy_object
+from planner.objectives import COLLISION_PENALTY
+from planner.optimize import Status, design_costs, design_space
+from planner.optimize.front_search import solve_finger_front
+from planner.reconfigure import FingerSlot, TargetObject, plan_reconfiguration, swap_steps
+from planner.table import load_table
+
+TABLE = load_table()
+OFFSETS = np.arange(0.0, 6.5e-3, 2e-3)
+SHELF_IDS = (2, 8, 14, 19, 27, 33, 40, 45, 57, 61, 64, 71, 78)  # 57 stiff
+SLOTS = (FingerSlot("left", "left"), FingerSlot("right", "right"))
+
+
+def contours_of(name, seed=None):
+    return load_catalog_object(name) if seed is None else extract_contours(lumpy_object(seed), PIXEL_SIZE)
+
+
+def robot(left_ids, right_ids) -> Assembly:
+    return Assembly("pair", tuple(Chain(name, "main", tuple(PlacedBlock(i) for i in ids))
+                                  for name, ids in (("left", left_ids), ("right", right_ids))))
+
+
+def weighted_costs(targets, weights, space, combos):
+    """Weighted objective of every finger (rows of shape indices), each object at its best base."""
+    total = np.zeros(len(combos))
+    for weight, target in zip(weights, targets):
+        bases = len(target.bases)
+        shapes = np.repeat(combos, bases, axis=0)
+        costs = design_costs(target, space, shapes, np.zeros_like(shapes), np.tile(np.arange(bases), len(combos)))
+        total += weight * costs.reshape(len(combos), bases).min(axis=1)
+    return total
+
+
+def shape_stock(space, shelf):
+    shape_of = {d: s for s, members in enumerate(space.members) for d in members}
+    stock = np.zeros(len(space.theta), np.int64)
+    for design_id, count in shelf.items():
+        stock[shape_of[design_id]] += count
+    return shape_of, stock
+
+
+@pytest.mark.parametrize("blocks", [2, 3])
+@pytest.mark.parametrize("objects", [[("strawberry", None), ("generated", 4)], [("gingerbread", None)],
+                                     [("generated", 9), ("generated", 2)]])
+def test_swap_front_equals_brute_force(objects, blocks):
+    targets = [design.finger_problems(contours_of(*o), base_offsets=OFFSETS)["right"][0] for o in objects]
+    weights = np.linspace(1.0, 0.5, len(targets))
+    space = design_space(TABLE, blocks)
+    shape_of, stock = shape_stock(space, {i: 2 for i in SHELF_IDS})
+    current = np.array([shape_of[i] for i in (78, 27, 64)[:blocks]])
+    front = solve_finger_front(targets, weights, space, current=current, stock=stock)
+    assert front.status == Status.CERTIFIED and front.optimal.all()
+    usable = np.flatnonzero(stock > 0)
+    combos = np.array([c for c in itertools.product(usable, repeat=blocks)
+                       if np.all(np.bincount(c, minlength=len(stock)) <= stock)])
+    costs = weighted_costs(targets, weights, space, combos)
+    costs[costs >= COLLISION_PENALTY] = np.inf
+    swaps = (combos != current).sum(axis=1)
+    for budget in range(blocks + 1):
+        expected = costs[swaps <= budget].min()
+        assert front.fun[budget] == pytest.approx(expected, abs=1e-9), budget
+        assert front.lower_bound[budget] == pytest.approx(expected, abs=1e-9)
+        if np.isfinite(expected):
+            assert front.swaps[budget] <= budget
+            chosen = np.flatnonzero((combos == front.shapes[budget]).all(axis=1))
+            assert costs[chosen[0]] == pytest.approx(expected, abs=1e-9)
+
+
+PAIR_SHELF = {2: 1, 14: 1, 40: 2, 64: 1, 71: 1}
+PAIR_OBJECTS = [("strawberry", None), ("generated", 5)]
+
+
+def pair_plan(left=(78, 27), right=(19, 45), shelf=PAIR_SHELF, **kwargs):
+    objects = [TargetObject(f"{n}{s}", contours_of(n, s), weight=w, base_offsets=OFFSETS)
+               for (n, s), w in zip(PAIR_OBJECTS, (1.0, 0.7))]
+    return robot(left, right), objects, plan_reconfiguration(robot(left, right), shelf, objects, slots=SLOTS,
+                                                             **kwargs)
+
+
+def test_pair_plan_equals_brute_force_and_its_steps_rebuild_it():
+    built, objects, result = pair_plan()
+    assert result.success and len(result.points) == 5
+    space = design_space(TABLE, 2)
+    pool = Counter(PAIR_SHELF) + Counter((78, 27, 19, 45))
+    ids = sorted(pool)
+    per_side = {}
+    for side in ("left", "right"):
+        targets = [design.finger_problems(o.contours, base_offsets=OFFSETS)[side][0] for o in objects]
+        pairs = np.array(list(itertools.product(ids, repeat=2)))
+        shape_of = {d: s for s, m in enumerate(space.members) for d in m}
+        costs = weighted_costs(targets, [1.0, 0.7], space, np.vectorize(shape_of.get)(pairs))
+        per_side[side] = {tuple(p): c for p, c in zip(pairs, costs) if c < COLLISION_PENALTY}
+    best = np.full(5, np.inf)
+    for (left, lc), (right, rc) in itertools.product(per_side["left"].items(), per_side["right"].items()):
+        if all(n <= pool[d] for d, n in Counter(left + right).items()):
+            swaps = sum(a != b for a, b in zip(left + right, (78, 27, 19, 45)))
+            best[swaps:] = np.minimum(best[swaps:], lc + rc)
+    for point, expected in zip(result.points, best):
+        assert point.lower_bound <= expected + 1e-9 <= point.objective + 2e-9
+        if point.optimal:
+            assert point.objective == pytest.approx(expected, abs=1e-9)
+    chosen = result.points[-1]
+    steps = swap_steps(built, chosen.assembly, PAIR_SHELF)
+    assert len(steps) >= chosen.swaps and steps[-1].assembly == chosen.assembly
+    assert Counter(d for c in chosen.assembly.chains for d in c.design_ids) <= pool
+    assert "insert design" in steps[0].describe() or "remove design" in steps[0].describe()
+
+
+def test_a_robot_that_already_fits_plans_zero_swaps():
+    _, _, first = pair_plan()
+    fitted = first.points[-1].assembly
+    left, right = fitted.chain("left").design_ids, fitted.chain("right").design_ids
+    leftover = Counter(PAIR_SHELF) + Counter((78, 27, 19, 45)) - Counter(left + right)
+    _, _, again = pair_plan(left, right, shelf=dict(leftover))
+    assert all(p.swaps == 0 for p in again.points) and again.points[0].optimal
+    assert again.points[-1].objective == pytest.approx(first.points[-1].objective, abs=1e-9)
+    assert swap_steps(fitted, again.points[-1].assembly, dict(leftover)) == ()
+
+
+def test_a_canceled_plan_keeps_proven_bounds():
+    def cancel(progress):
+        raise StopIteration
+
+    _, _, result = pair_plan(callback=cancel)
+    assert result.status == Status.CANCELED and "canceled" in result.message
+    for point in result.points:
+        assert point.lower_bound <= point.objective and not (point.optimal and point.max_swaps > 0)
+
+
+@pytest.mark.parametrize("change, match", [
+    (dict(shelf={999: 1}), "999 is not a design ID"),
+    (dict(shelf={2: -1}), "counts are integers >= 0"),
+    (dict(slots=(FingerSlot("middle", "left"),)), "no chain 'middle'"),
+    (dict(slots=(FingerSlot("left", "up"),)), "side must be one of"),
+    (dict(time_budget=0.0), "time_budget"),
+])
+def test_bad_input_is_named(change, match):
+    objects = [TargetObject("strawberry", contours_of("strawberry"))]
+    arguments = dict(shelf=PAIR_SHELF, slots=SLOTS) | change
+    with pytest.raises(ValueError, match=match):
+        plan_reconfiguration(robot((78, 27), (19, 45)), arguments.pop("shelf"), objects, **arguments)
+    with pytest.raises(ValueError, match="weight must be > 0"):
+        plan_reconfiguration(robot((78, 27), (19, 45)), PAIR_SHELF,
+                             [TargetObject("s", contours_of("strawberry"), weight=0.0)], slots=SLOTS)
+
+
+def test_swap_steps_refuse_a_target_the_shelf_cannot_supply():
+    with pytest.raises(ValueError, match=r"lack designs \{15: 1\}"):
+        swap_steps(robot((78, 27), (19, 45)), robot((15, 27), (19, 45)), {2: 3})
+
+
+DESIGNS = (2, 14, 40, 57, 64)
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.data())
+def test_steps_never_overdraw_the_shelf_and_rebuild_the_target(data):
+    """Any current robot and any target the shelf plus the robot can supply (cycles of swaps included):
+    the shelf never goes below zero, every step changes one position, the last layout is the target."""
+    lengths = data.draw(st.lists(st.integers(1, 4), min_size=1, max_size=3))
+    current = [data.draw(st.lists(st.sampled_from(DESIGNS), min_size=n, max_size=n)) for n in lengths]
+    every = Counter(d for ids in current for d in ids)
+    shelf = Counter({d: data.draw(st.integers(0, 2)) for d in DESIGNS})
+    pool = list((every + shelf).elements())
+    order = data.draw(st.permutations(pool))
+    target, start = [], 0
+    for n in lengths:
+        target.append(order[start:start + n])
+        start += n
+
+    def make(layout):
+        return Assembly("r", tuple(Chain(f"c{k}", "main", tuple(PlacedBlock(i) for i in ids))
+                                   for k, ids in enumerate(layout)))
+
+    steps = swap_steps(make(current), make(target), dict(shelf))
+    layout = [list(ids) for ids in current]
+    stock = Counter(shelf)
+    for step in steps:
+        k = int(step.chain[1:])
+        assert layout[k][step.position] == step.remove
+        if step.remove is not None:
+            stock[step.remove] += 1
+        if step.insert is not None:
+            assert stock[step.insert] > 0, "drew a block the shelf does not hold"
+            stock[step.insert] -= 1
+        layout[k][step.position] = step.insert
+        assert {d: n for d, n in stock.items() if n} == step.shelf
+    assert layout == [list(t) for t in target]
+    assert steps == () or steps[-1].assembly == make(target)
+    changed = sum(a != b for c, t in zip(current, target) for a, b in zip(c, t))
+    assert sum(s.insert is not None for s in steps) == changed
