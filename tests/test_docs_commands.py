@@ -39,6 +39,8 @@ from sequencing.schema import Limits, load_sequence, parse_sequence
 from softblock_ros.parameters import NODE_SCHEMAS, node_schema
 from softblock_ros.stack import load_stack
 
+pytestmark = pytest.mark.integration
+
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 PACKAGE = ROOT / "ros_ws" / "src" / "softblock_ros"

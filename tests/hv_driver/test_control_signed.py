@@ -9,6 +9,8 @@ from hv_driver import ChannelConfig, ControlError, Fault, Supervisor
 from hv_driver.control import (HEARTBEAT, RELEASE, REPLAY_WINDOW, ControlClaim, SessionKey, command_mac,
                                pulse_command, ramp_command, session_id, signed)
 
+pytestmark = pytest.mark.fast
+
 CONFIG = ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=1000.0)
 
 

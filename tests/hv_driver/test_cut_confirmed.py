@@ -12,6 +12,8 @@ from hv_driver import Fault
 from hv_driver.clock import SimulatedClock
 from hv_driver.dialects import DIALECTS
 
+pytestmark = pytest.mark.fast
+
 LIMITS = dict(max_voltage_v=3000.0, slew_rate_v_per_s=8000.0, mismatch_tolerance_v=150.0, mismatch_time_s=0.2,
               current_trip_a=100e-6)
 # What each dialect shows when the unit comes back: the iseg module and the PPV board answer every setting, so the

@@ -3,9 +3,13 @@ control that ends other than by a release (WARNING)."""
 import dataclasses
 import logging
 
+import pytest
+
 from hv_driver import Fault
 from hv_driver.driver import ChannelSnapshot, SupplySnapshot
 from hv_driver.events import snapshot_events
+
+pytestmark = pytest.mark.fast
 
 FRONT = ChannelSnapshot("front", 0, 0.0, 0.0, 0.0, 0.0, 3000.0, True, False, Fault(0), "")
 IDLE = SupplySnapshot("sim", "pty", False, "", 0.0, (FRONT, dataclasses.replace(FRONT, name="back", index=1)))

@@ -10,6 +10,8 @@ from hv_driver import ControlError, HvError, LimitError, ipc, realtime
 from hv_driver.ipc import MAX_WAIT_S
 from hv_driver.server import SupervisorServer
 
+pytestmark = pytest.mark.fast
+
 
 def test_messages_over_the_bound_or_not_json_objects_are_refused():
     left, right = ipc.socket_pair()

@@ -2,10 +2,13 @@
 channel, ramps every energised output to 0 V within the slew limit and never re-energises anything by itself."""
 import math
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hv_driver import ChannelConfig, ControlError, Fault, FaultLatchedError, Supervisor
+
+pytestmark = pytest.mark.fast
 
 SLEW = 1000.0
 CONFIGS = [ChannelConfig(name, k, slew_rate_v_per_s=SLEW) for k, name in enumerate(("front", "back", "legs"))]

@@ -18,6 +18,8 @@ from sim_fallback.keithley_supply import IDENTITY as KEITHLEY_IDENTITY
 from sim_fallback.keithley_supply import SimulatedKeithley2290
 from sim_fallback.ppv_supply import FIRMWARE, SimulatedPpv
 
+pytestmark = pytest.mark.integration
+
 QUERIES = {"*IDN?", "QVer"}  # the identification queries of the three dialects
 SUPPLIES = [(SimulatedSupply, "iseg-edcp", ISEG_IDENTITY), (SimulatedKeithley2290, "keithley-2290", KEITHLEY_IDENTITY),
             (SimulatedPpv, "ppv", f"slave {FIRMWARE}")]

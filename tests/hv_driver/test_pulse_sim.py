@@ -12,7 +12,7 @@ from hv_driver.clock import SimulatedClock
 from hv_driver.dialects import DIALECTS
 from hv_driver.supervisor import DEFAULT_PERIOD_S, DEVICE_CLOCK_TOLERANCE, DEVICE_COUNT_MARGIN_S
 
-pytestmark = pytest.mark.integration
+pytestmark = pytest.mark.fast
 
 # A host-ramped supply (Keithley, PPV) follows each streamed setpoint step with its regulation lag: the charging
 # current of 2 nF at 16 kV/s peaks above the default 50 uA trip, so the trip is set for this load.

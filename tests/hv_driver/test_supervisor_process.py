@@ -25,6 +25,8 @@ DEADLINE = 60.0  # [s] for an event; generous, the host may be loaded
 NODE = """
 import json, sys, time
 from hv_driver import RemoteSupply
+
+pytestmark = pytest.mark.integration
 supply = RemoteSupply(json.loads(sys.argv[1]), json.loads(sys.argv[2]), sys.argv[3]).open()
 token = supply.claim_control("sequencer")
 supply.enable("front")

@@ -15,6 +15,8 @@ from hv_driver.dialects import DIALECTS
 from hv_driver.ramp import MIN_JERK_PEAK_RATE
 from hv_driver.supervisor import COLLAPSE_READBACKS, DEFAULT_PERIOD_S
 
+pytestmark = pytest.mark.fast
+
 LIMITS = dict(max_voltage_v=3000.0, slew_rate_v_per_s=8000.0, mismatch_tolerance_v=150.0, mismatch_time_s=0.2,
               current_trip_a=100e-6)
 LINK_TIMEOUT_S = 0.5

@@ -2,7 +2,11 @@
 tens of seconds per field the first time) is never silent."""
 import re
 
+import pytest
+
 from planner.design import prepare_finger_search
+
+pytestmark = pytest.mark.fast
 
 
 def test_each_step_is_reported_with_its_counts_as_it_starts_and_ends():

@@ -19,6 +19,8 @@ from planner.optimize.front_search import solve_finger_front
 from planner.reconfigure import FingerSlot, TargetObject, plan_reconfiguration, swap_steps
 from planner.table import load_table
 
+pytestmark = pytest.mark.fast
+
 TABLE = load_table()
 OFFSETS = np.arange(0.0, 6.5e-3, 2e-3)
 SHELF_IDS = (2, 8, 14, 19, 27, 33, 40, 45, 57, 61, 64, 71, 78)  # 57 stiff

@@ -5,9 +5,13 @@ import json
 import subprocess
 import sys
 
+import pytest
+
 from recording_helpers import hv_state, stamp, write_recording
 
 from recording.analysis import analyze
+
+pytestmark = pytest.mark.fast
 
 START = 1_700_000_000_000_000_000
 WITHOUT_ROS = ("import sys; sys.modules.update(dict.fromkeys(['rclpy', 'ament_index_python', "

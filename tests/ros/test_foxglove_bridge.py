@@ -21,6 +21,8 @@ from softblock_ros import foxglove_layout
 from softblock_ros.assembly_state_node import AssemblyStateNode
 from softblock_ros.foxglove_bridge_node import LIVE_TOPICS, FoxgloveBridgeNode, _Viewers, is_loopback
 
+pytestmark = pytest.mark.integration
+
 # foxglove-sdk 0.30 names the Foxglove WebSocket protocol so; it refuses foxglove.websocket.v1
 SUBPROTOCOL = "foxglove.sdk.v1"
 MESSAGE_DATA = 0x01  # binary opcode of a message on a subscription

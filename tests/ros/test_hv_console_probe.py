@@ -1,8 +1,11 @@
 """`hv_console --probe PORT`: identifies the supply on a port, read-only, without starting ROS."""
+import pytest
 import rclpy
 
 from sim_fallback.keithley_supply import IDENTITY, SimulatedKeithley2290
 from softblock_ros import hv_console
+
+pytestmark = pytest.mark.integration
 
 
 def test_probe_names_the_supply_and_its_node_parameters_without_starting_ros(capsys):

@@ -17,6 +17,8 @@ from softblock_interfaces.msg import HvChannelState, HvState
 from softblock_ros.client import ActionClient, run_action
 from softblock_ros.hv_control import HvControl
 
+pytestmark = pytest.mark.integration
+
 NAMESPACE = "/killed"
 TIMEOUT = 60.0  # [s] for a node process to start, a ramp to end, an event to show; the host may be loaded
 

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.fast
+
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGE = ROOT / "ros_ws" / "src" / "softblock_ros"
 CORE = ("planner", "hv_driver", "sim_fallback", "sequencing", "recording", "estimation", "config")

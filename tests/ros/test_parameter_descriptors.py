@@ -6,6 +6,8 @@ import rclpy
 from hv_driver import DIALECTS
 from softblock_ros.parameters import NODE_SCHEMAS, declare, node_schema
 
+pytestmark = pytest.mark.integration
+
 WITH_CHOICES = [(node, param) for node in NODE_SCHEMAS for param in node_schema(node) if param.choices]
 
 

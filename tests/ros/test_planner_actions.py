@@ -20,6 +20,8 @@ from softblock_ros.conversions import assembly_msg, image_msg
 from softblock_ros.planner_node import PlannerNode
 from softblock_ros.qos import LATCHED
 
+pytestmark = pytest.mark.integration
+
 TABLE = load_table()
 ROBOT = Assembly("pair", (Chain("left", "main", tuple(PlacedBlock(i) for i in (78, 27, 64))),
                           Chain("right", "main", tuple(PlacedBlock(i) for i in (19, 45, 2)))))

@@ -21,6 +21,8 @@ from softblock_ros.client import ActionClient
 from softblock_ros.hv_driver_node import HvDriverNode
 from softblock_ros.sim_arm_node import SimArmNode
 
+pytestmark = pytest.mark.integration
+
 NAMESPACE = "/sequencer_signals"
 TIMEOUT = 60.0  # [s] liveness bound for a process start, a sequence's stop and the exit
 

@@ -22,6 +22,8 @@ from softblock_ros.qos import LATCHED
 from softblock_ros.recording.recorder_node import RecorderNode
 from softblock_ros.tf_frames import ESTIMATED_PREFIX, blocks_msg, chain_frame, mounts_msg
 
+pytestmark = pytest.mark.integration
+
 GRIPPER = load_assembly(resolve_path("config/assemblies/gripper.yaml"))
 ROOT = "gripper_base"  # assembly_state's frame_id
 VOLTAGES = {"front": 1800.0, "back": 600.0}
