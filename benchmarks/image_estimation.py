@@ -232,6 +232,7 @@ CONDITIONS = {  # name: (angle offsets +- [deg], the estimator's angle_sigma [de
 
 
 MISTAKE_PIXELS = (0.25e-3, 0.4e-3)  # [m/px] the mistake study's pixel sizes
+RESOLUTION_PIXELS = [0.1e-3, 0.25e-3, 0.4e-3, 0.5e-3, 1.0e-3]  # [m/px] the resolution study's
 
 
 def mistake_study(table, rng, cases: int, pixel_sizes=MISTAKE_PIXELS) -> dict:
@@ -430,6 +431,8 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="few cases per point (a smoke run)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--cases", type=int, help="cases per point instead of each study's default")
+    parser.add_argument("--pixel-sizes", type=float, nargs="+", default=RESOLUTION_PIXELS,
+                        help="pixel sizes [m] of the resolution study (with --only, the other sizes' rows are kept)")
     parser.add_argument("--replot", action="store_true", help="redraw the PNG from the JSON written before")
     parser.add_argument("--only", choices=["resolution", "faults", "mistakes", "time", "candidates"],
                         help="rerun one study into the JSON written before, and redraw the figure")
@@ -444,7 +447,7 @@ def main() -> None:
     rng = lambda study: np.random.default_rng([args.seed, study])  # noqa: E731  (each study draws on its own)
     studies = {
         "resolution": ("angle accuracy against resolution",
-                       lambda: resolution_study(table, rng(0), count(40), [0.1e-3, 0.25e-3, 0.4e-3, 0.5e-3, 1.0e-3])),
+                       lambda: resolution_study(table, rng(0), count(40), args.pixel_sizes)),
         "faults": ("image faults", lambda: fault_study(table, rng(1), count(30))),
         "mistakes": ("assembly mistakes", lambda: mistake_study(table, rng(2), count(100))),
         "time": ("time per image", lambda: time_study(table, rng(3), count(20))),
@@ -452,8 +455,8 @@ def main() -> None:
     }
     folder = QUICK_OUTPUT if args.quick else FIGURES
     path = folder / "image_estimation.json"
-    if args.only:  # rerun one study into the results written before
-        results = json.loads(path.read_text())
+    if args.only:  # rerun one study into the results written before (read again when writing: see below)
+        results = {"machine": {}}
         chosen = [args.only]
     else:
         results = {"seed": args.seed, "quick": args.quick, "offset_deg": OFFSET_DEG, "mistake_offset_deg": MISTAKE_OFFSET_DEG,
@@ -467,10 +470,22 @@ def main() -> None:
         results["machine"][f"{name}_load"] = {"before": load, "after": [round(v, 2) for v in os.getloadavg()]}
     results["total_s"] = time.perf_counter() - started
     folder.mkdir(parents=True, exist_ok=True)
+    if args.only:  # merged into the file as it is now, so that several --only runs may share it
+        results = _merged(json.loads(path.read_text()), results, args.only)
     path.write_text(json.dumps(results, indent=1))
     plot(results, folder / "image_estimation.png")
     report(results)
     print(f"wrote {path} and .png in {time.perf_counter() - started:.0f} s")
+
+
+def _merged(written: dict, new: dict, study: str) -> dict:
+    if study == "resolution":  # rows of the sizes not rerun are kept
+        sizes = {row["pixel_size_m"] for row in new[study]["rows"]}
+        kept = [row for row in written[study]["rows"] if row["pixel_size_m"] not in sizes]
+        new[study]["rows"] = sorted(kept + new[study]["rows"], key=lambda row: row["pixel_size_m"])
+    written[study] = new[study]
+    written.setdefault("machine", {}).update(new["machine"])
+    return written
 
 
 def report(results: dict) -> None:
