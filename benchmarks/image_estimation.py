@@ -235,10 +235,10 @@ MISTAKE_PIXELS = (0.25e-3, 0.4e-3)  # [m/px] the mistake study's pixel sizes
 RESOLUTION_PIXELS = [0.1e-3, 0.25e-3, 0.4e-3, 0.5e-3, 1.0e-3]  # [m/px] the resolution study's
 
 
-def mistake_study(table, rng, cases: int, pixel_sizes=MISTAKE_PIXELS) -> dict:
+def mistake_study(table, rng, cases: int, pixel_sizes=MISTAKE_PIXELS, kinds=None, conditions=None) -> dict:
     records = []
     for pixel_size in pixel_sizes:
-        records += _mistake_records(table, rng, cases, pixel_size)
+        records += _mistake_records(table, rng, cases, pixel_size, kinds=kinds, conditions=conditions)
     summary = {}
     for pixel_size in pixel_sizes:
         size = f"{1e3 * pixel_size:.2f} mm/px"
@@ -247,10 +247,10 @@ def mistake_study(table, rng, cases: int, pixel_sizes=MISTAKE_PIXELS) -> dict:
     return {"summary": summary, "records": records, "pixel_sizes_m": list(pixel_sizes)}
 
 
-def _mistake_records(table, rng, cases: int, pixel_size: float, options=None, kinds=None) -> list[dict]:
+def _mistake_records(table, rng, cases: int, pixel_size: float, options=None, kinds=None, conditions=None) -> list[dict]:
     records = []
     for condition, (offset_deg, sigma_deg) in CONDITIONS.items():
-        if options is not None and condition != "uncalibrated":
+        if conditions is not None and condition not in conditions:
             continue
         chosen = dict(options or {}) | ({} if sigma_deg is None else {"angle_sigma": math.radians(sigma_deg)})
         for kind, expected in MISTAKE_KINDS.items():
@@ -316,7 +316,7 @@ def candidate_study(table, seed: int, cases: int, pixel_size: float = 0.4e-3) ->
     rows = []
     for count in CANDIDATE_COUNTS:
         records = _mistake_records(table, np.random.default_rng([seed, 4]), cases, pixel_size,
-                                   options={"refine_candidates": count}, kinds=SWEEP_KINDS)
+                                   options={"refine_candidates": count}, kinds=SWEEP_KINDS, conditions=["uncalibrated"])
         separable = [r for r in records if r["block_difference_px"] is None or r["block_difference_px"] > 2.0]
         rows.append({"refine_candidates": count, "images": len(records), "counted": len(separable),
                      "found": float(np.mean([r["found"] for r in separable])),
@@ -433,6 +433,8 @@ def main() -> None:
     parser.add_argument("--cases", type=int, help="cases per point instead of each study's default")
     parser.add_argument("--pixel-sizes", type=float, nargs="+", default=RESOLUTION_PIXELS,
                         help="pixel sizes [m] of the resolution study (with --only, the other sizes' rows are kept)")
+    parser.add_argument("--kinds", nargs="+", choices=list(MISTAKE_KINDS), help="the mistake study's kinds (default: all)")
+    parser.add_argument("--conditions", nargs="+", choices=list(CONDITIONS), help="the mistake study's conditions (default: all)")
     parser.add_argument("--replot", action="store_true", help="redraw the PNG from the JSON written before")
     parser.add_argument("--only", choices=["resolution", "faults", "mistakes", "time", "candidates"],
                         help="rerun one study into the JSON written before, and redraw the figure")
@@ -449,7 +451,8 @@ def main() -> None:
         "resolution": ("angle accuracy against resolution",
                        lambda: resolution_study(table, rng(0), count(40), args.pixel_sizes)),
         "faults": ("image faults", lambda: fault_study(table, rng(1), count(30))),
-        "mistakes": ("assembly mistakes", lambda: mistake_study(table, rng(2), count(100))),
+        "mistakes": ("assembly mistakes", lambda: mistake_study(table, rng(2), count(100), kinds=args.kinds,
+                                                                conditions=args.conditions)),
         "time": ("time per image", lambda: time_study(table, rng(3), count(20))),
         "candidates": ("recall and time against the candidates refined", lambda: candidate_study(table, args.seed, count(20))),
     }
