@@ -7,14 +7,15 @@ chain. Four studies:
 
   resolution  as-built chains at 0.1-1 mm/px: angle errors and false alarms
   faults      at 0.25 mm/px: pixel noise, blur, grey noise, an occluded tip
-  mistakes    at 0.25 mm/px: one wrong design, wrong rotation (flip or out of plane), missing or extra
+  mistakes    at 0.25 and 0.4 mm/px: one wrong design, wrong rotation (flip or out of plane), missing or extra
               block, each with the shape difference it makes (Hausdorff distance between the believed
               and the built chain's silhouettes, same angles) in pixels
   time        CPU time per image against the number of blocks (one core)
+  candidates  at 0.4 mm/px: mistakes found and time per image against the candidates refined
 
 Writes docs/figures/image_estimation.json and .png (--quick: a smoke run into out/benchmarks/; --only STUDY
 reruns one study into the JSON; --replot redraws the figure). Each study draws from its own seeded stream.
-    scripts/with_env.sh python benchmarks/image_estimation.py [--quick] [--seed 0] [--only time]
+    scripts/with_env.sh python benchmarks/image_estimation.py [--quick] [--seed 0] [--only time] [--cases N]
 """
 from __future__ import annotations
 
@@ -23,6 +24,7 @@ import json
 import math
 import os
 import platform
+import sys
 import time
 from pathlib import Path
 
@@ -33,6 +35,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy import ndimage  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # this checkout's packages, not an installed copy
 from estimation.estimate import estimate_chain  # noqa: E402
 from estimation.hypotheses import MistakeKind, rotation_class  # noqa: E402
 from estimation.render import (  # noqa: E402
@@ -228,11 +231,31 @@ CONDITIONS = {  # name: (angle offsets +- [deg], the estimator's angle_sigma [de
 }
 
 
-def mistake_study(table, rng, cases: int) -> dict:
+MISTAKE_PIXELS = (0.25e-3, 0.4e-3)  # [m/px] the mistake study's pixel sizes
+RESOLUTION_PIXELS = [0.1e-3, 0.25e-3, 0.4e-3, 0.5e-3, 1.0e-3]  # [m/px] the resolution study's
+
+
+def mistake_study(table, rng, cases: int, pixel_sizes=MISTAKE_PIXELS, kinds=None, conditions=None) -> dict:
+    records = []
+    for pixel_size in pixel_sizes:
+        records += _mistake_records(table, rng, cases, pixel_size, kinds=kinds, conditions=conditions)
+    summary = {}
+    for pixel_size in pixel_sizes:
+        size = f"{1e3 * pixel_size:.2f} mm/px"
+        chosen = [r for r in records if r["pixel_size_m"] == pixel_size]
+        summary.update({f"{size}, {name}": row for name, row in _mistake_summary(chosen).items()})
+    return {"summary": summary, "records": records, "pixel_sizes_m": list(pixel_sizes)}
+
+
+def _mistake_records(table, rng, cases: int, pixel_size: float, options=None, kinds=None, conditions=None) -> list[dict]:
     records = []
     for condition, (offset_deg, sigma_deg) in CONDITIONS.items():
-        options = None if sigma_deg is None else {"angle_sigma": math.radians(sigma_deg)}
+        if conditions is not None and condition not in conditions:
+            continue
+        chosen = dict(options or {}) | ({} if sigma_deg is None else {"angle_sigma": math.radians(sigma_deg)})
         for kind, expected in MISTAKE_KINDS.items():
+            if kinds is not None and kind not in kinds:
+                continue
             for case in range(cases):
                 believed = [int(i) for i in rng.choice(table.ids, rng.integers(2, 9))]
                 if kind == "missing block" and len(believed) < 3:
@@ -240,30 +263,38 @@ def mistake_study(table, rng, cases: int) -> dict:
                 steps = [0] * len(believed)
                 ids, built_steps, k = (believed, steps, None) if expected is None else _mistake(kind, believed, steps, rng, table)
                 offsets = np.radians(rng.uniform(-offset_deg, offset_deg, len(ids)))
-                coverage, pose, _ = draw(table, ids, built_steps, offsets, PIXEL, rng)
+                coverage, pose, _ = draw(table, ids, built_steps, offsets, pixel_size, rng)
                 block_difference = None
                 if kind in ("wrong design", "flip (180 deg)", "out of plane"):  # the two designs' shapes, one block
-                    block_difference = _hausdorff_px(table, ([believed[k]], [0], offsets[k:k + 1]), ([ids[k]], [built_steps[k]], offsets[k:k + 1]), PIXEL)
+                    block_difference = _hausdorff_px(table, ([believed[k]], [0], offsets[k:k + 1]), ([ids[k]], [built_steps[k]], offsets[k:k + 1]), pixel_size)
                 started = time.process_time()
-                result = estimate_chain(to_binary(coverage), chain_of(believed, steps), PIXEL, pose, table=table, options=options)
+                result = estimate_chain(to_binary(coverage), chain_of(believed, steps), pixel_size, pose, table=table,
+                                        options=chosen or None)
                 cpu = time.process_time() - started
                 found = expected is None and result.as_built or any(m.kind is expected and m.position == k for m in result.mistakes)
                 records.append({
-                    "condition": condition, "kind": kind, "believed": believed, "built": [int(i) for i in ids],
+                    "pixel_size_m": pixel_size, "condition": condition, "kind": kind, "believed": believed, "built": [int(i) for i in ids],
                     "built_steps": built_steps, "position": k, "block_difference_px": block_difference,
                     "found": bool(found), "equivalent": _matches(result.chain, ids, built_steps, table, offset_deg + 0.5),
                     "reported": [m.describe() for m in result.mistakes], "status": result.status.name, "cpu_s": cpu,
                 })
-                print(f"  {condition}, {kind}: {case + 1}/{cases}   ", end="\r", flush=True)
+                print(f"  {1e3 * pixel_size:.2f} mm/px, {condition}, {kind}: {case + 1}/{cases}   ", end="\r", flush=True)
             print()
+    return records
+
+
+def _mistake_summary(records: list[dict]) -> dict:
     summary = {}
-    for condition in CONDITIONS:  # the goal: a wrong design or rotation whose block shape differs by > 2 px
+    conditions = [c for c in CONDITIONS if any(r["condition"] == c for r in records)]
+    for condition in conditions:  # the goal: a wrong design or rotation whose block shape differs by > 2 px
         rows = [r for r in records if r["condition"] == condition and r["block_difference_px"] is not None
                 and r["block_difference_px"] > 2.0]
         summary[f"{condition}: design or rotation"] = {"counted": len(rows), "found": float(np.mean([r["found"] for r in rows])),
                                                        "equivalent": float(np.mean([r["equivalent"] for r in rows]))}
         for kind in MISTAKE_KINDS:
             rows = [r for r in records if r["condition"] == condition and r["kind"] == kind]
+            if not rows:
+                continue
             big = [r for r in rows if r["block_difference_px"] is None or r["block_difference_px"] > 2.0]
             summary[f"{condition}: {kind}"] = {
                 "cases": len(rows), "counted": len(big),
@@ -272,7 +303,29 @@ def mistake_study(table, rng, cases: int) -> dict:
                 "found_all": float(np.mean([r["found"] for r in rows])),
                 "median_cpu_s": float(np.median([r["cpu_s"] for r in rows])),
             }
-    return {"summary": summary, "records": records}
+    return summary
+
+
+CANDIDATE_COUNTS = (1, 2, 3, 5, 8)
+SWEEP_KINDS = ("wrong design", "flip (180 deg)", "out of plane", "missing block", "extra block")
+
+
+def candidate_study(table, seed: int, cases: int, pixel_size: float = 0.4e-3) -> dict:
+    """Recall and time against the number of candidates refined: the same images (one seeded stream per
+    count) with one mistake each, uncalibrated."""
+    rows = []
+    for count in CANDIDATE_COUNTS:
+        records = _mistake_records(table, np.random.default_rng([seed, 4]), cases, pixel_size,
+                                   options={"refine_candidates": count}, kinds=SWEEP_KINDS, conditions=["uncalibrated"])
+        separable = [r for r in records if r["block_difference_px"] is None or r["block_difference_px"] > 2.0]
+        rows.append({"refine_candidates": count, "images": len(records), "counted": len(separable),
+                     "found": float(np.mean([r["found"] for r in separable])),
+                     "median_cpu_s": float(np.median([r["cpu_s"] for r in records])),
+                     "p90_cpu_s": float(np.percentile([r["cpu_s"] for r in records], 90)),
+                     "missed": [r for r in separable if not r["found"]]})
+        print(f"  {count} candidates: found {rows[-1]['found']:.3f} of {len(separable)}, "
+              f"median {1e3 * rows[-1]['median_cpu_s']:.0f} ms")
+    return {"pixel_size_m": pixel_size, "cases_per_kind": cases, "rows": rows}
 
 
 def time_study(table, rng, cases: int, repeats: int = 3) -> dict:
@@ -319,7 +372,7 @@ def plot(results: dict, path: Path) -> None:
     ax.invert_yaxis()
     ax.legend(fontsize="small")
     ax = axes[1, 0]
-    records = results["mistakes"]["records"]
+    records = [r for r in results["mistakes"]["records"] if r.get("pixel_size_m", PIXEL) == PIXEL]
     edges = [0, 1, 2, 4, 8, 16, math.inf]  # bins (lo, hi], so that the goal's "> 2 px" starts a bin
     labels = ["<=1", "1-2", "2-4", "4-8", "8-16", ">16"]
     for condition, style in zip(CONDITIONS, ("-", "--")):
@@ -352,14 +405,38 @@ def plot(results: dict, path: Path) -> None:
     figure.tight_layout()
     figure.savefig(path, dpi=110)
     plt.close(figure)
+    if "candidates" in results:
+        plot_candidates(results["candidates"], path.with_name("image_estimation_candidates.png"))
+
+
+def plot_candidates(study: dict, path: Path) -> None:
+    rows = study["rows"]
+    figure, ax = plt.subplots(figsize=(6.5, 4.5))
+    cpu = [1e3 * r["median_cpu_s"] for r in rows]
+    ax.plot(cpu, [100 * r["found"] for r in rows], "o-")
+    for r, x in zip(rows, cpu):
+        ax.annotate(f"{r['refine_candidates']}", (x, 100 * r["found"]), textcoords="offset points", xytext=(5, -12))
+    ax.axhline(98, color="tab:red", ls="--", lw=1, label="goal 98 %")
+    ax.set(xlabel="median CPU time per image with a mistake [ms]", ylabel="separable mistakes found [%]",
+           title=f"candidates refined (labels) at {1e3 * study['pixel_size_m']:.2f} mm/px, "
+                 f"{rows[0]['counted']} mistakes")
+    ax.legend(fontsize="small")
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="few cases per point (a smoke run)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--cases", type=int, help="cases per point instead of each study's default")
+    parser.add_argument("--pixel-sizes", type=float, nargs="+", default=RESOLUTION_PIXELS,
+                        help="pixel sizes [m] of the resolution study (with --only, the other sizes' rows are kept)")
+    parser.add_argument("--kinds", nargs="+", choices=list(MISTAKE_KINDS), help="the mistake study's kinds (default: all)")
+    parser.add_argument("--conditions", nargs="+", choices=list(CONDITIONS), help="the mistake study's conditions (default: all)")
     parser.add_argument("--replot", action="store_true", help="redraw the PNG from the JSON written before")
-    parser.add_argument("--only", choices=["resolution", "faults", "mistakes", "time"],
+    parser.add_argument("--only", choices=["resolution", "faults", "mistakes", "time", "candidates"],
                         help="rerun one study into the JSON written before, and redraw the figure")
     args = parser.parse_args()
     if args.replot:
@@ -367,20 +444,22 @@ def main() -> None:
         return
     table = load_table()
     scale = 0.2 if args.quick else 1.0
-    count = lambda n: max(2, int(n * scale))  # noqa: E731
+    count = lambda n: args.cases or max(2, int(n * scale))  # noqa: E731
     started = time.perf_counter()
     rng = lambda study: np.random.default_rng([args.seed, study])  # noqa: E731  (each study draws on its own)
     studies = {
         "resolution": ("angle accuracy against resolution",
-                       lambda: resolution_study(table, rng(0), count(40), [0.1e-3, 0.25e-3, 0.5e-3, 1.0e-3])),
+                       lambda: resolution_study(table, rng(0), count(40), args.pixel_sizes)),
         "faults": ("image faults", lambda: fault_study(table, rng(1), count(30))),
-        "mistakes": ("assembly mistakes", lambda: mistake_study(table, rng(2), count(100))),
+        "mistakes": ("assembly mistakes", lambda: mistake_study(table, rng(2), count(100), kinds=args.kinds,
+                                                                conditions=args.conditions)),
         "time": ("time per image", lambda: time_study(table, rng(3), count(20))),
+        "candidates": ("recall and time against the candidates refined", lambda: candidate_study(table, args.seed, count(20))),
     }
     folder = QUICK_OUTPUT if args.quick else FIGURES
     path = folder / "image_estimation.json"
-    if args.only:  # rerun one study into the results written before
-        results = json.loads(path.read_text())
+    if args.only:  # rerun one study into the results written before (read again when writing: see below)
+        results = {"machine": {}}
         chosen = [args.only]
     else:
         results = {"seed": args.seed, "quick": args.quick, "offset_deg": OFFSET_DEG, "mistake_offset_deg": MISTAKE_OFFSET_DEG,
@@ -394,10 +473,22 @@ def main() -> None:
         results["machine"][f"{name}_load"] = {"before": load, "after": [round(v, 2) for v in os.getloadavg()]}
     results["total_s"] = time.perf_counter() - started
     folder.mkdir(parents=True, exist_ok=True)
+    if args.only:  # merged into the file as it is now, so that several --only runs may share it
+        results = _merged(json.loads(path.read_text()), results, args.only)
     path.write_text(json.dumps(results, indent=1))
     plot(results, folder / "image_estimation.png")
     report(results)
     print(f"wrote {path} and .png in {time.perf_counter() - started:.0f} s")
+
+
+def _merged(written: dict, new: dict, study: str) -> dict:
+    if study == "resolution":  # rows of the sizes not rerun are kept
+        sizes = {row["pixel_size_m"] for row in new[study]["rows"]}
+        kept = [row for row in written[study]["rows"] if row["pixel_size_m"] not in sizes]
+        new[study]["rows"] = sorted(kept + new[study]["rows"], key=lambda row: row["pixel_size_m"])
+    written[study] = new[study]
+    written.setdefault("machine", {}).update(new["machine"])
+    return written
 
 
 def report(results: dict) -> None:
@@ -410,6 +501,9 @@ def report(results: dict) -> None:
     for label, row in results["mistakes"]["summary"].items():
         print(f"{label}: found {row['found']:.3f} / equivalent {row['equivalent']:.3f} of {row['counted']} "
               f"(block shapes differ > 2 px); found {row.get('found_all', math.nan):.2f} of all {row.get('cases', '-')}")
+    for row in results.get("candidates", {}).get("rows", []):
+        print(f"{row['refine_candidates']} candidates: found {row['found']:.3f} of {row['counted']}, "
+              f"median {1e3 * row['median_cpu_s']:.0f} ms CPU")
     for row in results["time"]["rows"]:
         print(f"{row['blocks']} blocks: median {1e3 * row['median_cpu_s']:.1f} ms CPU, {1e3 * row['median_wall_s']:.1f} ms wall")
 

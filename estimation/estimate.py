@@ -12,12 +12,23 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from enum import IntEnum
 
 import numpy as np
 
-from estimation.fit import ChainModel, Fit, FitOptions, TrackingTables, block_residuals, fit, inherited_start, quick_cost, track
+from estimation.fit import (
+    ChainModel,
+    Fit,
+    FitOptions,
+    TrackingTables,
+    block_residuals,
+    fit,
+    inherited_start,
+    newton_refit,
+    quick_cost,
+    track,
+)
 from estimation.hypotheses import DesignBook, Hypothesis, MistakeKind, alternatives, believed_hypothesis
 from estimation.outline import is_planar
 from estimation.silhouette import Silhouette, check_base, silhouette_from_image
@@ -35,7 +46,11 @@ class EstimateOptions(FitOptions):
     out_of_plane: bool = True  # also consider rotation steps that take a block out of the image plane
     search_trigger: float = 8.0  # [pixels] of unexplained or hidden outline that start the search for mistakes
     max_unexplained: float = 0.1  # fraction of the image outline that may stay unexplained for success
-    refine_candidates: int = 3  # candidates refined by least squares after tracking
+    refine_candidates: int = 5  # candidates refined by least squares after tracking
+    # Prior width of the reported angles: the chain that explains the image is refitted with this wider
+    # prior, so the angles (and the offsets a calibration derives from them) are the image's, not pulled
+    # toward the table; the verdict keeps ``angle_sigma``, the spread of real blocks.
+    measure_angle_sigma: float = math.radians(10.0)
 
 
 BASE_SHIFT_LIMIT = 3.0  # base corrections beyond this many prior sigmas mean a wrong base pose
@@ -205,6 +220,16 @@ def calibration_offsets(chain: Chain, calibration) -> dict[str, float]:
     raise ValueError(f"calibration must be a BlockCalibration or a mapping serial -> offset [rad], got {type(calibration).__name__}")
 
 
+@dataclass(frozen=True)
+class Measurement:
+    """The reported angles: the verdict's chain refitted with the wider prior ``measure_angle_sigma``."""
+
+    x: np.ndarray
+    theta: np.ndarray  # (N,) [rad]
+    theta_std: np.ndarray  # (N,) [rad]
+    block_residual: np.ndarray  # (N,) RMS outline distance of each block after the refit [m]
+
+
 class _Search:
     """The fits of one image: the believed chain, then chains with more mistakes."""
 
@@ -222,6 +247,14 @@ class _Search:
         self.hypotheses += 1
         self.nfev += result.nfev
         return result
+
+    def measure(self, verdict: Fit) -> Measurement:
+        """The verdict's chain refitted from its angles with the prior ``measure_angle_sigma`` (see there)."""
+        sigma = max(self.options.measure_angle_sigma, self.options.angle_sigma)
+        options = replace(self.options, angle_sigma=sigma, unknown_angle_sigma=max(sigma, self.options.unknown_angle_sigma))
+        model = ChainModel(verdict.hypothesis, self.silhouette, self.pose, options)
+        x, theta_std = newton_refit(model, verdict.x)
+        return Measurement(x=x, theta=x[: model.blocks], theta_std=theta_std, block_residual=block_residuals(model, x))
 
     def tracked(self, hypothesis: Hypothesis, parent: Fit) -> tuple[float, Hypothesis, np.ndarray]:
         """Quick look at a candidate: track its changed blocks from the parent's fit, coarse cost only."""
@@ -302,7 +335,7 @@ def estimate_chain(image, chain: Chain, pixel_size: float, pose: ImagePose, *, v
         if better is None:
             break
         current = better
-    return _result(search, believed, first, current, time.perf_counter() - started)
+    return _result(search, believed, first, current, search.measure(current), time.perf_counter() - started)
 
 
 def _check_base_correction(first: Fit, options: EstimateOptions, pixel_size: float) -> None:
@@ -339,7 +372,8 @@ def _mistakes(search: _Search, current: Fit, first: Fit) -> tuple[Mistake, ...]:
     return tuple(sorted(mistakes, key=lambda m: m.position))
 
 
-def _result(search: _Search, believed: Hypothesis, first: Fit, current: Fit, elapsed: float) -> ChainEstimate:
+def _result(search: _Search, believed: Hypothesis, first: Fit, current: Fit, measured: Measurement, elapsed: float) -> ChainEstimate:
+    """The verdict (status, mistakes, designs) from ``current``; angles, residuals and base from ``measured``."""
     hypothesis = current.hypothesis
     _, designs = hypothesis.prior_cost(current.theta, search.options.angle_sigma)
     predicted_fit = _predicted_residuals(search, hypothesis, designs)
@@ -348,9 +382,9 @@ def _result(search: _Search, believed: Hypothesis, first: Fit, current: Fit, ela
         predicted = spec.angles[spec.designs.index(designs[k])]
         blocks.append(BlockEstimate(
             position=k, design_id=int(designs[k]), rotation_steps=spec.rotation_steps, serial=spec.serial,
-            believed_position=spec.believed, theta=float(current.theta[k]), theta_std=float(current.theta_std[k]),
+            believed_position=spec.believed, theta=float(measured.theta[k]), theta_std=float(measured.theta_std[k]),
             predicted_theta=float(predicted), residual_predicted=float(predicted_fit[k]),
-            residual=float(current.score.block_residual[k]),
+            residual=float(measured.block_residual[k]),
         ))
     outline_length = float(search.silhouette.lengths.sum())
     explained = current.score.unexplained_length <= search.options.max_unexplained * outline_length
@@ -361,7 +395,7 @@ def _result(search: _Search, believed: Hypothesis, first: Fit, current: Fit, ela
         message += ": " + "; ".join(m.describe() for m in mistakes)
     if current.score.hidden_length > search.options.search_trigger * search.silhouette.pixel_size:
         message += f" ({1e3 * current.score.hidden_length:.0f} mm of the chain's outline not seen: occluded?)"
-    shift = current.x[len(blocks) : len(blocks) + 2] * search.silhouette.pixel_size if search.options.fit_base else np.zeros(2)
+    shift = measured.x[len(blocks) : len(blocks) + 2] * search.silhouette.pixel_size if search.options.fit_base else np.zeros(2)
     return ChainEstimate(
         success=status is not Status.UNEXPLAINED,
         status=status,
@@ -370,8 +404,8 @@ def _result(search: _Search, believed: Hypothesis, first: Fit, current: Fit, ela
         blocks=tuple(blocks),
         chain=hypothesis.to_chain(search.believed, current.theta),
         base_shift=(float(shift[0]), float(shift[1])),
-        base_turn=float(current.x[len(blocks) + 2]) if search.options.fit_base else 0.0,
-        residual=float(np.sqrt(np.nanmean(current.score.block_residual**2))),
+        base_turn=float(measured.x[len(blocks) + 2]) if search.options.fit_base else 0.0,
+        residual=float(np.sqrt(np.nanmean(measured.block_residual**2))),
         unexplained_length=current.score.unexplained_length,
         hidden_length=current.score.hidden_length,
         outline_length=outline_length,

@@ -334,6 +334,31 @@ def _angle_std(model: ChainModel, result) -> np.ndarray:
     return np.sqrt(np.maximum(np.diag(covariance)[: model.blocks], 0.0))
 
 
+def newton_refit(model: ChainModel, x: np.ndarray, steps: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Robust Gauss-Newton steps (iteratively reweighted, scipy's Cauchy weights) from x, which fits a
+    nearby problem (the same outline, a narrower prior); returns x and the angles' standard deviations
+    [rad] as ``refine`` gives them. Cheaper than ``refine`` when x is already close."""
+    model.update_visibility(x)
+    scale = model.options.robust_scale
+    for _ in range(steps + 1):
+        residual, jacobian = model.residuals(x), model.jacobian(x)
+        weight = 1.0 / (1.0 + (residual / scale) ** 2)
+        normal = jacobian.T @ (weight[:, None] * jacobian)
+        if _ == steps:
+            break
+        try:
+            x = x - np.linalg.solve(normal, jacobian.T @ (weight * residual))
+        except np.linalg.LinAlgError:
+            break
+    variance = 2.0 * float(np.sum(cauchy(residual, scale))) / max(len(residual) - model.size, 1)
+    image = residual[: len(residual) - model.size]
+    try:
+        covariance = np.linalg.pinv(normal) * variance * correlation_time(image)
+    except np.linalg.LinAlgError:
+        return x, np.full(model.blocks, np.inf)
+    return x, np.sqrt(np.maximum(np.diag(covariance)[: model.blocks], 0.0))
+
+
 def correlation_time(residuals: np.ndarray, max_lag: int = 100) -> float:
     """1 + 2 sum of the autocorrelations, summed up to the first lag where they stop being positive."""
     centred = residuals - residuals.mean()

@@ -58,7 +58,7 @@ VIEW_PARAMETERS = (
     Param("base_pose", [0.05, 0.005, math.pi / 2], "the chain base's centre x, y [m] in the image (origin at the "
           "top-left corner, x right, y down) and the direction the chain grows [rad], from image +x toward +y", "",
           -10.0, 10.0, size=3),
-    Param("mirrored", False, "the camera looks along the chain's -y (its bending side appears on the left)", kind=bool),
+    Param("mirrored", False, "the camera looks along the chain's -y: its bending side lies 90 deg counter-clockwise of the growth direction on screen (for the default pose, hanging down, the chain bends to image right)", kind=bool),
 )
 
 
