@@ -1,24 +1,15 @@
 """Images named by users and clients: a header claiming a decompression bomb's size, a FIFO or junk is one
 ValueError line, wherever images are read (planner.contours, estimation.silhouette)."""
 import os
-import struct
-import zlib
 
 import pytest
+from crafted_images import png_header
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from estimation.silhouette import read_image
 from planner.contours import load_mask
 from planner.image_file import open_image
-
-
-def png_header(width: int, height: int) -> bytes:
-    """A PNG that is only its signature, its IHDR (1-bit grey) and IEND: the size Pillow reads first."""
-    def chunk(kind: bytes, data: bytes) -> bytes:
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
-    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 1, 0, 0, 0, 0)) + chunk(
-        b"IEND", b"")
 
 
 @pytest.mark.parametrize("read, what", [(load_mask, "object image"), (read_image, "image")])
