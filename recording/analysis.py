@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
-from .bounded_mcap import open_bounded
+from .bounded_mcap import open_bounded, undecodable
 from .gaps import checkable, find_gaps
 from .mcap_file import require_complete
 
@@ -57,6 +57,11 @@ def fault_names(bits: int, names: dict) -> list[str]:
 
 def load(path: str) -> RecordingData:
     """Decodes the HvState, SequenceEvent and AssemblyState messages of `path`."""
+    with undecodable(path):
+        return _load(path)
+
+
+def _load(path: str) -> RecordingData:
     require_complete(path)
     data = RecordingData()
     rows = []

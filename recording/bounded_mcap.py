@@ -5,10 +5,12 @@ them allocate that much (MemoryError) or hand zstd an impossible size (ZstdError
 - only a regular file is opened (planner.regular_file: a FIFO would block, /dev/zero never ends);
 - no read asks for more bytes than remain in the file (BoundedFile), whatever a length field says;
 - every chunk's uncompressed size, as the chunk claims it and as its zstd/lz4 frame header claims it, is at
-  most MAX_CHUNK_BYTES (`chunk_problem`), checked for the whole file before any message is read.
+  most MAX_CHUNK_BYTES (`chunk_problem`), checked for the whole file before any message is read;
+- a schema or a message that is not what it claims, found while decoding (`undecodable`), is one ValueError.
 """
 from __future__ import annotations
 
+import contextlib
 import io
 import os
 import struct
@@ -17,6 +19,7 @@ import lz4.frame
 import zstandard
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
+from mcap_ros2._vendor.rosidl_adapter.parser import InvalidSpecification, InvalidValue
 from mcap.writer import MCAP0_MAGIC
 
 from planner.regular_file import open_regular
@@ -141,3 +144,22 @@ def open_bounded(path: str) -> BoundedFile:
         stream.close()
         raise McapError(f"{path}: {problem}")
     return stream
+
+
+# What mcap-ros2 and the code reading its messages raise on a schema text or a CDR payload that is not what the
+# file says (a damaged or foreign file): its parser's errors, short or garbled buffers, missing fields.
+DECODE_ERRORS = (InvalidSpecification, InvalidValue, NameError, AttributeError, IndexError, KeyError, TypeError,
+                 struct.error, OverflowError, UnicodeDecodeError, RuntimeError, zstandard.ZstdError)
+
+
+@contextlib.contextmanager
+def undecodable(path: str):
+    """Turns a decoding failure inside the block into one ValueError line naming the file. The schema parser's
+    own print to stderr ("Error with: ...") is held back: the line says it."""
+    try:
+        with contextlib.redirect_stderr(io.StringIO()):
+            yield
+    except DECODE_ERRORS as error:
+        problem = "".join(c if c.isprintable() else "?" for c in " ".join(str(error).split()))[:120]
+        raise ValueError(f"{path}: a schema or message cannot be decoded as it claims "
+                         f"({type(error).__name__}: {problem})") from None

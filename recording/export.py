@@ -18,7 +18,7 @@ from mcap_ros2.decoder import DecoderFactory
 
 from planner.atomic_file import atomic_write
 
-from .bounded_mcap import open_bounded
+from .bounded_mcap import open_bounded, undecodable
 from .mcap_file import require_complete
 
 MAX_ARRAY_COLUMNS = 64
@@ -64,7 +64,7 @@ def export_csv(path: str, directory: str | Path) -> dict[str, int]:
     Each file is written whole and renamed into place (planner.atomic_file), replacing an older export."""
     require_complete(path)
     rows: dict[str, list[dict]] = defaultdict(list)
-    with open_bounded(path) as stream:
+    with open_bounded(path) as stream, undecodable(path):
         reader = make_reader(stream, decoder_factories=[DecoderFactory()])
         start = reader.get_summary().statistics.message_start_time
         for _, channel, message, decoded in reader.iter_decoded_messages(log_time_order=True):

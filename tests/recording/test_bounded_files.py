@@ -185,21 +185,30 @@ def test_the_cli_refuses_an_existing_output_in_one_line(tmp_path):
     assert "Traceback" not in result.stderr
 
 
+TALKER = """
+import time, rclpy
+rclpy.init()
+node = rclpy.create_node("hv_driver")
+while True:
+    node.get_logger().error("FAULT over_current on front")
+    time.sleep(0.1)
+"""
+
+
 def test_rosout_is_recorded_so_fault_logs_end_up_in_the_file(ros_context, tmp_path):
+    """Old: /rosout was excluded by default, so an HV fault logged by the driver was not in the recording."""
     path = tmp_path / "logs.mcap"
     recorder = RecorderNode(str(path), context=ros_context, parameter_overrides=[
         Parameter("discovery_period_s", value=0.1)])
-    talker = rclpy.create_node("hv_driver", context=ros_context)
-    spinner = Spinner(ros_context, recorder, talker)
+    spinner = Spinner(ros_context, recorder)
+    talker = subprocess.Popen([sys.executable, "-c", TALKER], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        wait_for(lambda: "/rosout" in recorder.recorded_topics, "the recorder to subscribe to /rosout")
-        def logged_and_recorded():
-            talker.get_logger().error("FAULT over_current on front")
-            return any(recorder.writer.message_counts.values())
-        wait_for(logged_and_recorded, "a log line recorded")
+        # the recorder logs a few lines of its own; the talker one every 0.1 s
+        wait_for(lambda: recorder.writer.message_counts.get("/rosout", 0) >= 20, "the talker's log lines recorded")
     finally:
+        talker.kill()
+        talker.wait()
         spinner.close()
         recorder.destroy_node()
-        talker.destroy_node()
     logs = read_decoded(str(path))["/rosout"]
     assert any(log.name == "hv_driver" and log.msg == "FAULT over_current on front" for _, log, _, _ in logs)
