@@ -4,7 +4,8 @@ Public API: `HvSupply` (driver), `ChannelConfig` (per-channel limits), `DIALECTS
 it speaks), `Fault` (latched fault
 bits, equal to HvChannelState.msg), `SupplySnapshot` / `ChannelSnapshot`, `RampHandle`, `PulseHandle` (periodic actuation), and the
 errors, all `HvError`: `SettingError` (and its `LimitError`), `StateError`, `FaultLatchedError`,
-`ConfigurationError`, `LinkError`, `ProtocolError`, `PulseLimitError` (a waveform the supply cannot produce).
+`ConfigurationError`, `LinkError`, `ProtocolError`, `PulseLimitError` (a waveform the supply cannot produce),
+`SupervisorLostError`. `RemoteSupply`: the same API served by the supervisor process (`hv_driver.server`).
 """
 from .config import ChannelConfig
 from .control import ControlError
@@ -14,8 +15,9 @@ from .pulse import PulseLimitError
 from .errors import HvError, SettingError, StateError
 from .faults import Fault, fault_names
 from .link import LinkError
+from .remote import RemoteSupply, SupervisorLostError
 from .supervisor import FaultLatchedError, LimitError, Supervisor
 
 __all__ = ["ChannelConfig", "ChannelSnapshot", "ConfigurationError", "ControlError", "DIALECTS", "Dialect", "Fault",
            "FaultLatchedError", "HvError", "HvSupply", "IsegEdcp", "LimitError", "LinkError", "ProtocolError",
-           "PulseHandle", "PulseLimitError", "RampHandle", "SettingError", "StateError", "Supervisor", "SupplySnapshot", "dialect", "fault_names"]
+           "PulseHandle", "PulseLimitError", "RampHandle", "RemoteSupply", "SettingError", "StateError", "Supervisor", "SupervisorLostError", "SupplySnapshot", "dialect", "fault_names"]

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import serial
 
+from .clock import MONOTONIC
 from .config import ChannelConfig
 from .dialects import CurrentSensing, Dialect, ProtocolError, StatusReport
 from .errors import HvError
@@ -29,10 +30,12 @@ class Sent:
     setpoint: float = 0.0
     output_on: bool = False
     emergency: bool = False  # cut for a fault; released when the fault is reset
+    cut_confirmed: bool = False  # the device has reported the cut output off since the cut (re-sent until then)
     pulse: PulseTrain | None = None        # the square train armed on the device (frequency and count sent)
     switching_since: float | None = None   # [s] when the device was told to start switching it
     armed: PulseTrain | None = None        # the last train armed (kept after it ended) ...
     frequency: float | None = None         # ... and the device's answer to its frequency [Hz] (quantised)
+    counted: tuple[int, int] | None = None  # (done, total) of the switching train as the device last counted it
 
 
 @dataclass(frozen=True)
@@ -53,11 +56,16 @@ class DeviceSide:
 
 
 class Device:
-    """The channels of one supply on one port (a pyserial URL or device path)."""
+    """The channels of one supply on one port: a pyserial URL or device path, or a pyserial-like port object
+    (``write``, ``read``, ``in_waiting``, ``reset_input_buffer``, ``timeout``; e.g. an in-memory link to a simulated
+    supply on a simulated clock). ``clock``: what the link's deadlines read and wait on (`hv_driver.clock`)."""
 
-    def __init__(self, port: str, baudrate: int | None, dialect: Dialect, configs: list[ChannelConfig],
-                 reply_timeout: float):
+    def __init__(self, port, baudrate: int | None, dialect: Dialect, configs: list[ChannelConfig],
+                 reply_timeout: float, clock=MONOTONIC):
+        self._given_port = None if isinstance(port, str) else port
+        port = port if isinstance(port, str) else getattr(port, "name", repr(port))
         self.port_name, self.dialect, self.configs = port, dialect, list(configs)
+        self.clock = clock
         self.capabilities = dialect.capabilities
         self.baudrate = baudrate or dialect.default_baudrate
         self.reply_timeout = reply_timeout
@@ -69,12 +77,18 @@ class Device:
 
     # --- port --------------------------------------------------------------------------------------
     def open_port(self) -> None:
+        if self._given_port is not None:
+            self._port = self._given_port
+            self._port.timeout = self.reply_timeout
+            self.link = Link(self._port, self.dialect, self.reply_timeout, self.clock)
+            return
         try:
+            # exclusive: a second driver (another supervisor process) on the same supply is refused, not interleaved
             self._port = serial.serial_for_url(self.port_name, baudrate=self.baudrate, timeout=self.reply_timeout,
-                                               write_timeout=self.reply_timeout)
+                                               write_timeout=self.reply_timeout, exclusive=True)
         except (serial.SerialException, OSError, ValueError) as error:
             raise LinkError(f"cannot open {self.port_name!r}: {error}") from error
-        self.link = Link(self._port, self.dialect, self.reply_timeout)
+        self.link = Link(self._port, self.dialect, self.reply_timeout, self.clock)
 
     def close_port(self) -> None:
         if self._port is not None:
@@ -152,19 +166,38 @@ class Device:
         currents = ([None] * len(self.indices) if self.capabilities.current is CurrentSensing.NONE
                     else self.query("measure_current", self.indices))
         statuses = [self.query(operation, self.indices) for operation in self.capabilities.status_operations]
+        for config in self.configs:  # a train the device switches: its own count, which ends it
+            sent = self.sent[config.name]
+            if sent.pulse is not None and sent.switching_since is not None:
+                sent.counted = self.dialect.cycle_count(self.query("read_cycles", [config.index]))
         return {config.name: Reading(voltage, current, self.dialect.status_report(*(s[k] for s in statuses)))
                 for k, (config, voltage, current) in enumerate(zip(self.configs, voltages, currents))}
 
     def cut(self, configs: list[ChannelConfig]) -> None:
-        """Outputs of newly faulted channels to 0 V and off at once: the device's emergency off where it has one
-        (all in one line), else output off, then 0 V."""
+        """Outputs of faulted channels to 0 V and off at once: the device's emergency off where it has one (all in
+        one line), else output off, then 0 V. A line written is not a cut made (a supply that does not answer
+        settings may not have read it): the cut counts only once the device reports the output off
+        (`confirm_cut`), and is sent again every cycle until then. Behind a failed exchange the lines go out at once,
+        unanswered, rather than after the line has fallen quiet for a reply timeout."""
         if not configs:
             return
         indices = [c.index for c in configs]
-        self.query("emergency_off" if self.capabilities.emergency_off else "output_off", indices)
         for config in configs:
             self.sent[config.name] = Sent(0.0, False, True)
-        self.query("set_voltage", indices, 0.0)
+        send = self.link.send if self.link.stale else self.query
+        send("emergency_off" if self.capabilities.emergency_off else "output_off", indices)
+        send("set_voltage", indices, 0.0)
+
+    def unconfirmed_cuts(self, faulted: set[str]) -> list[ChannelConfig]:
+        """The channels of ``faulted`` (names) whose cut the device has not yet confirmed: to be cut (again)."""
+        return [c for c in self.configs if c.name in faulted and not self.sent[c.name].cut_confirmed]
+
+    def confirm_cut(self, config: ChannelConfig, reading: "Reading") -> bool:
+        """Take a readback after a cut: True when the device reports the output still on (the cut did not happen);
+        an output reported off confirms the cut."""
+        sent = self.sent[config.name]
+        sent.cut_confirmed = not reading.report.output_on
+        return reading.report.output_on
 
     def apply(self, config: ChannelConfig, setpoint: float, output_on: bool, pulse: PulseTrain | None = None,
               now: float = 0.0) -> None:
@@ -176,7 +209,7 @@ class Device:
                 self.query("emergency_clear", ch)
             if self.has("clear_events"):
                 self.query("clear_events", ch)
-            sent.emergency = False
+            sent.emergency = sent.cut_confirmed = False  # the next cut must be confirmed afresh
         if output_on and pulse is not None:
             self._switch(config, pulse, now)
             return
@@ -215,7 +248,7 @@ class Device:
         sent = self.sent[config.name]
         if sent.pulse is train and sent.switching_since is None and now >= train.start:
             self.query("start_switching", [config.index])
-            sent.output_on, sent.switching_since = True, now
+            sent.output_on, sent.switching_since, sent.counted = True, now, None
 
     def start_due_trains(self, pulses: dict[str, PulseTrain | None], now: float) -> None:
         """Start the armed trains whose start has come (``pulses``: channel name -> its running train): one line
@@ -225,11 +258,11 @@ class Device:
             if train is not None:
                 self._start_if_due(config, train, now)
 
-    def count_ended(self, config: ChannelConfig, now: float) -> bool:
-        """The device may have stopped switching by itself: its cycle count is (within a period) over."""
+    def count_ended(self, config: ChannelConfig) -> bool:
+        """The device has switched every cycle of the running train by its own count (and so stopped by itself)."""
         sent = self.sent[config.name]
-        return (sent.pulse is not None and sent.switching_since is not None
-                and now >= sent.switching_since + (sent.pulse.cycles - 1) * sent.pulse.period)
+        return (sent.pulse is not None and sent.counted is not None
+                and sent.counted[0] >= sent.counted[1] == sent.pulse.cycles)
 
     def reset(self) -> None:
         """The device's own reset (outputs off, Vset 0, defaults); the cut state is forgotten with it."""

@@ -1,4 +1,5 @@
-"""HvSupply: owns the serial links of one or more supplies, runs the supervised control loop in its own thread.
+"""HvSupply: owns the serial links of one or more supplies, runs the supervised control loop in its own thread (or,
+on a simulated clock, stepped by its caller: `hv_driver.clock`).
 
 Thread model: one loop thread does all serial I/O; the public methods (thread-safe) only change the supervisor's
 state under a lock and wake the loop, which applies the change within one cycle. Each supply (one port, a
@@ -10,12 +11,13 @@ import logging
 import math
 import signal
 import threading
-import time
 import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from .clock import SimulatedClock, as_clock
 from .config import ChannelConfig
+from .control import pulse_command
 from .device import ConfigurationError, Device
 from .dialects import CurrentSensing, Dialect, IsegEdcp, ProtocolError
 from .errors import SettingError, StateError
@@ -25,6 +27,9 @@ from .pulse import PulseTally, PulseTrain, plan_pulse_train
 from .supervisor import DEFAULT_HEARTBEAT_TIMEOUT_S, Supervisor
 
 log = logging.getLogger(__name__)
+
+# The longest a wait without a timeout runs the loop on a simulated clock [s]: the longest ramp a request may take.
+MAX_SIMULATED_WAIT_S = 600.0
 
 
 @dataclass(frozen=True)
@@ -54,6 +59,7 @@ class SupplySnapshot:
     controller: str = ""       # name of the client holding control, "" when none
     heartbeat_age_s: float | None = None  # since the controlling client's last sign of life
     heartbeat_timeout_s: float = DEFAULT_HEARTBEAT_TIMEOUT_S  # inf = watchdog off
+    control_ended: str = ""    # why the last control session ended, e.g. "control of 'demo' lapsed: ..."
 
     def channel(self, name: str) -> ChannelSnapshot:
         return next(c for c in self.channels if c.name == name)
@@ -107,8 +113,7 @@ class RampHandle:
 
     def wait(self, timeout: float | None = None) -> bool:
         """Block until the ramp ends or ``timeout`` [s] passes; True when it ended."""
-        with self._supply._cycle_done:
-            return self._supply._cycle_done.wait_for(lambda: self._state()[1], timeout)
+        return self._supply.wait_for(lambda: self._state()[1], timeout)
 
     def cancel(self) -> "RampHandle | None":
         """Ramp the channel back to 0 V if this ramp is still the running one; returns that ramp."""
@@ -123,7 +128,8 @@ class RampHandle:
 
 class PulseHandle:
     """A running pulse train on one or more channels: ``wait``, ``done``, ``cancel`` (back to 0 V), ``cycles_done``
-    (periods begun on the driver's clock), ``frequency`` (as the device quantised it, or as generated)."""
+    (as the device counted them where it switches the train, else periods begun on the driver's clock),
+    ``frequency`` (as the device quantised it, or as generated)."""
 
     def __init__(self, supply: "HvSupply", trains: dict[str, PulseTrain], ramp_ids: dict[str, int]):
         self._supply, self.trains, self._ramp_ids = supply, trains, ramp_ids
@@ -176,6 +182,11 @@ class PulseHandle:
 
     @property
     def cycles_done(self) -> int:
+        with self._supply._lock:
+            counted = [d.sent[n].counted for d in self._supply._devices for n in self.trains
+                       if n in d.sent and d.sent[n].armed is self.trains[n]]
+        if counted and all(count is not None for count in counted):  # the device's own count (QCycle)
+            return min(done for done, _ in counted)
         if self._ended_at is None and self.done:
             self._ended_at = self._supply._clock()
         at = self._supply._clock() if self._ended_at is None else self._ended_at
@@ -191,8 +202,7 @@ class PulseHandle:
 
     def wait(self, timeout: float | None = None) -> bool:
         """Block until every channel's train ends or ``timeout`` [s] passes; True when they ended."""
-        with self._supply._cycle_done:
-            ended = self._supply._cycle_done.wait_for(self._ended, timeout)
+        ended = self._supply.wait_for(self._ended, timeout)
         if ended and not self.succeeded and self._failure is None:  # the others stop too (one train, one outcome)
             self._failure = self.message
             for channel in self._channels:
@@ -222,34 +232,39 @@ class HvSupply:
     reply_timeout_s: time allowed for one answer (default: a quarter of link_timeout_s).
     expected_identity: text each device's identification (``*IDN?``) must contain, e.g. its model, checked at
         `open`; "" checks nothing.
+    clock: the loop's time (`hv_driver.clock`; default the machine's monotonic clock, a bare callable is read as
+        one). With a `SimulatedClock` no thread runs: `step` / `run_for` advance the loop period by period, and
+        every wait (`RampHandle.wait`, `wait_cycles`, ...) runs the loop until it ends; each port is then a
+        pyserial-like object on the same clock (e.g. `sim_fallback.memory_port.MemoryPort`).
     """
 
     def __init__(self, port: str | Sequence[str], baudrate: int | None = None, channels: list[ChannelConfig] = (),
                  loop_rate_hz: float = 100.0, link_timeout_s: float = 0.5,
                  heartbeat_timeout_s: float = DEFAULT_HEARTBEAT_TIMEOUT_S, reply_timeout_s: float | None = None,
-                 dialect: Dialect | None = None, handle_signals: bool = True, clock=time.monotonic,
+                 dialect: Dialect | None = None, handle_signals: bool = True, clock=None,
                  expected_identity: str = ""):
         if not (math.isfinite(loop_rate_hz) and 1.0 <= loop_rate_hz <= 1000.0):
             raise SettingError(f"loop_rate_hz={loop_rate_hz!r}: between 1 and 1000")
         reply_timeout_s = link_timeout_s / 4 if reply_timeout_s is None else reply_timeout_s
         if not (math.isfinite(reply_timeout_s) and 0 < reply_timeout_s < link_timeout_s):
             raise SettingError(f"reply_timeout_s={reply_timeout_s!r}: > 0 and below link_timeout_s")
-        ports = [port] if isinstance(port, str) else list(port)
+        ports = [port] if isinstance(port, str) or not isinstance(port, Sequence) else list(port)
         self.configs = list(channels)
         for config in self.configs:
             if config.device >= len(ports):
                 raise SettingError(f"channel {config.name!r}: device={config.device}, but only {len(ports)} port(s) "
                                    f"are given: {ports}")
-        self.port_name = ", ".join(ports)
+        self._clock = clock = as_clock(clock)
+        self._simulated = isinstance(clock, SimulatedClock)
         self.expected_identity = expected_identity
         self.dialect = dialect or IsegEdcp()
-        self._clock = clock
         self._period = 1.0 / loop_rate_hz
         self._supervisor = Supervisor(self.configs, link_timeout_s=link_timeout_s,
                                       heartbeat_timeout_s=heartbeat_timeout_s, nominal_period_s=self._period,
                                       now=clock())
         self._devices = [Device(name, baudrate, self.dialect, [c for c in self.configs if c.device == k],
-                                reply_timeout_s) for k, name in enumerate(ports)]
+                                reply_timeout_s, clock) for k, name in enumerate(ports)]
+        self.port_name = ", ".join(device.port_name for device in self._devices)
         self._link_timeout = link_timeout_s
         self._handle_signals = handle_signals
         self._lock = threading.RLock()
@@ -257,7 +272,10 @@ class HvSupply:
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._running = False  # open: the loop runs (its thread, or stepped on a simulated clock)
+        self._next_cycle = 0.0  # the loop's next slot on its schedule
         self._measured = {c.name: (0.0, 0.0) for c in self.configs}
+        self._device_on = dict.fromkeys(self._measured, False)  # the output as the device last reported it
         self._applied = {c.name: _Applied() for c in self.configs}
         self._reconfigure = self._device_reset = False
         self._cycles = 0
@@ -287,8 +305,11 @@ class HvSupply:
         for k, _ in enumerate(self._devices):
             self._supervisor.link_ok(self._clock(), k)
         self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name=f"hv-loop {self.port_name}", daemon=True)
-        self._thread.start()
+        self._running = True
+        self._next_cycle = self._clock()
+        if not self._simulated:
+            self._thread = threading.Thread(target=self._run, name=f"hv-loop {self.port_name}", daemon=True)
+            self._thread.start()
         self._install_exit_guards()
         return self
 
@@ -316,6 +337,7 @@ class HvSupply:
                 if report.fault:  # a latched device fault survives reconnects until reset on purpose
                     channel.trip(Fault.DEVICE, report.fault)
                     device.sent[name].emergency = True
+                    device.sent[name].cut_confirmed = not report.output_on  # else cut in the first cycle
 
     def _configure(self, device: Device) -> None:
         """Device-side second line of defence, read back; the supervisor learns the supply's limit and ramp."""
@@ -330,7 +352,7 @@ class HvSupply:
 
     def close(self, ramp_down_timeout: float = 5.0) -> None:
         """Ramp every output to 0 V and switch it off, stop the loop, close the ports."""
-        if self._thread is None:
+        if not self._running:
             return
         for name in self._supervisor.channels:
             self.disable(name)
@@ -339,7 +361,7 @@ class HvSupply:
 
     def abort(self) -> None:
         """Outputs off at once without ramp (exception, signal, exit), stop the loop, close."""
-        if self._thread is not None:
+        if self._running:
             with self._lock:
                 self._supervisor.estop()
             self._shutdown(emergency=True)
@@ -347,7 +369,8 @@ class HvSupply:
     def _shutdown(self, emergency: bool) -> None:
         self._stop.set()
         self._wake.set()
-        if self._thread is not threading.current_thread():
+        self._running = False
+        if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout=2.0)
         self._thread = None
         try:
@@ -423,13 +446,15 @@ class HvSupply:
         def plan(config, now):
             return plan_pulse_train(config, self.dialect.capabilities, self.dialect.name, now, self._period,
                                     amplitude_v, frequency_hz, duty, phase, cycles, edge, slew_rate_v_per_s)
-        trains, ramp_ids = self._change(lambda now: self._supervisor.pulse(list(channels), now, plan, token=token))
+        command = pulse_command(channels, amplitude_v, frequency_hz, duty, phase, cycles, edge, slew_rate_v_per_s)
+        trains, ramp_ids = self._change(
+            lambda now: self._supervisor.pulse(list(channels), now, plan, token=token, command=command))
         return PulseHandle(self, trains, ramp_ids)
 
-    def claim_control(self, client: str) -> str:
-        """Take control as ``client`` (a name); returns the session token that ramps and heartbeats carry.
-        ControlError while another client holds control."""
-        return self._change(lambda now: self._supervisor.claim_control(client, now))
+    def claim_control(self, client: str, nonce: str = "") -> str:
+        """Take control as ``client`` (a name); returns the session token that signs ramps and heartbeats
+        (`hv_driver.control`). ControlError while another client holds control; ``nonce``: `ControlClaim.claim`."""
+        return self._change(lambda now: self._supervisor.claim_control(client, now, nonce))
 
     def release_control(self, token: str) -> str:
         """End the control session of ``token``; outputs it left energised ramp to 0 V. Returns the client name."""
@@ -438,6 +463,11 @@ class HvSupply:
     def heartbeat(self, token: str) -> None:
         """Sign of life from the client holding control (ControlError for any other token)."""
         self._change(lambda now: self._supervisor.heartbeat(now, token))
+
+    def node_lost(self, reason: str) -> None:
+        """The node driving this supply is gone (see `hv_driver.server`): control ends, every channel latches
+        NODE_LOST and energised outputs ramp to 0 V."""
+        self._change(lambda now: self._supervisor.node_lost(now, reason))
 
     def set_safe_voltage(self, voltage: float | None) -> None:
         """Assembly safe voltage [V] for every channel (None = unknown)."""
@@ -475,49 +505,103 @@ class HvSupply:
             channels = tuple(
                 ChannelSnapshot(name=c.config.name, index=c.config.index, setpoint=c.setpoint, target=c.target,
                                 measured_voltage=self._measured[name][0], measured_current=self._measured[name][1],
-                                ceiling=c.ceiling, output_enabled=c.output_enabled, ramping=c.ramping,
+                                ceiling=c.ceiling, output_enabled=self._output_on(name, c), ramping=c.ramping,
                                 faults=c.faults, fault_text=c.fault_text, port=ports[name])
                 for name, c in self._supervisor.channels.items())
             control = self._supervisor.control
             link_error = "; ".join(d.link_error for d in self._devices if d.link_error)
             return SupplySnapshot(self.device_id, self.port_name, self._supervisor.estop_latched,
                                   link_error, self._stamp, channels, control.owner or "",
-                                  control.heartbeat_age(self._clock()), self._supervisor.heartbeat_timeout_s)
+                                  control.heartbeat_age(self._clock()), self._supervisor.heartbeat_timeout_s,
+                                  control.ended)
+
+    def _output_on(self, name: str, channel) -> bool:
+        """On as commanded, or as the device last reported it, or cut without the device confirming it: a snapshot
+        never claims off an output the device may still hold on."""
+        sent = self._devices[channel.config.device].sent[name]
+        return channel.output_enabled or self._device_on[name] or (sent.emergency and not sent.cut_confirmed)
 
     def wait_outputs_off(self, timeout: float | None = None) -> bool:
         """Block until every output is off (e.g. after `disable`); False if ``timeout`` [s] passed first."""
-        with self._cycle_done:
-            return self._cycle_done.wait_for(
-                lambda: not any(c.output_enabled for c in self._supervisor.channels.values()), timeout)
+        return self.wait_for(lambda: not any(c.output_enabled for c in self._supervisor.channels.values()), timeout)
 
     def wait_cycles(self, count: int = 1, timeout: float | None = None) -> bool:
         """Block until ``count`` more control cycles have finished."""
-        with self._cycle_done:
-            goal = self._cycles + count
-            return self._cycle_done.wait_for(lambda: self._cycles >= goal, timeout)
+        goal = self._cycles + count
+        return self.wait_for(lambda: self._cycles >= goal, timeout)
+
+    def wait_for(self, predicate, timeout: float | None = None) -> bool:
+        """Block until ``predicate()`` holds (checked under the loop's lock after each cycle) or ``timeout`` [s]
+        passes; True when it held. On a simulated clock this runs the loop (no timeout: up to MAX_SIMULATED_WAIT_S
+        of simulated time)."""
+        if not self._simulated:
+            with self._cycle_done:
+                return self._cycle_done.wait_for(predicate, timeout)
+        end = self._clock() + (MAX_SIMULATED_WAIT_S if timeout is None else timeout)
+        while True:
+            with self._lock:
+                if predicate():
+                    return True
+            if not self._running or self._clock() >= end:
+                return False
+            self.step()
+
+    # --- simulated time ------------------------------------------------------------------------
+    def step(self) -> None:
+        """Run one control cycle, then advance the simulated clock to the next one on the loop's schedule (none on
+        a request or a new fault: the loop runs again at once, as its thread does). Simulated clock only."""
+        if not self._simulated:
+            raise StateError("step: the loop runs in its own thread (only an HvSupply on a SimulatedClock is stepped)")
+        if not self._running:
+            raise StateError("step: the supply is not open")
+        try:
+            tripped = self._cycle()
+        except BaseException:
+            self._crashed()
+            raise
+        self._next_cycle, delay = self._schedule(self._next_cycle)
+        if tripped or self._wake.is_set():
+            self._wake.clear()
+            self._next_cycle = self._clock()
+        else:
+            self._clock.advance(delay)
+
+    def run_for(self, seconds: float) -> None:
+        """Run the loop for ``seconds`` of simulated time (period by period, as `step`)."""
+        end = self._clock() + seconds
+        while self._running and self._clock() < end:
+            self.step()
 
     # --- control loop --------------------------------------------------------------------------
+    def _schedule(self, next_cycle: float) -> tuple[float, float]:
+        """After a cycle: the slot of the next one and the wait [s] until it."""
+        next_cycle += self._period
+        delay = next_cycle - self._clock()
+        if delay < -self._period:  # fell behind: restart the schedule instead of bursting
+            next_cycle, delay = self._clock(), 0.0
+        if self._next_start is not None:  # a train the supply switches starts on time, not on the grid
+            delay = min(delay, self._next_start - self._clock())
+        return next_cycle, max(0.0, delay)
+
     def _run(self) -> None:
         next_cycle = self._clock()
         try:
             while not self._stop.is_set():
                 tripped = self._cycle()
-                next_cycle += self._period
-                delay = next_cycle - self._clock()
-                if delay < -self._period:  # fell behind: restart the schedule instead of bursting
-                    next_cycle, delay = self._clock(), 0.0
-                if self._next_start is not None:  # a train the supply switches starts on time, not on the grid
-                    delay = min(delay, self._next_start - self._clock())
-                if tripped or self._wake.wait(max(0.0, delay)):
+                next_cycle, delay = self._schedule(next_cycle)
+                if tripped or self._wake.wait(delay):
                     # A new fault or a request (e-stop, ramp): run at once and keep the period from there.
                     self._wake.clear()
                     next_cycle = self._clock()
         except BaseException:
-            with self._lock:
-                self._supervisor.trip_all(Fault.DEVICE, "control loop crashed")
-            self._stop.set()
-            self._safe_off_from_loop()
+            self._crashed()
             raise
+
+    def _crashed(self) -> None:
+        with self._lock:
+            self._supervisor.trip_all(Fault.DEVICE, "control loop crashed")
+        self._stop.set()
+        self._safe_off_from_loop()
 
     def _safe_off_from_loop(self) -> None:
         for device in self._devices:
@@ -553,8 +637,7 @@ class HvSupply:
                     device.reset()  # latched faults are cut again below
                 if reconfigure:
                     self._configure(device)
-                device.cut([c for c in device.configs
-                            if commands[c.name].emergency_off and not device.sent[c.name].emergency])
+                device.cut(device.unconfirmed_cuts({n for n, c in commands.items() if c.emergency_off}))
                 for config in device.configs:
                     command = commands[config.name]
                     if not command.emergency_off:
@@ -574,15 +657,24 @@ class HvSupply:
                 for config in device.configs:
                     reading, sent = readings[config.name], device.sent[config.name]
                     fault, over_current = None, False
-                    if not sent.emergency:  # after our own cut the device flags are expected
+                    self._device_on[config.name] = reading.report.output_on
+                    if sent.emergency:  # after our own cut the device flags are expected, its output off
+                        if device.confirm_cut(config, reading):
+                            self._supervisor.channel(config.name).trip(
+                                Fault.CUT_UNCONFIRMED, f"after the cut the supply reports its output on (measured "
+                                                       f"{reading.voltage:.0f} V); cut again every cycle until it "
+                                                       f"reports it off")
+                    else:
                         fault, over_current = reading.report.fault, reading.report.over_current
                         # An output the device cut for over-current is explained by that fault.
                         if (fault is None and not over_current and sent.output_on != reading.report.output_on
-                                and not device.count_ended(config, now)):
+                                and not device.count_ended(config)):
                             fault = "supply output " + ("off although commanded on (reset or interlock)"
                                                         if sent.output_on else "on although commanded off")
-                    self._supervisor.channel(config.name).observe(now, reading.voltage, reading.current, fault,
-                                                                  over_current)
+                    channel = self._supervisor.channel(config.name)
+                    if device.count_ended(config):
+                        channel.device_count_ended(sent.pulse)
+                    channel.observe(now, reading.voltage, reading.current, fault, over_current)
                     current = math.nan if reading.current is None else reading.current
                     self._measured[config.name] = (reading.voltage, current)
                     ramp_id, ramping, setpoint = stepped[config.name]

@@ -1,10 +1,10 @@
 """Line framing over a serial port: write a command, check its echo (if the device echoes), read the answer line
 (if the operation has one)."""
 import termios
-import time
 
 import serial
 
+from .clock import MONOTONIC
 from .dialects import Dialect, ProtocolError
 from .errors import HvError
 
@@ -29,8 +29,9 @@ class Link:
     here; the dialect's decoding and the echo (where there is one) still refuse most mismatches.
     """
 
-    def __init__(self, port, dialect: Dialect, reply_timeout: float):
+    def __init__(self, port, dialect: Dialect, reply_timeout: float, clock=MONOTONIC):
         self.port = port
+        self.clock = clock  # deadlines and the resync's polling (a `hv_driver.clock` clock)
         self.dialect = dialect
         self.reply_timeout = reply_timeout
         self._buffer = bytearray()
@@ -46,12 +47,25 @@ class Link:
             self._stale = True
             raise
 
+    @property
+    def stale(self) -> bool:
+        """The last exchange failed: the next one first waits for the line to fall quiet (`_resync`)."""
+        return self._stale
+
+    def send(self, operation: str, channels=(), value: float | None = None) -> None:
+        """Write ``operation`` at once, without waiting for the line to fall quiet or reading its answer (which the
+        next exchange's resynchronisation discards): a cut that must not wait a reply timeout behind a failed
+        exchange. Nothing is learnt from it; the device's status confirms what it did."""
+        line = self.dialect.encode(operation, channels, value)
+        self._stale = True
+        self._call(self.port.write, line.encode("ascii") + self.dialect.command_terminator)
+
     def _exchange(self, line: str, answered: bool) -> str | None:
         if self._stale:
             self._resync(line)
             self._stale = False
         self._call(self.port.write, line.encode("ascii") + self.dialect.command_terminator)
-        deadline = time.monotonic() + self.reply_timeout
+        deadline = self.clock() + self.reply_timeout
         if self.dialect.echo:
             echo = self._read_line(deadline, line)
             if echo != line:
@@ -59,19 +73,23 @@ class Link:
         return self._read_line(deadline, line) if answered else None
 
     def _resync(self, line: str) -> None:
+        self.discard_input(f"after a failed exchange; {line!r} not sent")
+
+    def discard_input(self, context: str = "") -> None:
+        """Drop what is buffered and whatever still arrives until the line has been quiet for one reply timeout;
+        LinkError (naming ``context``) if it keeps sending for RESYNC_WINDOWS reply timeouts."""
         self._buffer.clear()
         self._call(self.port.reset_input_buffer)
-        start = quiet_since = time.monotonic()
-        while (now := time.monotonic()) - quiet_since < self.reply_timeout:
+        start = quiet_since = self.clock()
+        while (now := self.clock()) - quiet_since < self.reply_timeout:
             if now - start > RESYNC_WINDOWS * self.reply_timeout:
-                raise LinkError(f"the device kept sending for {now - start:.3g} s after a failed exchange; "
-                                f"{line!r} not sent")
+                raise LinkError(f"the device kept sending for {now - start:.3g} s {context}".rstrip())
             waiting = self._call(lambda: self.port.in_waiting)
             if waiting:
                 self._call(self.port.read, waiting)
-                quiet_since = time.monotonic()
+                quiet_since = self.clock()
             else:
-                time.sleep(RESYNC_POLL)
+                self.clock.sleep(RESYNC_POLL)
 
     def _read_line(self, deadline: float, line: str) -> str:
         terminator = self.dialect.reply_terminator
@@ -79,7 +97,7 @@ class Link:
             if len(self._buffer) > MAX_LINE:
                 raise ProtocolError(f"reply to {line!r} longer than {MAX_LINE} bytes without terminator")
             waiting = self._call(lambda: self.port.in_waiting)
-            if time.monotonic() >= deadline and not waiting:
+            if self.clock() >= deadline and not waiting:
                 # Bytes that arrived while this host was descheduled past the deadline still count: only
                 # a device that has sent nothing more by the deadline is late.
                 what = f"partial reply {bytes(self._buffer)!r}" if self._buffer else "no reply"

@@ -25,6 +25,10 @@ LEAD_CYCLES = 3
 LEAD_S = 0.3
 # A streamed pulse whose setpoints never reached this fraction of the amplitude fell short.
 SHORT_FRACTION = 0.95
+# Bounds of any train: a DEA actuation cycle lasts well under a minute, so a slower one is a unit mistake (mHz for
+# Hz) whose first edge could lie days away; and a train holds control of its channels for its whole duration.
+MIN_FREQUENCY_HZ = 0.01
+MAX_TRAIN_S = 3600.0
 
 
 class PulseLimitError(SettingError):
@@ -143,13 +147,16 @@ def plan_pulse_train(config: ChannelConfig, capabilities: Capabilities, dialect_
                      edge: str, slew_rate: float | None = None) -> PulseTrain:
     """The train for one channel, or SettingError / PulseLimitError naming what does not fit. The amplitude is
     checked against the channel's ceiling by the supervisor."""
-    _require(isinstance(frequency, (int, float)) and math.isfinite(frequency) and frequency > 0, "frequency",
-             frequency, "finite number > 0 [Hz]")
+    _require(isinstance(frequency, (int, float)) and math.isfinite(frequency) and frequency >= MIN_FREQUENCY_HZ,
+             "frequency", frequency, f"finite number >= MIN_FREQUENCY_HZ ({MIN_FREQUENCY_HZ:g} Hz)")
     _require(isinstance(duty, (int, float)) and 0 < duty < 1, "duty", duty, "between 0 and 1 (exclusive)")
     _require(isinstance(phase, (int, float)) and 0 <= phase < 1, "phase", phase, "in [0, 1)")
     _require(isinstance(cycles, int) and not isinstance(cycles, bool) and cycles >= 1, "cycles", cycles,
              "an integer >= 1")
     _require(edge in EDGES, "edge", edge, f"one of {', '.join(EDGES)}")
+    _require((cycles + phase) / frequency <= MAX_TRAIN_S, "cycles", cycles,
+             f"at most MAX_TRAIN_S ({MAX_TRAIN_S:g} s) of train: {cycles} cycles at {frequency:g} Hz "
+             f"(phase {phase:g}) last {(cycles + phase) / frequency:g} s")
     _require(isinstance(amplitude, (int, float)) and math.isfinite(amplitude) and amplitude > 0, "amplitude",
              amplitude, "finite number > 0 [V]")
     name, shortest = config.name, min(duty, 1.0 - duty) / frequency

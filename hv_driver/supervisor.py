@@ -11,7 +11,7 @@ Rules enforced here:
 - the setpoint rises and falls no faster than the channel's slew limit (a stalled loop catches up by
   at most two nominal periods' worth per cycle), except that it drops at once when the ceiling drops
   below it or a fault latches;
-- only the client holding control (its session token) may ramp or feed the heartbeat watchdog; the
+- only the client holding control (commands signed with its session token) may ramp or feed the heartbeat watchdog; the
   watchdog is on unless switched off on purpose (heartbeat_timeout_s=math.inf), and a stall of the driver's
   own loop is not counted as the client's silence (`ControlClaim.cycle`);
 - the readback must follow the commands at the device's own ramp (`ReadbackCheck`);
@@ -21,8 +21,8 @@ Rules enforced here:
 - a pulse train (`PulseTrain`) runs in place of a ramp: smooth trains are streamed within the slew limit, square
   ones are switched by the device itself (the setpoint is their amplitude while it switches; stopping one drops the
   output to 0 V at once, one more square edge of the kind it was making);
-- faults latch until `reset`; every fault but HEARTBEAT puts the output to 0 V and off at once
-  (emergency off), a lost heartbeat ramps to 0 V at the slew limit and then switches off;
+- faults latch until `reset`; every fault but HEARTBEAT and NODE_LOST puts the output to 0 V and off at once
+  (emergency off), a lost heartbeat or node ramps to 0 V at the slew limit and then switches off;
 - after a reset the outputs stay off until enabled again (never resume by themselves).
 """
 import math
@@ -30,15 +30,15 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from .config import ChannelConfig
-from .control import ControlClaim
+from .control import HEARTBEAT, ControlClaim, ramp_command
 from .errors import HvError, SettingError, StateError
 from .faults import Fault, fault_names
 from .pulse import PulseTally, PulseTrain
 from .ramp import MinimumJerkRamp, check_slew_rate
 from .readback import ReadbackCheck
 
-# A lost heartbeat ramps down smoothly; every other fault cuts the output at once.
-RAMP_DOWN_FAULTS = Fault.HEARTBEAT
+# A lost heartbeat or node ramps down smoothly; every other fault cuts the output at once.
+RAMP_DOWN_FAULTS = Fault.HEARTBEAT | Fault.NODE_LOST
 IMMEDIATE_FAULTS = Fault(sum(Fault)) & ~RAMP_DOWN_FAULTS
 
 # Breakdown guard (supplies without current readback): a readback below COLLAPSE_FRACTION of a setpoint of at least
@@ -51,6 +51,13 @@ COLLAPSE_READBACKS = 2
 # or above COLLAPSE_FRACTION of its amplitude for PULSE_GUARD_PERIODS periods of observed time.
 PULSE_GUARD_MIN_CYCLES = 3
 PULSE_GUARD_PERIODS = 2.0
+
+# A train the device switches ends by the device's own count (`ChannelSupervisor.device_count_ended`); the host ends it
+# itself only as a fallback, this long after its own clock's end: the start line's latency (a loop period or a late
+# cycle), the board's clock running slow against the host's (DEVICE_CLOCK_TOLERANCE of the train's duration) and one
+# more readback of the count.
+DEVICE_COUNT_MARGIN_S = 0.25
+DEVICE_CLOCK_TOLERANCE = 1e-3
 
 # The control loop's nominal period [s] unless told otherwise (the time step unit of the slew credit, the readback
 # check and the pulse guard).
@@ -116,6 +123,7 @@ class ChannelSupervisor:
         self._low_for = 0.0              # [s] observed time a running pulse train has not reached its guard level
         self._last_observed: float | None = None
         self.pulse_tally: PulseTally | None = None  # the last streamed train's short pulses (kept after it ends)
+        self._counted_out: PulseTrain | None = None  # the device-switched train the device reported counted out
         self.ramp_id = 0  # counts accepted ramp requests, so a waiting caller sees being superseded
 
     # --- state -------------------------------------------------------------------------------
@@ -240,6 +248,10 @@ class ChannelSupervisor:
         self.pulse_tally = None if train.on_device else PulseTally(train, self.ramp_id)
         return self.ramp_id
 
+    def device_count_ended(self, train: PulseTrain) -> None:
+        """The device reports every cycle of ``train`` (the one it switches) switched: the train is over."""
+        self._counted_out = train
+
     def _stop_device_switching(self) -> None:
         """A square train the device switches stops at 0 V at once, one more edge of the kind it was making."""
         train = self.pulse_train
@@ -276,7 +288,7 @@ class ChannelSupervisor:
         if not (_finite(voltage) and (current is None or _finite(current))):
             self.trip(Fault.LINK, f"readback not a finite number ({voltage!r} V, {current!r} A)")
             return
-        if current is not None and current > self.config.current_trip_a:
+        if current is not None and abs(current) > self.config.current_trip_a:  # negative-polarity modules
             self.trip(Fault.OVER_CURRENT, f"measured {current:.3g} A above the trip level "
                                           f"{self.config.current_trip_a:.3g} A")
         if device_over_current:
@@ -364,8 +376,13 @@ class ChannelSupervisor:
         if self.target > ceiling:  # the ceiling dropped under a running ramp: re-plan towards it
             self._start_ramp(now, ceiling, self._ramp.slew_rate if self._ramp else self.config.slew_rate_v_per_s)
         desired = self._ramp.value(now) if self._ramp else self.target
+        finished = self._ramp is not None and self._ramp.finished(now)
         train = self.pulse_train
         device_switched = train is not None and train.on_device
+        if device_switched and now >= train.start:  # on until the device's count ends it (or the fallback)
+            finished = self._counted_out is train or now >= train.stop + DEVICE_COUNT_MARGIN_S + (
+                DEVICE_CLOCK_TOLERANCE * (train.stop - train.start))
+            desired = train.end if finished else train.amplitude
         if not device_switched:  # the device's own square edges are not the host's to slew
             allowance = self.config.slew_rate_v_per_s * dt
             desired = min(max(desired, self.setpoint - allowance), self.setpoint + allowance)
@@ -373,7 +390,7 @@ class ChannelSupervisor:
         tally = self.pulse_tally
         if tally is not None and self._ramp is tally.train:
             tally.add(now, self.setpoint)
-        if self._ramp is not None and self._ramp.finished(now) and self.setpoint == self._ramp.end:
+        if finished and self.setpoint == self._ramp.end:
             self.target, self._ramp = self._ramp.end, None
         if self._off_at_zero and self._ramp is None and self.setpoint == 0.0:
             self.output_enabled = self._off_at_zero = False
@@ -447,15 +464,16 @@ class Supervisor:
         self._link_failing[device] = (since, failed + 1)
 
     # --- who may command ---------------------------------------------------------------------
-    def claim_control(self, client: str, now: float) -> str:
-        """Take control as ``client``; returns the session token (ControlError while another holds it). What a
-        lapsed session left energised trips first: a new client never inherits outputs it did not raise."""
+    def claim_control(self, client: str, now: float, nonce: str = "") -> str:
+        """Take control as ``client``; returns the session token (ControlError while another holds it; ``nonce``:
+        `ControlClaim.claim`). What a lapsed session left energised trips first: a new client never inherits
+        outputs it did not raise."""
         now = self._now(now)
         self._watch_control(now)
-        return self.control.claim(client, now)
+        return self.control.claim(client, now, nonce)
 
     def release_control(self, token: str, now: float) -> str:
-        """End the session of ``token``; every output it left energised ramps to 0 V (no client watches it)."""
+        """End the session of ``token`` (the session token or a signed release, `ControlClaim.release`); every output it left energised ramps to 0 V (no client watches it)."""
         now = self._now(now)
         owner = self.control.release(token, now)
         for channel in self.channels.values():
@@ -464,8 +482,9 @@ class Supervisor:
         return owner
 
     def heartbeat(self, now: float, token: str) -> None:
-        """Sign of life of the controlling client (ControlError for any other token)."""
-        self.control.confirm(token, self._now(now))
+        """Sign of life of the controlling client (``token``: its session token or a signed HEARTBEAT; ControlError
+        for anything else)."""
+        self.control.confirm(token, self._now(now), HEARTBEAT)
 
     # --- requests ----------------------------------------------------------------------------
     def enable(self, name: str, now: float) -> None:
@@ -474,22 +493,24 @@ class Supervisor:
 
     def ramp_to(self, name: str, now: float, target_v: float, slew_rate_v_per_s: float | None = None, *,
                 token: str) -> int:
-        """Start a ramp on one channel for the client holding control; the request counts as its sign of life."""
+        """Start a ramp on one channel for the client holding control (``token``: its session token or the signed
+        `ramp_command`); the request counts as its sign of life."""
         now = self._now(now)
         channel = self.channel(name)
-        self.control.confirm(token, now)
+        self.control.confirm(token, now, ramp_command(name, target_v, slew_rate_v_per_s))
         return channel.ramp_to(now, target_v, slew_rate_v_per_s)
 
     def pulse(self, names: list[str], now: float, plan: Callable[[ChannelConfig, float], PulseTrain], *,
-              token: str) -> tuple[dict[str, PulseTrain], dict[str, int]]:
+              token: str, command: tuple = ("pulse",)) -> tuple[dict[str, PulseTrain], dict[str, int]]:
         """Start a pulse train, ``plan(config, now)`` (e.g. `plan_pulse_train`), on each channel of ``names`` for
-        the client holding control (all or none); returns the train and the ramp id of each. The request counts as
+        the client holding control (all or none); returns the train and the ramp id of each. ``token``: the session
+        token, or a signed ``command`` (`pulse_command` of the request ``plan`` was made from). The request counts as
         the client's sign of life."""
         now = self._now(now)
         channels = [self.channel(name) for name in names]
         if not channels or len(set(names)) != len(names):
             raise SettingError(f"channels={names!r}: one or more distinct channel names")
-        self.control.confirm(token, now)
+        self.control.confirm(token, now, command)
         trains = {channel.config.name: plan(channel.config, now) for channel in channels}
         for channel in channels:  # every check before anything changes
             channel.check_pulse(trains[channel.config.name])
@@ -504,6 +525,13 @@ class Supervisor:
         self.control.end("control ended by an emergency stop")
         for channel in self.channels.values():
             channel.trip(Fault.ESTOP, "emergency stop")
+
+    def node_lost(self, now: float, reason: str) -> None:
+        """The node this supervisor serves is gone: its client's session ends and every channel latches NODE_LOST
+        (energised outputs ramp to 0 V). Nothing is energised again until a client claims control and resets."""
+        self._now(now)
+        self.control.end(reason)
+        self.trip_all(Fault.NODE_LOST, reason)
 
     def trip_all(self, fault: Fault, reason: str) -> None:
         for channel in self.channels.values():

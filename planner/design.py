@@ -250,18 +250,30 @@ def design_fingers(
     )
 
 
-def prepare_finger_search(configurations=PREPARED_CONFIGURATIONS, table=None) -> None:
+def prepare_finger_search(configurations=PREPARED_CONFIGURATIONS, table=None, progress=None) -> None:
     """Compile the finger search and build (or load) its lookahead fields for each (num_blocks,
     num_stiff_top), so that later requests start at once; both are kept on disk (numba's cache and
-    ``planner.optimize.field_cache.cache_directory()``)."""
+    ``planner.optimize.field_cache.cache_directory()``). ``progress(line)``, if given, hears of each step as it
+    starts and ends (building takes tens of seconds per field the first time, loading a moment)."""
+    report = progress or (lambda line: None)
     table = load_table() if table is None else table
+    steps = len(configurations) + 1
+    started = time.perf_counter()
+    report(f"[1/{steps}] compiling the finger search kernels (numba; kept in its cache)")
     rows, columns = np.mgrid[:60, :40]
     ellipse = ((rows - 30) / 24.0) ** 2 + ((columns - 20) / 12.0) ** 2 < 1.0
     design_fingers(ellipse, 5e-4, 2, table=table)  # compiles every kernel on a small problem
-    for blocks, stiff in configurations:
+    report(f"[1/{steps}] kernels ready in {time.perf_counter() - started:.1f} s")
+    for step, (blocks, stiff) in enumerate(configurations, start=2):
+        started = time.perf_counter()
         space = design_space(table, blocks, stiff_positions=range(stiff))
+        counts = "/".join(str(len(choices)) for choices in space.choices)
+        report(f"[{step}/{steps}] lookahead fields of {blocks} blocks, top {stiff} stiff "
+               f"({counts} designs per position, base first): building or loading")
         lookahead_fields(block_shapes(space, CAP_LENGTH), space, BLOCK_RADIUS, FINGER_OPTIONS["field_spacing"],
                          FINGER_OPTIONS["region_spacing"])
+        report(f"[{step}/{steps}] lookahead fields of {blocks} blocks, top {stiff} stiff ready in "
+               f"{time.perf_counter() - started:.1f} s")
 
 
 def _finger(side, result, target, contour, table) -> FingerDesign:

@@ -3,12 +3,11 @@
 The text is the root .msg file verbatim, then every nested type once, depth-first in sorted
 order, each behind a line of 80 '=' and a 'MSG: pkg/Type' line. The .msg files are found through
 the ament index (AMENT_PREFIX_PATH): the ROS wheels in the venv and the colcon-built ros_ws.
-No rclpy import: the analysis side uses this module without ROS running.
+No rclpy import: the analysis side uses this module without ROS running, and imports it without ROS installed
+(ament_index_python is imported only when a definition is looked up, i.e. when a recording is written).
 """
 import os
 import re
-
-from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
 
 SCHEMA_ENCODING = "ros2msg"
 DELIMITER = "=" * 80
@@ -36,6 +35,12 @@ def split_type_name(type_name: str) -> tuple[str, str]:
 def find_msg_file(type_name: str) -> str:
     """Path of the .msg file defining `type_name`, looked up in the ament index."""
     package, name = split_type_name(type_name)
+    try:
+        from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+    except ImportError as error:
+        raise DefinitionNotFoundError(
+            f"the .msg file of {type_name} is looked up in the ament index, and ament_index_python is not installed "
+            "(ROS 2 or its PyPI wheels); reading and analysing recordings does not need it") from error
     try:
         share = get_package_share_directory(package, print_warning=False)
     except PackageNotFoundError as error:

@@ -3,8 +3,7 @@ import re
 
 # Topics the stack obeys rather than reports on, as the HV driver subscribes to them:
 #   hv/heartbeat           softblock_interfaces/msg/HvHeartbeat  the controlling client's sign of life (the
-#                          watchdog); it carries the session token, and a recording of the live session
-#                          carries the live token
+#                          watchdog); signed, each counter counting once, so a replayed one is refused
 #   assembly/safe_voltage  std_msgs/msg/Float64 (latched)       the voltage ceiling
 # Replayed into a live stack they would feed the watchdog or move the ceiling, so the player leaves them out
 # unless asked. The driver's other inputs are services and an action (hv/claim_control, hv/release_control,

@@ -34,17 +34,19 @@ fi
 ws_hash="$({ find ros_ws/src -type f -not -name '*.pyc' -print0; find config -maxdepth 1 -name '*.yaml' -print0; } \
     | sort -z | xargs -0 sha256sum | sha256sum | cut -c1-16)"
 if [[ "$(cat ros_ws/.build-stamp 2>/dev/null)" != "$ws_hash" || ! -f ros_ws/install/setup.bash ]]; then
+    # colcon names each package as it starts and ends, and on a terminal (only there: in a log its updates would
+    # be noise) its status line counts the time meanwhile; the message package takes minutes the first time.
     step "building ros_ws with colcon"
     (
         source "$venv/bin/activate"
         export CMAKE_PREFIX_PATH="$venv" AMENT_PREFIX_PATH="$venv"
         cd ros_ws
         colcon --log-base log build --symlink-install \
-            --event-handlers console_direct- console_cohesion- status- summary+ \
+            --event-handlers console_direct- console_cohesion- summary+ \
             --cmake-args -DBUILD_TESTING=OFF -DPython3_EXECUTABLE="$venv/bin/python" >&2
     )
     echo "$ws_hash" > ros_ws/.build-stamp
 fi
-# 3. compiled finger search and its lookahead fields (kept on disk; seconds once, then a moment)
+# 3. compiled finger search and its lookahead fields (kept on disk; a few minutes once, then a moment), step by step
 "$venv/bin/python" -m planner prepare-design
 step "ready"

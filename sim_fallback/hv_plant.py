@@ -8,7 +8,8 @@ at the configured ramp-down speed, as the iseg manual says; an emergency off, a 
 supply without a ramp cuts it, and the load discharges through the supply's discharge resistor. An arc (film
 breakdown) collapses the voltage and draws a large current until the output is switched off. Device-side
 switching (Peta-pico-Voltron mode 2) alternates the target between 0 V and the set voltage on the device's own
-clock; the rising edges of the output through a watched level are recorded with their exact times.
+clock, and it counts the cycles it switched; the rising and falling crossings of the output through a watched level
+are recorded with their exact times.
 """
 import math
 from dataclasses import dataclass, field
@@ -54,16 +55,24 @@ class ChannelDefaults:
 @dataclass
 class Switching:
     """Device-side switching between 0 V and the set voltage: ``frequency`` [Hz], ``duty``, ``cycles`` (0 = forever),
-    started at ``start`` [s] on the device clock."""
+    started at ``start`` [s] on the device clock; each period on first, or (``off_first``) off first and on for its
+    last ``duty``."""
 
     frequency: float
     duty: float
     cycles: int
     start: float
+    off_first: bool = False
+
+    @property
+    def _on_phase(self) -> tuple[float, float]:
+        """Where in a period the output is on (fractions of the period)."""
+        return (1.0 - self.duty, 1.0) if self.off_first else (0.0, self.duty)
 
     def on(self, t: float) -> bool:
         phase = (t - self.start) * self.frequency
-        return phase - math.floor(phase) < self.duty
+        low, high = self._on_phase
+        return low <= phase - math.floor(phase) < high
 
     def time_at(self, cycles: float) -> float:
         """Device time after ``cycles`` periods. Edges and the end both come from here, so the last edge is the end
@@ -81,7 +90,7 @@ class Switching:
         times = []
         k = math.floor((t0 - self.start) * self.frequency)
         while True:
-            for offset in (0, self.duty):
+            for offset in (0, 1.0 - self.duty if self.off_first else self.duty):
                 t = self.time_at(k + offset)
                 if t0 < t < t1:
                     times.append(t)
@@ -102,8 +111,10 @@ class PlantChannel:
     arcing: bool = False
     ramping_down: bool = False      # switched off with ramp, still above 0 V
     off_at: float | None = None     # time the output last went from on to off
-    watch_level: float | None = None  # [V] rising crossings of this level are recorded in rising_edges
+    watch_level: float | None = None  # [V] crossings of this level are recorded in rising_edges / falling_edges
     rising_edges: list = field(default_factory=list)
+    falling_edges: list = field(default_factory=list)
+    cycles_switched: int = 0        # cycles of the last device-side switching train, counted by the device
 
     def __post_init__(self):
         self.power_on_reset()
@@ -129,6 +140,8 @@ class PlantChannel:
         """Output off: ramped down at the ramp-down speed, or without ramp (``ramp`` False, an emergency off, or a
         supply without a device ramp)."""
         ramp = ramp and self.ramp_down is not None
+        if self.switching is not None:  # stopped before its count: the cycles begun so far
+            self.cycles_switched = self.switching.completed(now)
         if self.output_on:
             self.off_at = now
             self.events |= PlantEvent.ON_TO_OFF
@@ -150,11 +163,12 @@ class PlantChannel:
         self.output_on = True
         return True
 
-    def start_switching(self, now: float, frequency: float, duty: float, cycles: int) -> bool:
+    def start_switching(self, now: float, frequency: float, duty: float, cycles: int, off_first: bool = False) -> bool:
         """Switch between 0 V and the set voltage from ``now`` on (refused like `switch_on`)."""
         if not self.switch_on():
             return False
-        self.switching = Switching(frequency, duty, cycles, now)
+        self.switching = Switching(frequency, duty, cycles, now, off_first)
+        self.cycles_switched = 0
         return True
 
     # --- dynamics ----------------------------------------------------------------------------
@@ -173,6 +187,7 @@ class PlantChannel:
             self._advance(boundary, boundary - t)
             t = boundary
             if self.switching is not None and self.switching.done(t):
+                self.cycles_switched = self.switching.cycles
                 self.switching = None  # the counted cycles are over: output off, as the device does
                 self.switch_off(t, emergency=False, ramp=False)
 
@@ -183,23 +198,28 @@ class PlantChannel:
         # Target in the middle of the step: a step begins or ends on a switching edge, whose own time would
         # fall on either side of it by rounding.
         target = self.target(now - dt / 2)
-        rise_rate = tau = None  # how the output moves in this step, for the exact time of a watched crossing
+        # How the output moves in this step (a ramp at ``rate``, or a first-order approach with time constant ``tau``
+        # towards ``towards``), for the exact time of a watched crossing.
+        rate = tau = None
+        towards = target
         if self.arcing and self.output_on:
-            self.voltage *= math.exp(-dt / load.arc_collapse_time)
+            tau, towards = load.arc_collapse_time, 0.0
+            self.voltage *= math.exp(-dt / tau)
         elif self.output_on and self.ramp_up is not None:
             delta = target - self.voltage
-            limit = (self.ramp_up if delta > 0 else self.ramp_down) * dt
-            self.voltage += max(-limit, min(limit, delta))
-            rise_rate = self.ramp_up
+            rate = self.ramp_up if delta > 0 else self.ramp_down
+            self.voltage += max(-rate * dt, min(rate * dt, delta))
         elif self.output_on:
             tau = self.defaults.regulation_time_s * load.capacitance / NOMINAL_CAPACITANCE
             self.voltage += (target - self.voltage) * -math.expm1(-dt / tau)
         elif self.ramping_down:
-            self.voltage = max(0.0, self.voltage - self.ramp_down * dt)
+            rate = self.ramp_down
+            self.voltage = max(0.0, self.voltage - rate * dt)
             self.ramping_down = self.voltage > 0.0
         else:
-            self.voltage *= math.exp(-dt / (load.discharge_resistance * load.capacitance))
-        self._record_edge(now - dt, dt, before, target, rise_rate, tau)
+            tau, towards = load.discharge_resistance * load.capacitance, 0.0
+            self.voltage *= math.exp(-dt / tau)
+        self._record_edge(now - dt, dt, before, towards, rate, tau)
         self.current = load.capacitance * (self.voltage - before) / dt + self.voltage / load.leakage_resistance
         if self.arcing and self.output_on:
             self.current += load.arc_current
@@ -207,20 +227,21 @@ class PlantChannel:
         self.drift += self.drift_rate * dt
         self._device_trip(now)
 
-    def _record_edge(self, start: float, dt: float, before: float, target: float, rise_rate: float | None,
+    def _record_edge(self, start: float, dt: float, before: float, target: float, rate: float | None,
                      tau: float | None) -> None:
-        """A rising crossing of the watched level in the step from ``start``, timed by the step's own law (a ramp
-        at ``rise_rate`` or a first-order lag ``tau`` towards ``target``), so long steps keep exact edge times."""
+        """A crossing of the watched level in the step from ``start``, timed by the step's own law (a ramp at
+        ``rate`` or a first-order lag ``tau`` towards ``target``), so long steps keep exact edge times."""
         level = self.watch_level
-        if level is None or not before < level <= self.voltage:
+        rising = level is not None and before < level <= self.voltage
+        if level is None or not (rising or before >= level > self.voltage):
             return
-        if rise_rate is not None:
-            into = (level - before) / rise_rate
-        elif tau is not None and target > level:
+        if rate is not None:
+            into = abs(level - before) / rate
+        elif tau is not None and (target > level if rising else target < level):
             into = tau * math.log((target - before) / (target - level))
         else:
             into = dt * (level - before) / (self.voltage - before)
-        self.rising_edges.append(start + min(dt, into))
+        (self.rising_edges if rising else self.falling_edges).append(start + min(dt, into))
 
     def _device_trip(self, now: float) -> None:
         """Delayed current trip (trip time and action), the device's own defence."""

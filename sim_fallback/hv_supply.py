@@ -7,7 +7,6 @@ runs it for the iseg dialect).
 """
 import re
 import sys
-import time
 
 from hv_driver.dialects.iseg_edcp import ChannelEvent, ChannelStatus, IsegEdcp
 
@@ -136,7 +135,7 @@ class SimulatedSupply(PtyDevice):
         if not match:
             raise CommandError(f"malformed: {unit!r}")
         header, args = short_header(match["header"]), (match["args"] or "").strip()
-        now = time.monotonic()
+        now = self.clock()
         if header in _MODULE_QUERIES:
             return _MODULE_QUERIES[header]
         if header == ":READ:MOD:CHAN?":

@@ -8,7 +8,6 @@ refused meanwhile). ``VSET`` above ``VLIM`` is held at ``VLIM``. A line it canno
 gives no error reply; the ISIS emulator logs it), so a query it does not know times out at the host.
 """
 import re
-import time
 
 from hv_driver.dialects.keithley_2290 import Keithley2290, StatusByte
 
@@ -55,7 +54,7 @@ class SimulatedKeithley2290(PtyDevice):
         if not match:
             return None
         header, arg = match["header"], match["arg"]
-        ch, now = self.plant[0], time.monotonic()
+        ch, now = self.plant[0], self.clock()
         queries = {"*IDN?": lambda: IDENTITY, "*STB?": lambda: str(int(status_byte(ch))),
                    "VSET?": lambda: f"{ch.voltage_set:.1f}", "VOUT?": lambda: f"{ch.measured_voltage:+.1f}",
                    "IOUT?": lambda: f"{ch.measured_current:.4e}", "VLIM?": lambda: f"{self.voltage_limit:.1f}",

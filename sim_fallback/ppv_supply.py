@@ -11,7 +11,6 @@ nothing else shows it. Switching mode 2 runs on the board's own clock (50 % duty
 ``SCycle`` cycles. A line it cannot execute is answered ``?`` (the note gives no error answer).
 """
 import re
-import time
 
 from hv_driver.dialects.ppv import MODE_DC, MODE_OFF, MODE_SWITCHING, PetaPicoVoltron
 
@@ -44,11 +43,13 @@ class SimulatedPpv(PtyDevice):
                                        current_limit=1.0, trip_action=0)
 
     def __init__(self, channels: int = 1, defaults: ChannelDefaults | None = None, name: str = "PPV-SIM",
-                 **options):
+                 off_first: bool = False, clock_error: float = 0.0, **options):
         if channels != 1:
             raise ValueError(f"channels={channels}: a PPV board has one output")
         super().__init__(1, defaults, **options)
         self.name = name
+        self.off_first = off_first  # each switched period begins with its off half (the firmware leaves it open)
+        self.clock_error = clock_error  # the board's timer runs this fraction fast (< 0: slow) against true time
         self.reset_device_state()
 
     def reset_device_state(self) -> None:
@@ -65,8 +66,9 @@ class SimulatedPpv(PtyDevice):
         return self.mode
 
     def _cycle_text(self) -> str:
-        switching = self.plant[0].switching
-        done = switching.completed(time.monotonic()) if switching is not None else 0
+        """``done/total``: the cycles switched so far (of the last train once it ended: all of them after its count)."""
+        ch = self.plant[0]
+        done = ch.cycles_switched if ch.switching is None else min(ch.switching.completed(self.clock()), self.cycles)
         return f"{done}/{self.cycles}"
 
     def _memory(self) -> str:
@@ -79,7 +81,7 @@ class SimulatedPpv(PtyDevice):
         if not match:
             return ERROR_REPLY
         command, arg = match["command"], match["arg"]
-        ch, now = self.plant[0], time.monotonic()
+        ch, now = self.plant[0], self.clock()
         queries = {"QVer": lambda: f"slave {FIRMWARE}", "QName": lambda: self.name, "QVmax": lambda: f"{RATING:.0f}",
                    "QJack": lambda: "1", "QPowJack": lambda: "1", "QVset": lambda: f"{ch.voltage_set:.0f}",
                    "QVnow": lambda: f"{max(0.0, ch.measured_voltage):.0f}", "QSwMode": lambda: str(self.switching_mode),
@@ -108,7 +110,7 @@ class SimulatedPpv(PtyDevice):
         if command == "SCycle" and 0 <= value <= MAX_CYCLES and value == int(value):
             self.cycles = int(value)
             if ch.switching is not None:  # the counter restarts
-                ch.start_switching(now, self.frequency, DUTY, self.cycles)
+                ch.start_switching(now, self.frequency * (1.0 + self.clock_error), DUTY, self.cycles, self.off_first)
             return str(self.cycles)
         if command in _INTEGER_SETTINGS and value == int(value):
             attribute, low, high = _INTEGER_SETTINGS[command]
@@ -125,6 +127,6 @@ class SimulatedPpv(PtyDevice):
             ch.switching = None
             ch.switch_on()
         else:
-            ch.start_switching(now, self.frequency, DUTY, self.cycles)
+            ch.start_switching(now, self.frequency * (1.0 + self.clock_error), DUTY, self.cycles, self.off_first)
         self.mode = mode
         return mode

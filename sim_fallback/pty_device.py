@@ -2,25 +2,32 @@
 
 `PtyDevice` owns the pty, serves it in a thread (lines in, answers out with the dialect's echo and terminators),
 steps the channels' plants on the device's clock, keeps a log of the lines received, and injects the same faults
-into every dialect: ``over_current`` (an arc: film breakdown), ``no_reply`` (silence), ``garbled`` and ``partial``
-replies, ``disconnect``, ``device_reset``, ``readback_drift`` and ``load_change`` (the load's capacitance ten times
+into every dialect: ``over_current`` (an arc: film breakdown), ``no_reply`` (silence; lines are still executed),
+``deaf`` (the device stops reading its input, as with a pulled cable on its receive line: nothing is executed or
+answered; when it resumes, `clear_faults`, it first loses the line it comes back in the middle of), ``garbled`` and
+``partial`` replies, ``disconnect``, ``device_reset``, ``readback_drift`` and ``load_change`` (the load's capacitance ten times
 larger, e.g. a short across part of the film), at once (``inject``) or as the device answers a given line
 (``inject_after``: a fault in the middle of the host's set-up). A subclass gives the framing and answers the
 command set: ``execute(line)`` returns the answer line, or None for a line the device does not answer.
+
+Time is the device's ``clock`` (`hv_driver.clock`; default the real monotonic clock). On a `SimulatedClock` the
+device is not started on a pty: `sim_fallback.memory_port.MemoryPort` hands each line to `feed` and its answer
+back at once, on the same clock as the driver.
 """
 import dataclasses
 import os
 import select
 import threading
-import time
 import tty
 from collections import deque
 
 import numpy as np
 
+from hv_driver.clock import MONOTONIC
+
 from .hv_plant import ChannelDefaults, DeaLoad, PlantChannel, PlantEvent
 
-FAULTS = ("over_current", "no_reply", "garbled", "partial", "disconnect", "device_reset", "readback_drift",
+FAULTS = ("over_current", "no_reply", "deaf", "garbled", "partial", "disconnect", "device_reset", "readback_drift",
           "load_change")
 DRIFT_RATE = 500.0       # [V/s] readback error growth under readback_drift
 LOAD_CHANGE_FACTOR = 10  # capacitance multiplier under load_change
@@ -32,7 +39,7 @@ class PtyDevice:
 
     channels: outputs of this device; defaults / load: per-channel power-up configuration and load;
     watchdog_s: outputs go off (emergency) when no line arrives for this long; None (default) = no host watchdog;
-    rng: seed or numpy Generator for garbled replies.
+    rng: seed or numpy Generator for garbled replies; clock: the device's time (`hv_driver.clock`).
     """
 
     command_terminator: bytes = b"\r\n"
@@ -41,7 +48,7 @@ class PtyDevice:
     default_defaults = ChannelDefaults()
 
     def __init__(self, channels: int = 1, defaults: ChannelDefaults | None = None, load: DeaLoad = DeaLoad(),
-                 watchdog_s: float | None = None, rng=0, tick_s: float = 0.001):
+                 watchdog_s: float | None = None, rng=0, tick_s: float = 0.001, clock=MONOTONIC):
         if channels < 1:
             raise ValueError(f"channels={channels}: at least 1")
         self.plant = [PlantChannel(defaults or self.default_defaults, load) for _ in range(channels)]
@@ -49,6 +56,7 @@ class PtyDevice:
         self.watchdog_s = watchdog_s
         self._rng = np.random.default_rng(rng)
         self._tick = tick_s
+        self.clock = clock
         self._lock = threading.Lock()
         self._modes: set[str] = set()
         self._armed: list[tuple[str, str, list[int]]] = []  # (command, fault, channels) of inject_after
@@ -57,8 +65,10 @@ class PtyDevice:
         self._master = self._slave = None
         self._thread: threading.Thread | None = None
         self._running = False
-        self._last_command = self._last_step = time.monotonic()
+        self.connected = True  # False after an injected disconnect (the cable is pulled)
+        self._last_command = self._last_step = clock()
         self._line = bytearray()
+        self._mid_line = False  # input resumed after ``deaf``: bytes up to the next line end are a lost line
 
     # --- lifecycle -----------------------------------------------------------------------------
     def start(self):
@@ -66,7 +76,7 @@ class PtyDevice:
         tty.setraw(self._slave)  # no line discipline: bytes pass unchanged, no tty echo
         self.port = os.ttyname(self._slave)
         self._running = True
-        self._last_command = self._last_step = time.monotonic()
+        self._last_command = self._last_step = self.clock()
         self._thread = threading.Thread(target=self._serve, name=f"sim-{type(self).__name__}", daemon=True)
         self._thread.start()
         return self
@@ -94,7 +104,7 @@ class PtyDevice:
         """Inject ``fault`` (one of FAULTS; channel None = every channel); returns its time stamp."""
         targets = self._fault_targets(fault, channel)
         with self._lock:
-            now = time.monotonic()
+            now = self.clock()
             self._step(now)
             self._apply_fault(fault, targets, now)
         return now
@@ -153,21 +163,24 @@ class PtyDevice:
         return [channel]
 
     def _disconnect(self) -> None:
+        self.connected = False
         if self._master is not None:
             os.close(self._master)
             self._master = None
 
     def watch(self, channel: int, level: float) -> None:
-        """Record the times the output of ``channel`` rises through ``level`` [V] from now on."""
+        """Record the times the output of ``channel`` rises and falls through ``level`` [V] from now on."""
         with self._lock:
             self.plant[channel].watch_level = level
             self.plant[channel].rising_edges.clear()
+            self.plant[channel].falling_edges.clear()
 
-    def edges(self, channel: int) -> list[float]:
-        """Rising crossings of the watched level (device clock, time.monotonic) so far."""
+    def edges(self, channel: int, falling: bool = False) -> list[float]:
+        """Rising (``falling``: falling) crossings of the watched level (on the device's clock) so far."""
         with self._lock:
-            self._step(time.monotonic())
-            return list(self.plant[channel].rising_edges)
+            self._step(self.clock())
+            plant = self.plant[channel]
+            return list(plant.falling_edges if falling else plant.rising_edges)
 
     # --- the device ----------------------------------------------------------------------------
     def execute(self, line: str) -> str | None:
@@ -190,10 +203,26 @@ class PtyDevice:
                 if ch.output_on:
                     ch.switch_off(now, emergency=True)
 
+    def poll(self, silent_since: float | None = None) -> None:
+        """Advance the outputs to the clock's time and apply the host watchdog (no line arrived since
+        ``silent_since``; default: now)."""
+        with self._lock:
+            now = self.clock()
+            self._step(now)
+            self._check_watchdog(now if silent_since is None else silent_since, now)
+
+    def feed(self, data: bytes) -> bytes:
+        """Receive ``data`` from the host at the clock's time; returns the bytes the device sends back."""
+        with self._lock:
+            now = self.clock()
+            self._step(now)
+            self._check_watchdog(now, now)
+            return self._receive(data) if self.connected else b""
+
     def _serve(self) -> None:
         while self._running:
             master = self._master
-            waited_from = time.monotonic()
+            waited_from = self.clock()
             readable = []
             if master is not None:
                 try:
@@ -201,7 +230,7 @@ class PtyDevice:
                 except (OSError, ValueError):
                     readable = []
             else:
-                time.sleep(self._tick)
+                self.clock.sleep(self._tick)
             data = b""
             if readable:
                 try:
@@ -209,39 +238,51 @@ class PtyDevice:
                 except OSError:
                     data = b""
             with self._lock:
-                now = time.monotonic()
-                self._step(now)
-                if data:
-                    self._receive(data)
-                # A simulator descheduled on a loaded host must not read its own delay as a silent host
-                # (a device sees bytes as they arrive): bytes that waited in the pty were received above,
-                # and an empty wait proves silence only up to when it began.
-                self._check_watchdog(waited_from, now)
+                self._step(self.clock())
+                out = self._receive(data) if data else b""
+                if out and self._master is not None:
+                    try:
+                        os.write(self._master, out)
+                    except OSError:
+                        pass
+            # A simulator descheduled on a loaded host must not read its own delay as a silent host
+            # (a device sees bytes as they arrive): bytes that waited in the pty were received above,
+            # and an empty wait proves silence only up to when it began.
+            self.poll(waited_from)
 
-    def _receive(self, data: bytes) -> None:
-        terminator = self.command_terminator
+    def _receive(self, data: bytes) -> bytes:
+        """Take in the host's bytes (the lock held, the plants stepped); returns what the device sends back."""
+        terminator, out = self.command_terminator, b""
+        if "deaf" in self._modes:
+            self._line.clear()
+            self._mid_line = True
+            return out
         for byte in data:
             self._line.append(byte)
-            if self._line.endswith(terminator):
+            if self._line.endswith(terminator) and self._mid_line:  # the tail of a line whose start was lost
+                self._line.clear()
+                self._mid_line = False
+            elif self._line.endswith(terminator):
                 line = self._line[:-len(terminator)].decode("ascii", errors="replace")
                 self._line.clear()
-                self._last_command = time.monotonic()
+                self._last_command = self.clock()
                 self.command_log.append((self._last_command, line))
-                self._reply(line, self.execute(line))
+                out += self._reply(line, self.execute(line))
                 for armed in [armed for armed in self._armed if armed[0] == line]:
                     self._armed.remove(armed)
                     self._apply_fault(armed[1], armed[2], self._last_command)
             elif len(self._line) > MAX_LINE:
                 self._line.clear()
+        return out
 
-    def _reply(self, line: str, answer: str | None) -> None:
-        if "no_reply" in self._modes or self._master is None:
-            return
+    def _reply(self, line: str, answer: str | None) -> bytes:
+        if "no_reply" in self._modes or not self.connected:
+            return b""
         out = (line.encode("ascii", errors="replace") + self.reply_terminator) if self.echo else b""
         if answer is not None:
             out += answer.encode("ascii") + self.reply_terminator
         if not out:
-            return
+            return b""
         if "garbled" in self._modes:
             body = bytearray(out[:-len(self.reply_terminator)])
             if body:
@@ -250,10 +291,7 @@ class PtyDevice:
             out = bytes(body) + self.reply_terminator
         elif "partial" in self._modes:
             out = out[: len(out) // 2]
-        try:
-            os.write(self._master, out)
-        except OSError:
-            pass
+        return out
 
     def status_text(self) -> str:
         with self._lock:

@@ -61,9 +61,10 @@ class Capabilities:
         output by switching it off and setting 0 V.
     device_watchdog_s: the device switches its outputs off by itself after this long without traffic (None: never:
         a dead host or a pulled cable leaves the output as it was).
-    switching: device-side switching (``set_frequency``, ``set_cycles``, ``start_switching``), None without; a train
-        is armed with the output off (``output_off`` must give 0 V whatever the set voltage) and started with one
-        line, so its first edge is the device's own.
+    switching: device-side switching (``set_frequency``, ``set_cycles``, ``start_switching``, ``read_cycles``), None
+        without; a train is armed with the output off (``output_off`` must give 0 V whatever the set voltage) and
+        started with one line, so its first edge is the device's own; it ends by the device's own count, read back
+        with ``read_cycles`` (`Dialect.cycle_count`).
     status_operations: operations read every cycle whose answers `Dialect.status_report` decodes.
     """
 
@@ -87,7 +88,7 @@ class Capabilities:
         if self.emergency_off:
             needed += ["emergency_off", "emergency_clear"]
         if self.switching is not None:
-            needed += ["set_frequency", "set_cycles", "start_switching"]
+            needed += ["set_frequency", "set_cycles", "start_switching", "read_cycles"]
         return tuple(needed)
 
 
@@ -182,6 +183,13 @@ class Dialect(ABC):
     def identity_problem(self, identity: str) -> str | None:
         """Why a device answering ``identity`` is not one this dialect drives (None: it is)."""
         return None
+
+    def cycle_count(self, reply: str) -> tuple[int, int]:
+        """The answer of ``read_cycles``: (cycles switched so far, cycles counted in all), written ``done/total``."""
+        done, slash, total = reply.partition("/")
+        if not (slash and done.strip().isdigit() and total.strip().isdigit()):
+            raise ProtocolError(f"read_cycles: expected 'done/total', got {reply!r}")
+        return int(done), int(total)
 
     def device_trip_settings(self, current_a: float) -> list[tuple[str, float, str | None]]:
         """(set operation, value, read-back operation or None) that make the device cut or limit an output drawing

@@ -16,7 +16,8 @@ no device ramp and no device trip**: the host ramps, and a film breakdown shows 
 which the supervisor detects (measured far below the setpoint while it is held, or no pulse reaching the amplitude
 while the board switches) and answers by switching the board off (``SSwMode 0``, ``SVset 0``) with the named
 fault BREAKDOWN. No latched emergency off and no host watchdog. Device-side switching: 0.001-5000 Hz, up to 65535
-counted cycles, after which the board switches off by itself.
+counted cycles, after which the board switches off by itself; ``QCycle`` answers ``done/total``, and the driver ends
+a train by that count (its own clock ends it only as a bounded fallback).
 
 What this device cannot protect against (the host cannot see it): a current that flows without pulling the voltage
 down (a leaky film, a partial short that the regulator still holds; a larger load shows only as the output lagging
@@ -57,6 +58,7 @@ class PetaPicoVoltron(Dialect):
         "start_switching": Command(f"SSwMode {MODE_SWITCHING}", "value"),
         "set_frequency": Command("SF {value}", "number", fmt=".3f"),
         "set_cycles": Command("SCycle {value}", "value", fmt=".0f"),
+        "read_cycles": Command("QCycle", "text"),  # "done/total" of the counted cycles
         "set_switching_source": Command("SSwSrc {value}", "value", fmt=".0f"),
         "set_voltage_mode": Command("SVMode {value}", "value", fmt=".0f"),
         "measure_voltage": Command("QVnow", "number"),

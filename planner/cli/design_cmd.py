@@ -115,7 +115,7 @@ def run_prepare(args) -> int:
     started = time.perf_counter()
     print(f"preparing the finger search for (blocks, stiff top) {list(design.PREPARED_CONFIGURATIONS)} ...",
           file=sys.stderr, flush=True)
-    design.prepare_finger_search()
+    design.prepare_finger_search(progress=lambda line: print(f"  {line}", file=sys.stderr, flush=True))
     print(f"finger search ready ({time.perf_counter() - started:.1f} s)", file=sys.stderr)
     return 0
 

@@ -1,11 +1,15 @@
-"""Fixtures for the HV driver tests: a scripted serial port and a simulated supply on a pty."""
+"""Fixtures for the HV driver tests: a scripted serial port; a simulated supply linked in memory to the driver,
+both on the test's simulated clock (deterministic, no sleeps); the same supply on a real pty for the few real-time
+integration tests."""
 import threading
 import time
 
 import pytest
 
 from hv_driver import ChannelConfig, HvSupply
+from hv_driver.clock import SimulatedClock
 from sim_fallback.hv_supply import SimulatedSupply
+from sim_fallback.memory_port import MemoryPort
 
 
 class ScriptedPort:
@@ -70,18 +74,23 @@ def channels():
 
 
 @pytest.fixture
-def sim():
-    supply = SimulatedSupply(channels=2).start()
-    yield supply
-    supply.stop()
+def clock():
+    """The simulated time of a test: the supply's loop and the simulated device both run on it."""
+    return SimulatedClock()
 
 
 @pytest.fixture
-def supply(sim):
-    # A generous link timeout: the suite runs on two loaded cores. The heartbeat watchdog stays on, with a
-    # timeout longer than any test holds an output without a request (its own tests set a short one).
-    hv = HvSupply(sim.port, channels=CHANNELS, link_timeout_s=0.5, heartbeat_timeout_s=30.0,
-                  handle_signals=False).open()
+def sim(clock):
+    """A two-channel simulated iseg module on the test's simulated clock (no pty: `memory_port` links it)."""
+    return SimulatedSupply(channels=2, clock=clock)
+
+
+@pytest.fixture
+def supply(sim, clock):
+    # The heartbeat watchdog stays on, with a timeout longer than any test holds an output without a request
+    # (its own tests set a short one).
+    hv = HvSupply(MemoryPort(sim), channels=CHANNELS, link_timeout_s=0.5, heartbeat_timeout_s=30.0,
+                  handle_signals=False, clock=clock).open()
     yield hv
     hv.abort()
 
@@ -92,8 +101,26 @@ def token(supply):
     return supply.claim_control("test")
 
 
+@pytest.fixture
+def pty_sim():
+    """A simulated iseg module on a real pty, served in its own thread in real time (integration tests)."""
+    supply = SimulatedSupply(channels=2).start()
+    yield supply
+    supply.stop()
+
+
+@pytest.fixture
+def pty_supply(pty_sim):
+    # A generous link timeout: the suite runs on two loaded cores.
+    hv = HvSupply(pty_sim.port, channels=CHANNELS, link_timeout_s=0.5, heartbeat_timeout_s=30.0,
+                  handle_signals=False).open()
+    yield hv
+    hv.abort()
+
+
 def _wait_until(predicate, deadline_s: float = 3.0, poll_s: float = 0.005):
-    """Poll ``predicate`` until it holds or the deadline passes; returns its last value."""
+    """Poll ``predicate`` in real time until it holds or the generous deadline passes; returns its last value
+    (real-time integration tests only)."""
     end = time.monotonic() + deadline_s
     while not (result := predicate()) and time.monotonic() < end:
         time.sleep(poll_s)

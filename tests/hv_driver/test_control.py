@@ -5,7 +5,7 @@ release, on a lapsed heartbeat and at an e-stop; the watchdog is on unless switc
 import math
 
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hv_driver import ChannelConfig, ControlError, Fault, Supervisor
@@ -72,15 +72,15 @@ def test_a_claim_answers_a_fresh_token_and_is_refused_while_another_client_holds
 def test_a_claim_repeated_before_the_first_sign_of_life_gets_the_same_session_and_after_it_is_refused():
     supervisor = Supervisor([CONFIG], link_timeout_s=1.0)
     supervisor.enable("front", 0.0)
-    token = supervisor.claim_control("sequencer", 0.0)
-    assert supervisor.claim_control("sequencer", 9.0) == token  # its first reply was lost; it asks again
+    token = supervisor.claim_control("sequencer", 0.0, nonce="n1")
+    assert supervisor.claim_control("sequencer", 9.0, nonce="n1") == token  # its first reply was lost; it asks again
     assert supervisor.control.heartbeat_age(9.0) == 0.0  # the repeat is a sign of life, not yet a use
-    assert supervisor.claim_control("sequencer", 18.0) == token  # within 10 s of the repeat: still held
+    assert supervisor.claim_control("sequencer", 18.0, nonce="n1") == token  # within 10 s of the repeat: still held
     with pytest.raises(ControlError, match="control is held by 'sequencer'"):
         supervisor.claim_control("demo", 18.5)
     supervisor.ramp_to("front", 18.5, 500.0, token=token)  # used: from now on a repeat is refused
     with pytest.raises(ControlError, match="control is held by 'sequencer' .*release it first or stay silent for 2 s"):
-        supervisor.claim_control("sequencer", 18.6)
+        supervisor.claim_control("sequencer", 18.6, nonce="n1")
 
 
 def test_a_ramp_without_the_live_token_is_refused_naming_the_owner():
@@ -187,6 +187,7 @@ def test_bad_client_names_are_refused_naming_the_rule(client):
         Supervisor([CONFIG], link_timeout_s=1.0).claim_control(client, 0.0)
 
 
+@settings(deadline=None)  # hypothesis's per-example deadline is wall-clock time
 @given(st.one_of(st.none(), st.text(max_size=80), st.binary(max_size=40), st.integers(), st.floats()))
 def test_no_token_but_the_live_one_is_accepted(token):
     claim = ControlClaim(timeout_s=2.0)
@@ -199,6 +200,7 @@ def test_no_token_but_the_live_one_is_accepted(token):
     assert claim.owner == "sequencer"
 
 
+@settings(deadline=None)  # hypothesis's per-example deadline is wall-clock time
 @given(timeout=st.floats(min_value=0.05, max_value=5.0),
        gaps=st.lists(st.floats(min_value=0.0, max_value=15.0), min_size=1, max_size=30))
 def test_control_lapses_exactly_when_a_heartbeat_gap_exceeds_the_timeout(timeout, gaps):
@@ -252,6 +254,7 @@ def test_a_client_that_died_before_a_stall_still_lapses_after_it():
     assert supervisor.control.owner is None and supervisor.channel("front").faults == Fault.HEARTBEAT
 
 
+@settings(deadline=None)  # hypothesis's per-example deadline is wall-clock time
 @given(timeout=st.floats(min_value=0.05, max_value=5.0),
        cycles=st.lists(st.tuples(st.floats(min_value=0.001, max_value=3.0), st.booleans()), min_size=1, max_size=80))
 def test_a_silent_client_lapses_no_earlier_than_the_timeout_and_no_later_than_the_drivers_stalls_allow(

@@ -1,6 +1,7 @@
-"""The same fault matrix for every dialect: HvSupply against each simulated supply over real ptys, two channels
-(one two-channel iseg module; two single-channel Keithley units; two PPV boards, i.e. two ports behind one driver).
-Every injected fault ends with the outputs off and the fault each device's capabilities let the driver name."""
+"""The same fault matrix for every dialect: HvSupply against each simulated supply, two channels (one two-channel
+iseg module; two single-channel Keithley units; two PPV boards, i.e. two ports behind one driver), linked in memory on
+one simulated clock. Every injected fault ends with the outputs off and the fault each device's capabilities let the
+driver name. One test per dialect runs on real ptys in real time (integration)."""
 import dataclasses
 
 import pytest
@@ -8,6 +9,7 @@ import pytest
 from dialect_rig import Rig
 
 from hv_driver import ChannelConfig, Fault, FaultLatchedError
+from hv_driver.clock import SimulatedClock
 from hv_driver.dialects import DIALECTS
 from hv_driver.dialects.keithley_2290 import Keithley2290
 from hv_driver.supervisor import DEFAULT_PERIOD_S, ChannelSupervisor
@@ -38,22 +40,38 @@ MATRIX = {
 
 @pytest.fixture(params=list(DIALECTS))
 def rig(request):
+    made = Rig(request.param, FAST, link_timeout_s=0.5, clock=SimulatedClock())
+    yield request.param, made
+    made.close()
+
+
+@pytest.fixture(params=list(DIALECTS))
+def pty_rig(request):
     made = Rig(request.param, FAST, link_timeout_s=0.5)
     yield request.param, made
     made.close()
 
 
-def test_every_dialect_identifies_configures_and_ramps_both_channels(rig, wait_until):
+def test_every_dialect_identifies_configures_and_ramps_both_channels(rig):
     name, made = rig
+    check_ramps_both_channels(name, made, made.supply.wait_for)
+
+
+def test_every_dialect_ramps_both_channels_on_real_ptys(pty_rig, wait_until):
+    """Integration: the loop in its own thread, each simulator serving a real pty in real time."""
+    check_ramps_both_channels(*pty_rig, wait_until)
+
+
+def check_ramps_both_channels(name, made, wait_until):
     handles = made.ramp(2400.0)
     assert all(h.succeeded for h in handles), [h.message for h in handles]
-    assert wait_until(lambda: all(abs(made.plant(c).voltage - 2400.0) < 5.0 for c in "ab"))
+    assert wait_until(lambda: all(abs(made.plant(c).voltage - 2400.0) < 5.0 for c in "ab"), 3.0)
     snapshot = made.supply.snapshot()
     assert not any(c.faults for c in snapshot.channels)
     if name == "ppv":  # no current readback: shown as NaN, never as a made-up 0 A
         assert all(c.measured_current != c.measured_current for c in snapshot.channels)
     else:  # at rest the charging current is gone; the loop may still hold a reading from the ramp's end
-        assert wait_until(lambda: all(abs(c.measured_current) < 1e-5 for c in made.supply.snapshot().channels))
+        assert wait_until(lambda: all(abs(c.measured_current) < 1e-5 for c in made.supply.snapshot().channels), 3.0)
     for handle in [made.supply.ramp_to(c, 0.0, token=made.token) for c in "ab"]:
         assert handle.wait(5.0) and handle.succeeded
 
@@ -93,7 +111,7 @@ def test_the_keithley_trip_holds_two_setpoint_steps_bunched_by_a_late_exchange()
 
 
 @pytest.mark.parametrize("fault", list(MATRIX))
-def test_fault_matrix(rig, fault, wait_until):
+def test_fault_matrix(rig, fault):
     name, made = rig
     expected = MATRIX[fault][name]
     channel = "b" if fault in ("over_current", "readback_drift", "load_change") else None
@@ -114,10 +132,10 @@ def test_fault_matrix(rig, fault, wait_until):
         snap = made.supply.snapshot()
         return all(expected in snap.channel(c).faults for c in tripped) and all(
             not (reachable and made.plant(c).output_on) for c in tripped)
-    assert wait_until(tripped_and_off, 5.0), made.supply.snapshot()
+    assert made.supply.wait_for(tripped_and_off, 5.0), made.supply.snapshot()
     snap = made.supply.snapshot()
-    for c in tripped:
-        assert (snap.channel(c).setpoint, snap.channel(c).output_enabled) == (0.0, False)
+    for c in tripped:  # claimed off only once a reading confirmed the cut (none over a failing link)
+        assert (snap.channel(c).setpoint, snap.channel(c).output_enabled) == (0.0, expected is Fault.LINK)
         assert expected.name.lower() in snap.channel(c).fault_text
     with pytest.raises(FaultLatchedError):
         made.supply.enable(tripped[0])
@@ -126,15 +144,11 @@ def test_fault_matrix(rig, fault, wait_until):
 
 
 def test_a_supply_that_stops_answering_trips_only_its_own_channels():
-    made = Rig("ppv", FAST, link_timeout_s=0.5)
+    made = Rig("ppv", FAST, link_timeout_s=0.5, clock=SimulatedClock())
     try:
         made.ramp(800.0)
         made.sims[1].inject("no_reply")
-        assert made.supply.wait_cycles(1, 5.0)
-        deadline_cycles = 200
-        while Fault.LINK not in made.supply.snapshot().channel("b").faults and deadline_cycles:
-            made.supply.wait_cycles(1, 1.0)
-            deadline_cycles -= 1
+        assert made.supply.wait_for(lambda: Fault.LINK in made.supply.snapshot().channel("b").faults, 2.0)
         snap = made.supply.snapshot()
         assert Fault.LINK in snap.channel("b").faults and not snap.channel("a").faults
         assert made.plant("a").output_on and made.plant("a").voltage == pytest.approx(800.0, abs=5.0)
@@ -142,12 +156,12 @@ def test_a_supply_that_stops_answering_trips_only_its_own_channels():
         made.close()
 
 
-def test_a_reset_clears_a_breakdown_and_the_board_comes_back_at_0_v(wait_until):
-    made = Rig("ppv", FAST, link_timeout_s=0.5)
+def test_a_reset_clears_a_breakdown_and_the_board_comes_back_at_0_v():
+    made = Rig("ppv", FAST, link_timeout_s=0.5, clock=SimulatedClock())
     try:
         made.ramp(1200.0)
         made.inject("over_current", "a")
-        assert wait_until(lambda: Fault.BREAKDOWN in made.supply.snapshot().channel("a").faults)
+        assert made.supply.wait_for(lambda: Fault.BREAKDOWN in made.supply.snapshot().channel("a").faults, 1.0)
         made.sims[0].clear_faults()
         assert made.supply.reset_faults() == ["a"]
         made.supply.enable("a")

@@ -1,9 +1,11 @@
-"""HvSupply against the simulated supply over a real pty: ramps, every injected fault, e-stop, exit paths,
-the heartbeat watchdog and the control claim, resets and outputs that ramp down at the device ramp."""
+"""HvSupply against the simulated supply: ramps, every injected fault, e-stop, exit paths, the heartbeat watchdog
+and the control claim, resets and outputs that ramp down at the device ramp. The driver's loop and the simulated
+module run on one simulated clock, linked in memory (deterministic: timing is asserted in simulated time); a few
+integration tests run the same supply on a real pty in real time (their waits have generous deadlines and assert no
+duration)."""
 import logging
 import math
 import os
-import time
 import signal
 import subprocess
 import sys
@@ -13,16 +15,21 @@ import pytest
 
 from hv_driver import (ChannelConfig, ConfigurationError, ControlError, Fault, FaultLatchedError, HvSupply, LimitError,
                        LinkError)
-from sim_fallback.hv_plant import PlantEvent
-from sim_fallback.hv_plant import ChannelDefaults
+from hv_driver.supervisor import DEFAULT_PERIOD_S
+from sim_fallback.hv_plant import ChannelDefaults, PlantEvent
 from sim_fallback.hv_supply import SimulatedSupply
-from stalls import stall_this_process
+from sim_fallback.memory_port import MemoryPort
 
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
 def all_off(sim) -> bool:
     return not any(ch.output_on for ch in sim.plant)
+
+
+def simulated(sim, clock, configs, **options) -> HvSupply:
+    """An HvSupply for ``sim`` on the test's simulated clock (not opened)."""
+    return HvSupply(MemoryPort(sim), channels=configs, handle_signals=False, clock=clock, **options)
 
 
 def ramp_both(supply, token, volts):
@@ -56,12 +63,12 @@ def test_open_sends_the_documented_sequence(sim, supply):
     assert lines[:len(expected)] == expected
 
 
-def test_ramp_to_2400_and_back_follows_on_both_channels(sim, supply, token, wait_until):
+def test_ramp_to_2400_and_back_follows_on_both_channels(sim, supply, token):
     ramp_both(supply, token, 2400.0)
     assert all(ch.output_on and ch.voltage_set == 2400.0 for ch in sim.plant)  # sent before "done"
-    # The device ramp (1.2 x the slew limit) ends about a cycle later; a loaded machine may take longer.
-    assert wait_until(lambda: all(abs(ch.voltage - 2400.0) <= 1.0 and abs(snap.measured_voltage - 2400.0) <= 1.0
-                                  for ch, snap in zip(sim.plant, supply.snapshot().channels)))
+    # The device ramp (1.2 x the slew limit) ends within a few cycles.
+    assert supply.wait_for(lambda: all(abs(ch.voltage - 2400.0) <= 1.0 and abs(snap.measured_voltage - 2400.0) <= 1.0
+                                       for ch, snap in zip(sim.plant, supply.snapshot().channels)), 0.1)
     assert not any(snap.faults for snap in supply.snapshot().channels)
     handles = [supply.ramp_to(name, 0.0, token=token) for name in ("front", "back")]
     assert all(h.wait(5.0) and h.succeeded for h in handles)
@@ -99,7 +106,7 @@ FAULT_CASES = {
 
 
 @pytest.mark.parametrize("fault", list(FAULT_CASES))
-def test_every_injected_fault_ends_with_outputs_off_and_the_named_fault(fault, sim, supply, token, wait_until):
+def test_every_injected_fault_ends_with_outputs_off_and_the_named_fault(fault, sim, supply, token, clock):
     channel, expected, tripped = FAULT_CASES[fault]
     ramp_both(supply, token, 1500.0)
     sim.inject(fault, channel)
@@ -112,28 +119,36 @@ def test_every_injected_fault_ends_with_outputs_off_and_the_named_fault(fault, s
         snap = supply.snapshot()
         return all(expected in snap.channel(n).faults for n in tripped) and all(
             not (device_reachable and sim.plant[snap.channel(n).index].output_on) for n in tripped)
-    assert wait_until(tripped_and_off), supply.snapshot()
+    injected = clock()
+    assert supply.wait_for(tripped_and_off, 3.0), supply.snapshot()
+    # Within the fault's own bound: the link timeout after the first failed exchange (a reply timeout, a quarter
+    # of it) and the failing cycle that finds it passed (a resync and a reply timeout); the readback's mismatch
+    # time after the drift (500 V/s) leaves the 150 V tolerance; else a cycle or two.
+    bound = {Fault.LINK: 0.5 + 3 * 0.125, Fault.READBACK_MISMATCH: 150.0 / 500.0 + 0.2}.get(expected, 0.0)
+    assert clock() - injected <= bound + 2 * DEFAULT_PERIOD_S + 1e-9
     snap = supply.snapshot()
     for name in tripped:
         c = snap.channel(name)
-        assert (c.setpoint, c.output_enabled) == (0.0, False)
+        # Off once the device confirmed it; over a link that fails no reading confirms the cut, so the output is
+        # not claimed off (the cut is sent again every cycle).
+        assert (c.setpoint, c.output_enabled) == (0.0, expected is Fault.LINK)
         assert expected.name.lower() in c.fault_text
     with pytest.raises(FaultLatchedError):
         supply.enable(tripped[0])
 
 
-def test_an_interlock_pulse_between_two_polls_is_caught_by_the_event_register(sim, supply, token, wait_until):
+def test_an_interlock_pulse_between_two_polls_is_caught_by_the_event_register(sim, supply, token):
     ramp_both(supply, token, 800.0)
     sim.plant[1].events |= PlantEvent.EXTERNAL_INHIBIT  # the status bit came and went unseen
-    assert wait_until(lambda: supply.snapshot().channel("back").faults == Fault.DEVICE)
+    assert supply.wait_for(lambda: supply.snapshot().channel("back").faults == Fault.DEVICE)
     assert "event_external_inhibit" in supply.snapshot().channel("back").fault_text
-    assert wait_until(lambda: not sim.plant[1].output_on) and sim.plant[0].output_on
+    assert supply.wait_for(lambda: not sim.plant[1].output_on) and sim.plant[0].output_on
 
 
-def test_faults_stay_latched_until_reset_then_outputs_stay_off_until_enabled(sim, supply, token, wait_until):
+def test_faults_stay_latched_until_reset_then_outputs_stay_off_until_enabled(sim, supply, token):
     ramp_both(supply, token, 1000.0)
     sim.inject("device_reset")
-    assert wait_until(lambda: supply.snapshot().channel("front").faults == Fault.DEVICE)
+    assert supply.wait_for(lambda: supply.snapshot().channel("front").faults == Fault.DEVICE)
     supply.wait_cycles(10)
     assert supply.snapshot().channel("front").faults == Fault.DEVICE
     supply.reset_faults()
@@ -157,7 +172,9 @@ def test_device_reset_only_with_outputs_off_and_limits_are_restored(sim, supply)
     assert sim.plant[0].ramp_up == pytest.approx(8000.0 * 1.2) and not supply.snapshot().channel("front").faults
 
 
-def test_estop_while_another_thread_streams_ramps(sim, supply, token, background, wait_until):
+def test_estop_while_another_thread_streams_ramps(pty_sim, pty_supply, background, wait_until):
+    """Integration on a real pty, the loop in its own thread: requests from another thread race the e-stop."""
+    sim, supply, token = pty_sim, pty_supply, pty_supply.claim_control("test")
     ramp_both(supply, token, 800.0)
     refused = []
 
@@ -174,67 +191,69 @@ def test_estop_while_another_thread_streams_ramps(sim, supply, token, background
     background(stream)
     supply.wait_cycles(5)
     supply.estop()
-    assert wait_until(lambda: all_off(sim) and len(refused) > 20)
+    assert wait_until(lambda: all_off(sim) and len(refused) > 20, 10.0)
     snap = supply.snapshot()
     assert snap.estop and all(c.faults == Fault.ESTOP and not c.output_enabled for c in snap.channels)
     assert all(ch.emergency for ch in sim.plant)  # device-side emergency off, latched
     assert "emergency stop" in str(refused[-1]) and snap.controller == ""  # the e-stop ended the session
 
 
-def test_lost_heartbeat_ramps_outputs_down(sim, wait_until):
+def test_lost_heartbeat_ramps_outputs_down_at_the_slew_limit(sim, clock):
     configs = [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=8000.0)]
-    with HvSupply(sim.port, channels=configs, heartbeat_timeout_s=0.3, handle_signals=False) as hv:
+    with simulated(sim, clock, configs, heartbeat_timeout_s=0.3) as hv:
         hv.enable("front")
         hv.ramp_to("front", 1000.0, token=hv.claim_control("test"))
-        assert wait_until(lambda: Fault.HEARTBEAT in hv.snapshot().channel("front").faults)
-        assert wait_until(lambda: not sim.plant[0].output_on)
+        last_sign = clock()
+        assert hv.wait_for(lambda: Fault.HEARTBEAT in hv.snapshot().channel("front").faults, 1.0)
+        lapsed = clock()
+        assert 0.3 < lapsed - last_sign <= 0.3 + DEFAULT_PERIOD_S + 1e-9  # the timeout, to the cycle
+        assert hv.wait_for(lambda: not sim.plant[0].output_on, 1.0)
+        # A minimum-jerk ramp from 1000 V at the 8 kV/s slew limit: 1.875 x 1000 / 8000 s, then off.
+        assert clock() - lapsed == pytest.approx(1.875 * 1000.0 / 8000.0, abs=2 * DEFAULT_PERIOD_S)
         assert not sim.plant[0].emergency  # ramped down and switched off, not cut
 
 
 @pytest.mark.parametrize("first", ["the control loop's cycle", "the client's next beat"])
-def test_a_stall_of_the_whole_process_longer_than_the_timeout_keeps_control(sim, wait_until, first):
+def test_a_stall_of_the_whole_process_longer_than_the_timeout_keeps_control(sim, clock, first):
     """Driver and client in one stalled process (a garbage collection, a loaded host): after the stall the
     client beats again at once, or only after the driver's loop has run a cycle; either way it keeps control."""
     configs = [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=8000.0)]
-    with HvSupply(sim.port, channels=configs, heartbeat_timeout_s=0.5, link_timeout_s=2.0,
-                  handle_signals=False) as hv:
+    with simulated(sim, clock, configs, heartbeat_timeout_s=0.5, link_timeout_s=2.0) as hv:
         token = hv.claim_control("test")
         hv.enable("front")
         assert hv.ramp_to("front", 1000.0, token=token).wait(5.0)
         hv.heartbeat(token)
-        assert stall_this_process(1.5) >= 1.5  # three timeouts without a cycle or a beat
+        clock.advance(1.5)  # three timeouts without a cycle or a beat
         if first == "the control loop's cycle":
-            hv.wait_cycles(1)
+            hv.step()
         for _ in range(20):
             hv.heartbeat(token)
-            time.sleep(0.05)
+            hv.run_for(0.05)
         snap = hv.snapshot()
         assert snap.controller == "test" and not snap.channel("front").faults, snap.channel("front").fault_text
         assert sim.plant[0].output_on and sim.plant[0].voltage_set == 1000.0
 
 
-def test_close_ramps_down_and_switches_off(sim):
-    hv = HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=8000.0)],
-                  handle_signals=False).open()
+def test_close_ramps_down_and_switches_off(sim, clock):
+    hv = simulated(sim, clock, [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=8000.0)]).open()
     hv.enable("front")
     assert hv.ramp_to("front", 1200.0, token=hv.claim_control("test")).wait(5.0)
     hv.close()
     assert all_off(sim) and sim.plant[0].voltage_set == 0.0 and not sim.plant[0].emergency
 
 
-def test_exception_in_the_with_block_cuts_the_outputs(sim):
+def test_exception_in_the_with_block_cuts_the_outputs(sim, clock):
     with pytest.raises(RuntimeError, match="operator code failed"):
-        with HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage_v=3000.0)],
-                      handle_signals=False) as hv:
+        with simulated(sim, clock, [ChannelConfig("front", 0, max_voltage_v=3000.0)]) as hv:
             hv.enable("front")
             hv.ramp_to("front", 300.0, token=hv.claim_control("test")).wait(5.0)
             raise RuntimeError("operator code failed")
     assert all_off(sim) and sim.plant[0].emergency
 
 
-def test_a_latched_device_emergency_survives_reconnect_until_reset(sim):
+def test_a_latched_device_emergency_survives_reconnect_until_reset(sim, clock):
     sim.plant[0].emergency = True
-    with HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage_v=3000.0)], handle_signals=False) as hv:
+    with simulated(sim, clock, [ChannelConfig("front", 0, max_voltage_v=3000.0)]) as hv:
         assert hv.snapshot().channel("front").faults == Fault.DEVICE
         with pytest.raises(FaultLatchedError, match="is_emergency_off"):
             hv.enable("front")
@@ -245,15 +264,16 @@ def test_a_latched_device_emergency_survives_reconnect_until_reset(sim):
         assert sim.plant[0].output_on and not sim.plant[0].emergency
 
 
-def test_device_that_cannot_take_the_ramp_speed_is_refused_at_open():
-    with SimulatedSupply(channels=1, defaults=ChannelDefaults(max_ramp_speed=500.0)) as slow:
-        hv = HvSupply(slow.port, channels=[ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=1000.0)],
-                      handle_signals=False)
-        with pytest.raises(ConfigurationError, match="read_ramp reads 500, configured 1200"):
-            hv.open()
+def test_device_that_cannot_take_the_ramp_speed_is_refused_at_open(clock):
+    slow = SimulatedSupply(channels=1, defaults=ChannelDefaults(max_ramp_speed=500.0), clock=clock)
+    hv = simulated(slow, clock, [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=1000.0)])
+    with pytest.raises(ConfigurationError, match="read_ramp reads 500, configured 1200"):
+        hv.open()
 
 
-def test_sigterm_switches_the_outputs_off(sim, wait_until):
+def test_sigterm_switches_the_outputs_off(pty_sim):
+    """Integration: a driver process on a real pty, ended by SIGTERM, cuts its outputs."""
+    sim = pty_sim
     script = textwrap.dedent(f"""
         import sys, time
         from hv_driver import ChannelConfig, HvSupply
@@ -275,27 +295,28 @@ def test_sigterm_switches_the_outputs_off(sim, wait_until):
     assert all_off(sim) and sim.plant[0].emergency
 
 
-def test_the_heartbeat_watchdog_is_on_by_default(sim, wait_until):
+def test_the_heartbeat_watchdog_is_on_by_default(sim, clock):
     configs = [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=8000.0)]
-    with HvSupply(sim.port, channels=configs, handle_signals=False) as hv:
+    with simulated(sim, clock, configs) as hv:
         assert hv.snapshot().heartbeat_timeout_s == 2.0
         token = hv.claim_control("client that dies")
         hv.enable("front")
-        assert hv.ramp_to("front", 1000.0, token=token).wait(5.0)
-        started = time.monotonic()
-        assert wait_until(lambda: Fault.HEARTBEAT in hv.snapshot().channel("front").faults, 10.0)
-        assert time.monotonic() - started > 1.5  # the 2 s timeout ran from the ramp request
-        assert wait_until(lambda: not sim.plant[0].output_on and sim.plant[0].voltage < 1.0, 5.0)
+        ramp = hv.ramp_to("front", 1000.0, token=token)
+        requested = clock()
+        assert ramp.wait(5.0)
+        assert hv.wait_for(lambda: Fault.HEARTBEAT in hv.snapshot().channel("front").faults, 10.0)
+        assert 2.0 < clock() - requested <= 2.0 + DEFAULT_PERIOD_S + 1e-9  # the 2 s timeout ran from the ramp request
+        assert hv.wait_for(lambda: not sim.plant[0].output_on and sim.plant[0].voltage < 1.0, 5.0)
         assert hv.snapshot().controller == ""
 
 
-def test_switching_the_watchdog_off_takes_inf_and_warns_at_every_open(sim, caplog):
+def test_switching_the_watchdog_off_takes_inf_and_warns_at_every_open(sim, clock, caplog):
     configs = [ChannelConfig("front", 0, max_voltage_v=3000.0)]
     with pytest.raises(ValueError, match="math.inf to switch the heartbeat watchdog off on purpose"):
-        HvSupply(sim.port, channels=configs, heartbeat_timeout_s=None, handle_signals=False)
+        simulated(sim, clock, configs, heartbeat_timeout_s=None)
     caplog.set_level(logging.WARNING, logger="hv_driver")
     for _ in range(2):
-        with HvSupply(sim.port, channels=configs, heartbeat_timeout_s=math.inf, handle_signals=False) as hv:
+        with simulated(sim, clock, configs, heartbeat_timeout_s=math.inf) as hv:
             assert hv.snapshot().heartbeat_timeout_s == math.inf
     warnings = [r for r in caplog.records if "heartbeat watchdog OFF" in r.getMessage()]
     assert len(warnings) == 2 and all(r.levelno == logging.WARNING for r in warnings)
@@ -315,12 +336,12 @@ def test_only_the_client_holding_control_ramps(supply, token):
     assert supply.release_control(token) == "test" and supply.snapshot().controller == ""
 
 
-def test_reset_faults_leaves_healthy_channels_alone(sim, supply, token, wait_until):
+def test_reset_faults_leaves_healthy_channels_alone(sim, supply, token):
     ramp_both(supply, token, 2400.0)
     sim.inject("over_current", 1)
-    assert wait_until(lambda: Fault.OVER_CURRENT in supply.snapshot().channel("back").faults)
+    assert supply.wait_for(lambda: Fault.OVER_CURRENT in supply.snapshot().channel("back").faults, 1.0)
     sim.clear_faults()
-    assert wait_until(lambda: abs(supply.snapshot().channel("back").measured_current) < 1e-6)
+    assert supply.wait_for(lambda: abs(supply.snapshot().channel("back").measured_current) < 1e-6, 1.0)
     mark = len(sim.command_log)
     assert supply.reset_faults() == ["back"]
     supply.wait_cycles(5)
@@ -332,78 +353,80 @@ def test_reset_faults_leaves_healthy_channels_alone(sim, supply, token, wait_unt
     assert sim.plant[0].output_on and sim.plant[0].voltage == pytest.approx(2400.0, abs=1.0)
 
 
-def test_resetting_every_channel_ramps_healthy_outputs_down_at_the_device_ramp(sim, wait_until):
+def test_resetting_every_channel_ramps_healthy_outputs_down_at_the_device_ramp(sim, clock):
     configs = [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=2000.0)]  # device ramp 2400 V/s
-    with HvSupply(sim.port, channels=configs, heartbeat_timeout_s=30.0, handle_signals=False) as hv:
+    with simulated(sim, clock, configs, heartbeat_timeout_s=30.0) as hv:
         hv.enable("front")
         assert hv.ramp_to("front", 2400.0, token=hv.claim_control("test")).wait(10.0)
         hv.wait_cycles(3)
-        started = time.monotonic()
+        started = clock()
         assert hv.reset_faults(all_channels=True) == ["front"]
-        assert wait_until(lambda: sim.plant[0].ramping_down, 2.0)
-        assert wait_until(lambda: sim.plant[0].voltage < 1.0, 5.0)
-        assert time.monotonic() - started > 0.8  # 2.4 kV at 2.4 kV/s, not cut
+        assert hv.wait_for(lambda: sim.plant[0].ramping_down, 0.1)
+        assert hv.wait_for(lambda: sim.plant[0].voltage < 1.0, 5.0)
+        assert clock() - started == pytest.approx(2400.0 / 2400.0, abs=2 * DEFAULT_PERIOD_S)  # at the ramp, not cut
         hv.wait_cycles(10)
         front = hv.snapshot().channel("front")
         assert not front.faults and not front.output_enabled, front.fault_text
         assert not sim.plant[0].emergency
 
 
-def test_open_ramps_down_an_output_an_earlier_session_left_on(sim, wait_until):
-    with sim._lock:
-        left_on = sim.plant[0]
-        left_on.ramp_up = left_on.ramp_down = 2400.0
-        left_on.voltage_set = left_on.voltage = 2400.0
-        left_on.output_on = True
+def test_open_ramps_down_an_output_an_earlier_session_left_on(sim, clock):
+    left_on = sim.plant[0]
+    left_on.ramp_up = left_on.ramp_down = 2400.0
+    left_on.voltage_set = left_on.voltage = 2400.0
+    left_on.output_on = True
     configs = [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=2000.0)]
-    with HvSupply(sim.port, channels=configs, heartbeat_timeout_s=30.0, handle_signals=False) as hv:
-        assert wait_until(lambda: left_on.voltage < 1.0, 5.0)
+    with simulated(sim, clock, configs, heartbeat_timeout_s=30.0) as hv:
+        assert hv.wait_for(lambda: left_on.voltage < 1.0, 5.0)
         hv.wait_cycles(10)
         assert not hv.snapshot().channel("front").faults, hv.snapshot().channel("front").fault_text
         assert not left_on.emergency
 
 
-def test_a_channel_index_the_supply_does_not_have_is_refused_at_open(sim):
-    hv = HvSupply(sim.port, channels=[ChannelConfig("front", 999, max_voltage_v=3000.0)], handle_signals=False)
+def test_a_channel_index_the_supply_does_not_have_is_refused_at_open(sim, clock):
+    hv = simulated(sim, clock, [ChannelConfig("front", 999, max_voltage_v=3000.0)])
     with pytest.raises(ConfigurationError, match=r"channel 'front': index 999 is not on the supply at \S+, which has 2 "
                                                  r"channel\(s\) \(indices 0-1\)"):
         hv.open()
     assert not [line for _, line in sim.command_log if "999" in line]  # nothing sent to it
 
 
-def test_open_waits_up_to_the_link_timeout_for_a_supply_that_is_starting_up(sim, background):
-    """A supply that answers late at first (a simulator still starting on a loaded host) is identified."""
+def test_open_waits_up_to_the_link_timeout_for_a_supply_that_is_starting_up(sim, clock):
+    """A supply that answers late at first (still starting up) is identified."""
     sim.inject("no_reply")
-    background(lambda: (time.sleep(0.2), sim.clear_faults()))
+    clock.call_at(clock() + 0.2, sim.clear_faults)
     configs = [ChannelConfig("front", 0, max_voltage_v=3000.0)]
-    with HvSupply(sim.port, channels=configs, link_timeout_s=2.0, handle_signals=False) as hv:
+    with simulated(sim, clock, configs, link_timeout_s=2.0) as hv:
         assert hv.snapshot().device_id.startswith("iseg")
 
 
-def test_open_gives_up_on_a_silent_supply_after_the_link_timeout(sim):
+def test_open_gives_up_on_a_silent_supply_after_the_link_timeout(sim, clock):
     sim.inject("no_reply")
-    started = time.monotonic()
+    started = clock()
     with pytest.raises(LinkError, match=r"no reply to '\*IDN\?'"):
-        HvSupply(sim.port, channels=[ChannelConfig("front", 0, max_voltage_v=3000.0)], link_timeout_s=0.4,
-                 handle_signals=False).open()
-    assert time.monotonic() - started > 0.4
+        simulated(sim, clock, [ChannelConfig("front", 0, max_voltage_v=3000.0)], link_timeout_s=0.4).open()
+    # The set-up is retried for the link timeout, each exchange waiting its reply timeout (a quarter of it).
+    assert 0.4 < clock() - started <= 0.4 + 2 * 0.1
 
 
-def test_open_rides_out_answers_missing_in_the_middle_of_the_set_up(sim, background):
-    """The simulator starved for a moment after the identification: the set-up is repeated, not given up.
-
-    The silence starts as the simulator answers *IDN? (a test thread that waited to see the line could wake
-    after the whole set-up on a loaded host, as in a fresh-clone run, and the set-up then had nothing to ride out)."""
+def test_open_rides_out_answers_missing_in_the_middle_of_the_set_up(sim, clock):
+    """The supply falls silent for 0.3 s right after answering the identification: the set-up is repeated, not
+    given up."""
     sim.inject_after("*IDN?", "no_reply")
-
-    def end_the_silence():
-        while not any(line == "*IDN?" for _, line in list(sim.command_log)):
-            time.sleep(0.001)
-        time.sleep(0.3)
-        sim.clear_faults()
-    background(end_the_silence)
+    clock.call_at(clock() + 0.3, sim.clear_faults)
     configs = [ChannelConfig("front", 0, max_voltage_v=3000.0)]
-    with HvSupply(sim.port, channels=configs, link_timeout_s=2.0, handle_signals=False) as hv:
+    with simulated(sim, clock, configs, link_timeout_s=2.0) as hv:
         hv.wait_cycles(3)
         assert not hv.snapshot().channel("front").faults
     assert sum(line == "*IDN?" for _, line in sim.command_log) >= 2  # set up again from the start
+
+
+def test_the_real_time_loop_ramps_and_trips_on_a_real_pty(pty_sim, pty_supply, wait_until):
+    """Integration: the loop in its own thread over a real pty ramps both channels and cuts an arc."""
+    token = pty_supply.claim_control("test")
+    ramp_both(pty_supply, token, 1500.0)
+    assert wait_until(lambda: all(abs(ch.voltage - 1500.0) < 5.0 for ch in pty_sim.plant), 10.0)
+    pty_sim.inject("over_current", 0)
+    assert wait_until(lambda: Fault.OVER_CURRENT in pty_supply.snapshot().channel("front").faults
+                      and not pty_sim.plant[0].output_on, 10.0), pty_supply.snapshot()
+    assert pty_sim.plant[1].output_on and not pty_supply.snapshot().channel("back").faults

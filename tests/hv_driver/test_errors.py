@@ -2,12 +2,13 @@
 import math
 
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hv_driver import (ChannelConfig, ConfigurationError, ControlError, FaultLatchedError, HvError, HvSupply, LimitError,
                        LinkError, SettingError, StateError, Supervisor)
 from sim_fallback.hv_supply import IDENTITY
+from sim_fallback.memory_port import MemoryPort
 
 
 def test_the_driver_errors_share_one_base_and_keep_their_builtin_kinds():
@@ -17,6 +18,7 @@ def test_the_driver_errors_share_one_base_and_keep_their_builtin_kinds():
         assert issubclass(error, HvError) and issubclass(error, builtin)
 
 
+@settings(deadline=None)  # hypothesis's per-example deadline is wall-clock time
 @given(st.sampled_from(["max_voltage_v", "slew_rate_v_per_s", "current_trip_a", "mismatch_tolerance_v",
                         "mismatch_time_s"]),
        st.one_of(st.floats(max_value=0.0), st.just(math.nan), st.just(math.inf)))
@@ -46,16 +48,18 @@ def test_a_port_that_cannot_be_opened_is_a_link_error(channels):
         HvSupply("/dev/no-such-supply", channels=channels, handle_signals=False).open()
 
 
-def test_open_refuses_a_device_whose_identity_lacks_the_expected_text(sim, channels):
-    supply = HvSupply(sim.port, channels=channels, handle_signals=False, expected_identity="SHR 4060")
+def test_open_refuses_a_device_whose_identity_lacks_the_expected_text(sim, clock, channels):
+    supply = HvSupply(MemoryPort(sim), channels=channels, handle_signals=False, expected_identity="SHR 4060",
+                      clock=clock)
     with pytest.raises(ConfigurationError, match=r"identifies as .*NHR 42 50r.*expected_identity='SHR 4060'"):
         supply.open()
     assert not any(channel.output_on for channel in sim.plant)
 
 
-def test_open_accepts_the_expected_identity_and_an_empty_one_checks_nothing(sim, channels):
+def test_open_accepts_the_expected_identity_and_an_empty_one_checks_nothing(sim, clock, channels):
     for expected in ("NHR 42 50r", ""):
-        supply = HvSupply(sim.port, channels=channels, handle_signals=False, expected_identity=expected).open()
+        supply = HvSupply(MemoryPort(sim), channels=channels, handle_signals=False, expected_identity=expected,
+                          clock=clock).open()
         try:
             assert supply.device_id == IDENTITY
         finally:

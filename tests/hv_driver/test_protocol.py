@@ -7,6 +7,7 @@ import serial
 from hv_driver import IsegEdcp, LinkError, ProtocolError
 from hv_driver.dialects import Command, Dialect, Keithley2290
 from hv_driver.dialects.iseg_edcp import ChannelEvent, ChannelStatus
+from hv_driver.clock import SimulatedClock
 from hv_driver.link import Link
 
 EDCP = IsegEdcp()
@@ -111,11 +112,17 @@ def test_reply_split_over_reads_is_reassembled(scripted_port):
     assert Link(Trickle(port), EDCP, 0.5).query("identify") == "iseg,NHR,1,1.0"
 
 
-def test_a_reply_that_arrived_while_the_host_was_descheduled_past_the_deadline_is_read(scripted_port, monkeypatch):
+def test_a_reply_that_arrived_while_the_host_was_descheduled_past_the_deadline_is_read(scripted_port):
     port = scripted_port([(b"*IDN?\r\n", echoed("*IDN?", "iseg,NHR,1,1.0"))])
     link = link_for(port, reply_timeout=0.02)
-    clock = iter([100.0] + [100.5] * 100)  # the deadline is set at 100.0; every later look is 0.5 s on
-    monkeypatch.setattr("hv_driver.link.time.monotonic", lambda: next(clock))
+
+    class Descheduled(SimulatedClock):  # the deadline is set at 100.0; every later look is 0.5 s on
+        looks = 0
+
+        def __call__(self):
+            self.looks += 1
+            return 100.0 if self.looks == 1 else 100.5
+    link.clock = Descheduled()
     assert link.query("identify") == "iseg,NHR,1,1.0"
 
 

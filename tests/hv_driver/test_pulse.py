@@ -3,12 +3,12 @@ time grid, and the supervisor's checks while the device switches."""
 import math
 
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hv_driver import ChannelConfig, Fault, PulseLimitError, SettingError, StateError
 from hv_driver.dialects import IsegEdcp, Keithley2290, PetaPicoVoltron
-from hv_driver.pulse import LEAD_S, plan_pulse_train
+from hv_driver.pulse import LEAD_S, MAX_TRAIN_S, MIN_FREQUENCY_HZ, plan_pulse_train
 from hv_driver.ramp import MIN_JERK_PEAK_RATE
 from hv_driver.supervisor import ChannelSupervisor
 
@@ -33,14 +33,20 @@ def test_five_hertz_at_2400_v_on_an_iseg_is_refused_naming_the_slew_and_device_r
 @pytest.mark.parametrize("fields, message", [
     (dict(edge="square", frequency=6000.0), r"frequency 6000 Hz outside the ppv supply's switching range 0.001-5000"),
     (dict(edge="square", duty=0.3), r"duty 0.3, but the ppv supply switches with a fixed duty of 0.5"),
-    (dict(edge="square", cycles=70000), r"70000 cycles, the ppv supply counts at most 65535"),
+    (dict(edge="square", cycles=70000, frequency=100.0), r"70000 cycles, the ppv supply counts at most 65535"),
     (dict(slew=1000.0), r"smooth edge over 600 V takes 1125 ms"),
     (dict(frequency=0.5, amplitude=10.0), r"shorter than 2 periods of the 100 Hz control loop"),
     (dict(duty=1.0), r"duty=1.0: between 0 and 1"),
     (dict(phase=1.0), r"phase=1.0: in \[0, 1\)"),
     (dict(cycles=0), r"cycles=0: an integer >= 1"),
     (dict(cycles=True), r"cycles=True: an integer >= 1"),
-    (dict(frequency=math.inf), r"frequency=inf: finite number > 0"),
+    (dict(frequency=math.inf), r"frequency=inf: finite number >= MIN_FREQUENCY_HZ \(0.01 Hz\)"),
+    (dict(frequency=1e-9, edge="square"), r"frequency=1e-09: finite number >= MIN_FREQUENCY_HZ \(0.01 Hz\)"),
+    (dict(frequency=1e-9), r"frequency=1e-09: finite number >= MIN_FREQUENCY_HZ"),
+    (dict(frequency=20.0, cycles=72001, edge="square"),
+     r"cycles=72001: at most MAX_TRAIN_S \(3600 s\) of train: 72001 cycles at 20 Hz \(phase 0\) last 3600.05 s"),
+    (dict(frequency=0.01, cycles=36, phase=0.5, amplitude=10.0, slew=1000.0),
+     r"cycles=36: at most MAX_TRAIN_S \(3600 s\) of train: 36 cycles at 0.01 Hz \(phase 0.5\) last 3650 s"),
     (dict(amplitude=math.nan), r"amplitude=nan: finite number > 0"),
     (dict(edge="triangle"), r"edge='triangle': one of smooth, square"),
     (dict(slew=20000.0), r"slew_rate=20000 V/s exceeds the configured slew limit 16000 V/s"),
@@ -48,6 +54,18 @@ def test_five_hertz_at_2400_v_on_an_iseg_is_refused_naming_the_slew_and_device_r
 def test_requests_the_supply_cannot_produce_are_refused_naming_the_limit(fields, message):
     with pytest.raises(SettingError, match=message):
         plan(PetaPicoVoltron, **fields)
+
+
+@given(frequency=st.floats(0.01, 5000.0), cycles=st.integers(1, 65535), phase=st.floats(0.0, 0.999))
+def test_every_planned_train_starts_within_a_period_and_ends_within_max_train_s(frequency, cycles, phase):
+    try:
+        train = plan(PetaPicoVoltron, frequency=frequency, cycles=cycles, phase=phase, edge="square")
+    except PulseLimitError:
+        return
+    except SettingError as refused:
+        assert "MAX_TRAIN_S" in str(refused) and (cycles + phase) / frequency > MAX_TRAIN_S
+        return
+    assert train.start - 100.0 <= LEAD_S + 2.0 / MIN_FREQUENCY_HZ and train.stop - train.start <= MAX_TRAIN_S
 
 
 @pytest.mark.parametrize("dialect", [IsegEdcp, Keithley2290])
@@ -69,6 +87,7 @@ def test_the_smooth_waveform_has_minimum_jerk_edges_within_each_period():
     assert train.cycles_done(start + 0.45) == 2
 
 
+@settings(deadline=None)  # hypothesis's per-example deadline is wall-clock time
 @given(now=st.floats(min_value=0.0, max_value=1e5), delay=st.floats(min_value=0.0, max_value=0.5))
 def test_trains_of_one_frequency_share_a_time_grid(now, delay):
     """Two trains sent at different times (e.g. the two diagonal leg pairs of a gait) keep their phase relation."""

@@ -1,14 +1,16 @@
-"""Periodic actuation against the simulated supplies over real ptys: a square train the PPV board switches itself,
-smooth trains generated in the driver's loop on every dialect, refusals before anything is energised, the control
-claim, and stop / e-stop / faults bringing a running train down. Frequencies are measured from the simulated
-device's own output edges."""
+"""Periodic actuation against the simulated supplies, linked in memory on one simulated clock: a square train the
+PPV board switches itself, smooth trains generated in the driver's loop on every dialect, refusals before anything
+is energised, the control claim, and stop / e-stop / faults bringing a running train down. Frequencies and counts
+are measured from the simulated device's own output edges, in simulated time (deterministic)."""
 import numpy as np
 import pytest
 
 from dialect_rig import Rig
 
 from hv_driver import ControlError, Fault, PulseLimitError
+from hv_driver.clock import SimulatedClock
 from hv_driver.dialects import DIALECTS
+from hv_driver.supervisor import DEFAULT_PERIOD_S, DEVICE_CLOCK_TOLERANCE, DEVICE_COUNT_MARGIN_S
 
 # A host-ramped supply (Keithley, PPV) follows each streamed setpoint step with its regulation lag: the charging
 # current of 2 nF at 16 kV/s peaks above the default 50 uA trip, so the trip is set for this load.
@@ -20,8 +22,8 @@ LIMITS = dict(max_voltage_v=3000.0, slew_rate_v_per_s=16000.0, mismatch_toleranc
 def make_rig():
     rigs = []
 
-    def make(name):
-        rigs.append(Rig(name, LIMITS, link_timeout_s=1.0))
+    def make(name, **options):
+        rigs.append(Rig(name, LIMITS, link_timeout_s=1.0, clock=SimulatedClock(), **options))
         for channel in "ab":
             rigs[-1].supply.enable(channel)
         return rigs[-1]
@@ -46,8 +48,8 @@ def test_ppv_board_switches_the_train_itself_at_the_requested_frequency(make_rig
     for channel in "ab":
         edges = rig.edges(channel)
         assert len(edges) == 10, edges
-        # The board's own clock (the first rise waits for the amplitude, sent just after switching starts).
-        assert frequency_from_edges(edges[1:]) == pytest.approx(5.0, rel=1e-3)
+        # The board's own clock, counted in simulated time (the first rise follows the start line exactly).
+        assert frequency_from_edges(edges) == pytest.approx(5.0, rel=1e-9)
     sim, _ = rig.where["a"]
     settings = [line for _, line in sim.command_log if not line.startswith("Q")]
     armed = settings.index("SVset 600")
@@ -56,6 +58,50 @@ def test_ppv_board_switches_the_train_itself_at_the_requested_frequency(make_rig
                                     "SSwMode 1"]
     snapshot = rig.supply.snapshot()
     assert not any(c.faults for c in snapshot.channels) and all(c.output_enabled for c in snapshot.channels)
+
+
+def test_a_counted_train_ends_by_the_boards_own_count_with_every_pulse_complete(make_rig):
+    """A board whose timer runs 500 ppm slow (within the fallback's tolerance) and that begins each period with its
+    off half: only its own count (QCycle) tells when its last pulse is over, 10 ms after the host's clock says for
+    100 cycles at 5 Hz. Every pulse, the last one too, is on for its half period before the host ends the train."""
+    cycles = 100
+    rig = make_rig("ppv", exchange_s=0.001, off_first=True, clock_error=-5e-4)
+    rig.watch("a", 300.0)
+    handle = rig.supply.pulse(["a", "b"], 600.0, 5.0, duty=0.5, cycles=cycles, edge="square", token=rig.token)
+    assert handle.wait(cycles / 5.0 + 5.0) and handle.succeeded, handle.message
+    rises, falls = rig.edges("a"), rig.edges("a", falling=True)
+    assert len(rises) == len(falls) == cycles, (rises, falls)
+    # Each pulse on for its full half period (crossing 300 V within the output's lag of its edges; the last one
+    # discharges through the bleeder once the board has switched off).
+    assert np.all((falls - rises >= 0.1 - 0.005) & (falls - rises <= 0.1 + 0.02)), falls - rises
+    sim, _ = rig.where["a"]
+    assert sim.execute("QCycle") == f"{cycles}/{cycles}"  # the board counted them all, and so switched off itself
+    end = next(t for t, line in sim.command_log if line == "SVset 0" and t > rises[0])
+    assert end >= sim.plant[0].off_at  # the host ended the train after that
+
+
+def test_the_host_ends_a_train_whose_count_never_comes_within_its_bounded_fallback(make_rig):
+    """A board that takes the count but does not keep it (it switches on, its QCycle never reaching the total): the
+    host ends the train itself, no later than the fallback margin after its own clock's end."""
+    rig = make_rig("ppv")
+    sim, _ = rig.where["a"]
+    execute = sim.execute
+
+    def miscounting(line):
+        if line == "SCycle 10":
+            execute("SCycle 0")  # switches without end
+            return "10"
+        return "9/10" if line == "QCycle" else execute(line)
+    sim.execute = miscounting
+    handle = rig.supply.pulse(["a"], 600.0, 5.0, duty=0.5, cycles=10, edge="square", token=rig.token)
+    train = handle.trains["a"]
+    assert handle.wait(10.0) and handle.succeeded, handle.message
+    ended = next(t for t, line in sim.command_log if line == "SVset 0" and t > train.start)
+    fallback = train.stop + DEVICE_COUNT_MARGIN_S + DEVICE_CLOCK_TOLERANCE * (train.stop - train.start)
+    assert fallback <= ended <= fallback + 2 * DEFAULT_PERIOD_S
+    assert handle.cycles_done == 9  # as the board counted them
+    rig.supply.run_for(0.5)
+    assert rig.plant("a").switching is None and rig.plant("a").voltage < 50.0
 
 
 @pytest.mark.parametrize("name", list(DIALECTS))
@@ -67,8 +113,9 @@ def test_smooth_train_is_generated_in_the_loop_on_every_dialect(make_rig, name):
     assert handle.wait(10.0) and handle.succeeded, handle.message
     edges = rig.edges("a")
     assert len(edges) == 3, edges
-    # Each rise on its period of the driver's time grid, never early (how late is the host's scheduling: the
-    # frequency reached on a loaded machine is measured by benchmarks/sequencer_gait.py).
+    # Each rise on its period of the driver's time grid, never early, and within the edge's own rise time (in
+    # simulated time the loop keeps its schedule; on a loaded machine the frequency reached is measured by
+    # benchmarks/sequencer_gait.py).
     train = handle.trains["a"]
     assert all(edge >= train.start + k * train.period for k, edge in enumerate(edges))
     assert not rig.supply.snapshot().channel("a").faults
@@ -110,10 +157,10 @@ def test_the_control_claim_applies_to_pulse_trains(make_rig):
 
 @pytest.mark.parametrize("edge", ["square", "smooth"])
 @pytest.mark.parametrize("stop", ["cancel", "estop", "disable", "over_current"])
-def test_stopping_a_running_train_brings_the_output_down(make_rig, wait_until, edge, stop):
+def test_stopping_a_running_train_brings_the_output_down(make_rig, edge, stop):
     rig = make_rig("ppv")
     handle = rig.supply.pulse(["a", "b"], 600.0, 5.0, cycles=100, edge=edge, token=rig.token)
-    assert wait_until(lambda: rig.plant("a").voltage > 500.0, 10.0)
+    assert rig.supply.wait_for(lambda: rig.plant("a").voltage > 500.0, 10.0)
     if stop == "cancel":
         handle.cancel()
     elif stop == "estop":
@@ -124,7 +171,7 @@ def test_stopping_a_running_train_brings_the_output_down(make_rig, wait_until, e
     else:
         rig.where["a"][0].inject("over_current", 0)
     assert handle.wait(5.0)
-    assert wait_until(lambda: all(rig.plant(c).voltage < 50.0 and rig.plant(c).switching is None for c in "ab"), 10.0)
+    assert rig.supply.wait_for(lambda: all(rig.plant(c).voltage < 50.0 and rig.plant(c).switching is None for c in "ab"), 10.0)
     if stop == "estop":
         assert all(Fault.ESTOP in c.faults for c in rig.supply.snapshot().channels)
     if stop == "over_current":

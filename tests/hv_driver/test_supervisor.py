@@ -7,7 +7,7 @@ from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, precondition, rule
 
 from hv_driver import ChannelConfig, ControlError, Fault, FaultLatchedError, LimitError, Supervisor
-from hv_driver.dialects import DIALECTS, CurrentSensing
+from hv_driver.dialects import DIALECTS, CurrentSensing, IsegEdcp, Keithley2290
 from hv_driver.pulse import EDGES, plan_pulse_train
 from hv_driver.ramp import MinimumJerkRamp
 from hv_driver.supervisor import (COLLAPSE_FRACTION, COLLAPSE_SETTLE_S, DEFAULT_PERIOD_S, IMMEDIATE_FAULTS,
@@ -103,6 +103,33 @@ def test_lowering_the_ceiling_mid_ramp_clamps_the_setpoint_at_once():
     channel.set_safe_voltage(1000.0)
     assert channel.step(3.01).setpoint == 1000.0
     assert run(channel, 3.01, 5.0).setpoint == 1000.0 and not channel.ramping
+
+
+@pytest.mark.parametrize("dialect, reply", [(IsegEdcp(), "{:.1E}A"), (Keithley2290(), "{:.4e}")])
+@pytest.mark.parametrize("polarity", [1, -1])
+def test_a_current_readback_beyond_the_trip_in_either_polarity_cuts_the_output(dialect, reply, polarity):
+    """The readback as each dialect with current readback answers it: negative-polarity modules answer
+    negative currents, and their magnitude is what trips."""
+    command = dialect.commands["measure_current"]
+    channel = enabled()
+    channel.ramp_to(0.0, 2000.0)
+    run(channel, 0.0, 2.0)
+    channel.observe(2.0, channel.setpoint, dialect.parse_number(reply.format(polarity * 4e-5), command, "read"))
+    assert not channel.faults  # within the trip either way
+    channel.observe(2.01, channel.setpoint, dialect.parse_number(reply.format(polarity * 2e-3), command, "read"))
+    assert channel.faults == Fault.OVER_CURRENT and f"measured {polarity * 2e-3:.3g} A" in channel.fault_text
+    with pytest.raises(FaultLatchedError, match="over_current"):
+        channel.ramp_to(2.02, 2000.0)
+
+
+@given(current=st.floats(-1.0, 1.0))
+def test_the_current_trip_is_symmetric_in_polarity(current):
+    tripped = []
+    for sign in (1, -1):
+        channel = enabled()
+        channel.observe(0.0, 0.0, sign * current)
+        tripped.append(bool(channel.faults & Fault.OVER_CURRENT))
+    assert tripped[0] == tripped[1] == (abs(current) > CONFIG.current_trip_a)
 
 
 def test_over_current_cuts_the_output_at_once_and_latches_until_reset():

@@ -174,8 +174,8 @@ def test_bad_playback_options_name_the_parameter(field, value):
 def recording_with_commands(tmp_path):
     """A stack's recording: hv/state, and what a live driver obeys (heartbeat, safe voltage)."""
     entries = [("/assembly/safe_voltage", Float64(data=2901.0), START)]
-    entries += [("/hv/heartbeat", HvHeartbeat(token="recorded session"), START + i * STEP)
-                for i in range(SAMPLES)]
+    entries += [("/hv/heartbeat", HvHeartbeat(session="0123456789abcdef", counter=i + 1, mac="0" * 64),
+                  START + i * STEP) for i in range(SAMPLES)]
     entries += [("/hv/state", stamp(START + i * STEP, hv_state({"front": float(i)})),
                  START + i * STEP) for i in range(SAMPLES)]
     return write_recording(str(tmp_path / "stack.mcap"), sorted(entries, key=lambda e: e[2]),
@@ -294,7 +294,7 @@ def test_cli_says_which_command_topics_it_leaves_out_or_plays(recording_with_com
 
 def test_the_hv_drivers_inputs_are_all_command_topics(ros_context):
     """Whatever topics the real HV driver subscribes to are left out of a default replay: the
-    token-carrying heartbeat and the safe voltage. Its other inputs (claim and release of control, the
+    signed heartbeat and the safe voltage. Its other inputs (claim and release of control, the
     ramp action) are services, which a player cannot call."""
     driver = HvDriverNode(context=ros_context,
                           parameter_overrides=[Parameter("autostart", value=False)])

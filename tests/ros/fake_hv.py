@@ -1,12 +1,14 @@
 """A small stand-in for the HV driver node: `hv/ramp`, `hv/pulse` (square trains on the fake outputs),
 `hv/state` (50 Hz), `hv/estop`, `hv/heartbeat`,
-`hv/claim_control` / `hv/release_control` (one session at a time; ramps need its token).
+`hv/claim_control` / `hv/release_control` (one session at a time, checked by the driver's own `ControlClaim`:
+heartbeats, ramps and pulses must be signed for the live session).
 
 Ramps move the measured voltage linearly over the minimum-jerk duration (1.875 |dV| / slew_rate).
 Faults are injected deterministically: ``fault_during_ramp = (ramp_channel, target, fault_channel)``
 latches OVER_CURRENT on ``fault_channel`` half-way through the first matching ramp; like the real
 driver, a latched fault cuts that output at once and refuses further ramps on it.
 """
+import math
 import threading
 import time
 
@@ -17,6 +19,8 @@ from softblock_interfaces.action import PulseChannels, RampChannel
 from softblock_interfaces.msg import HvChannelState, HvHeartbeat, HvState
 from softblock_interfaces.srv import ClaimControl, ReleaseControl
 from std_srvs.srv import Trigger
+
+from hv_driver.control import ControlClaim, ControlError, pulse_command, ramp_command, session_id, signed
 
 DEFAULT_SLEW_RATE = 100_000.0  # [V/s]
 STEP = 0.005  # [s]
@@ -29,8 +33,7 @@ class FakeHv(Node):
         self.lock = threading.Lock()
         self.estop = False
         self.heartbeats = 0
-        self.token = ""  # the live control session's token
-        self.sessions = 0
+        self.control = ControlClaim(math.inf)
         self.ramps: list[tuple[str, float]] = []
         self.pulses: list[tuple[tuple[str, ...], int]] = []  # (channels, cycles) of each train run
         self.fault_during_ramp: tuple[str, float, str] | None = None
@@ -49,7 +52,8 @@ class FakeHv(Node):
 
     def reset(self) -> None:
         with self.lock:
-            self.estop, self.ramps, self.fault_during_ramp, self.token = False, [], None, ""
+            self.estop, self.ramps, self.fault_during_ramp = False, [], None
+            self.control = ControlClaim(math.inf)
             self.pulses = []
             self.silent = False
             for channel in self.channels.values():
@@ -57,25 +61,37 @@ class FakeHv(Node):
                 channel.setpoint = channel.target = 0.0
                 channel.output_enabled = channel.ramping = False
 
+    def obeyed(self, message, command) -> bool:
+        """Whether ``message`` (a heartbeat, goal or release request) is signed for the live session."""
+        with self.lock:
+            try:
+                self.control.confirm(signed(message.session, message.counter, message.mac), time.monotonic(),
+                                     command)
+                return True
+            except ControlError:
+                return False
+
     def on_heartbeat(self, msg: HvHeartbeat) -> None:
-        if msg.token and msg.token == self.token:
+        if self.obeyed(msg, ("heartbeat",)):
             self.heartbeats += 1
 
     def on_claim(self, request, response):
         with self.lock:
-            if self.token:
-                response.success, response.message = False, "control is held by another client"
+            try:
+                response.token = self.control.claim(request.client, time.monotonic(), request.nonce)
+            except ControlError as error:
+                response.success, response.message = False, str(error)
                 return response
-            self.sessions += 1
-            self.token = response.token = f"session-{self.sessions}"
-        response.success, response.heartbeat_timeout = True, 2.0
+        response.success, response.session, response.heartbeat_timeout = True, session_id(response.token), 2.0
         return response
 
     def on_release(self, request, response):
         with self.lock:
-            response.success = bool(self.token) and request.token == self.token
-            if response.success:
-                self.token = ""
+            try:
+                self.control.release(signed(request.session, request.counter, request.mac), time.monotonic())
+                response.success = True
+            except ControlError as error:
+                response.success, response.message = False, str(error)
         return response
 
     def publish_state(self) -> None:
@@ -97,7 +113,9 @@ class FakeHv(Node):
     def on_estop(self, _request, response):
         for name in self.channels:
             self.latch(name, HvChannelState.FAULT_ESTOP, "ESTOP")
-        self.estop, self.token = True, ""  # as the driver: the e-stop ends the control session
+        self.estop = True
+        with self.lock:
+            self.control.end("control ended by an emergency stop")  # as the driver
         response.success, response.message = True, "e-stop latched"
         return response
 
@@ -109,7 +127,8 @@ class FakeHv(Node):
     def execute(self, goal_handle):
         goal = goal_handle.request
         channel = self.channels.get(goal.channel)
-        if channel is None or channel.faults or goal.token != self.token:
+        if channel is None or channel.faults or not self.obeyed(goal, ramp_command(goal.channel, goal.target,
+                                                                                   goal.slew_rate)):
             goal_handle.abort()
             reason = ("unknown channel" if channel is None else "faults latched" if channel.faults
                       else "not the client holding control")
@@ -150,7 +169,10 @@ class FakeHv(Node):
         """The train as square steps of the fake outputs; a fault or cancel ends it with the outputs at 0 V."""
         goal = goal_handle.request
         channels = [self.channels.get(name) for name in goal.channels]
-        if None in channels or any(c.faults for c in channels) or goal.token != self.token:
+        edge = {PulseChannels.Goal.EDGE_SMOOTH: "smooth", PulseChannels.Goal.EDGE_SQUARE: "square"}.get(goal.edge)
+        command = pulse_command(list(goal.channels), goal.amplitude, goal.frequency, goal.duty, goal.phase,
+                                goal.cycles, edge, goal.slew_rate)
+        if None in channels or any(c.faults for c in channels) or not self.obeyed(goal, command):
             goal_handle.abort()
             return PulseChannels.Result(success=False, message="refused: unknown channel, faults or not in control")
         self.pulses.append((tuple(goal.channels), goal.cycles))

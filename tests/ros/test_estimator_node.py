@@ -16,6 +16,8 @@ from sensor_msgs.msg import Image
 from softblock_config import config_file
 from softblock_interfaces.msg import Assembly, AssemblyState
 from std_srvs.srv import Trigger
+from tf2_msgs.msg import TFMessage
+from tf_testing import in_root
 
 from estimation.render import framing, render_chain, to_binary, to_grey
 from planner.assembly import Assembly as CoreAssembly
@@ -24,6 +26,7 @@ from planner.table import load_table
 from softblock_ros.conversions import assembly_msg, image_msg
 from softblock_ros.estimator_node import VIEW_PARAMETERS, EstimatorNode
 from softblock_ros.qos import LATCHED
+from softblock_ros.tf_frames import chain_frame
 
 PIXEL_SIZE = 2.5e-4  # [m]
 RIG = Chain("rig", "front", (PlacedBlock(15, 0, "R-1"), PlacedBlock(15, 0, "R-2"), PlacedBlock(15, 0, "R-3")))
@@ -98,6 +101,20 @@ def test_an_as_built_chain_is_estimated_on_its_own_topic_with_an_ok_verdict(came
     assert len(chain.centerline) > 3
     values = {v.key: v.value for v in status.values}
     assert values["status"] == "as_built" and "block 3 design 15" in values
+
+
+def test_the_estimated_chain_is_in_tf_under_its_own_prefix(client, camera, table, frame):
+    frames = Inbox(client, TFMessage, "/tf")
+    image, _ = drawn(table, frame)
+    camera.show(image)
+    estimate = camera.estimates.wait(lambda m: m.header.stamp == camera.stamp)
+    seen = frames.wait(lambda m: m.transforms and m.transforms[0].header.stamp == camera.stamp)
+    assert (seen.transforms[0].header.frame_id, seen.transforms[0].child_frame_id) == ("gripper_base",
+                                                                                        "estimated/rig/base")
+    in_assembly = in_root(seen.transforms, "gripper_base")
+    tip = in_assembly[chain_frame("rig", len(RIG.blocks), "estimated/")]
+    end = estimate.chains[0].centerline[-1]
+    np.testing.assert_allclose(tip[:3, 3], [end.x, end.y, end.z], atol=1e-9)
 
 
 def test_a_wrong_design_is_named_in_a_warning(camera, table, frame):

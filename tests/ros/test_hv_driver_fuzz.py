@@ -1,10 +1,10 @@
 """Fuzz of every input of the hv_driver node: ramp goals, inject_fault, estop, reset_faults, claim and release
 of control, assembly/safe_voltage and hv/heartbeat, as random sequences of messages built by hypothesis
-strategies for the message types (absurd numbers, arbitrary text, live and dead tokens).
+strategies for the message types (absurd numbers, arbitrary text, signatures: live, replayed and forged).
 
 After every input the node answers and keeps publishing hv/state, no setpoint is above its ceiling, no
 output above the hard maximum, latched faults stay latched until a reset, an e-stop latches on every
-channel, and a ramp goal is obeyed only with the live control session's token."""
+channel, and a ramp goal is obeyed only when signed afresh for the live control session."""
 import math
 import threading
 
@@ -23,6 +23,7 @@ from softblock_interfaces.srv import ClaimControl, InjectFault, ReleaseControl
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
+from hv_driver.control import HEARTBEAT, RELEASE, SessionKey, ramp_command
 from sim_fallback.hv_supply import FAULTS
 from softblock_ros.client import ActionClient
 from softblock_ros.hv_driver_node import HvDriverNode
@@ -30,17 +31,17 @@ from softblock_ros.qos import LATCHED
 
 MAX_VOLTAGE = 3000.0
 TOLERANCE = 100.0  # [V] readback tolerance: the measured voltage may lag a falling ceiling by this much
-LIVE = object()  # strategy marker: use the live session's token
+LIVE, REPLAYED = object(), object()  # strategy markers: sign afresh for the live session; re-send its last signature
 
 text = st.text(st.characters(exclude_categories=("Cs",)), max_size=80)  # anything a ROS string can carry
 names = st.one_of(st.sampled_from(["front", "back", ""]), text)
 numbers = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.floats(min_value=-10.0, max_value=3500.0),
                     st.sampled_from([0.0, -0.0, 1e-9, 1e-300, 2400.0, 3000.0, 3000.0000001, 1e308]))
-tokens = st.one_of(st.just(LIVE), text, st.sampled_from(["", "0" * 32]))
+signatures = st.one_of(st.just(LIVE), st.just(REPLAYED),
+                       st.tuples(text, st.integers(0, 2**64 - 1), st.one_of(text, st.just("0" * 64))))
 # "disconnect" closes the simulated device for good; its handling is tested in tests/hv_driver.
 faults = st.one_of(st.sampled_from([f for f in FAULTS if f != "disconnect"] + ["clear"]), text)
-ramp_goals = st.builds(lambda channel, target, slew, token: (channel, target, slew, token),
-                       names, numbers, numbers, tokens)
+ramp_goals = st.tuples(names, numbers, numbers, signatures)
 
 
 class Fuzz:
@@ -82,8 +83,9 @@ class DriverInputs(RuleBasedStateMachine):
     def clean_state(self):
         """No session, no injected fault, no latched fault, outputs on at 0 V, no assembly ceiling."""
         f = self.fuzz
-        self.live = ""        # token of the live control session, as far as this client knows
-        self.goals = []       # (token was live when sent, result future)
+        self.key = None       # the live control session's key, as far as this client knows
+        self.last = ("", 0, "")  # the last signature sent for the live session
+        self.goals = []       # (signed afresh for the live session when sent, result future)
         self.lock = threading.Lock()
         call(f.services["inject_fault"], InjectFault.Request(fault="clear"))
         # A reset before the supply answers again after an injected link fault latches LINK again at once (still
@@ -101,18 +103,23 @@ class DriverInputs(RuleBasedStateMachine):
         self.fuzz.state.messages.clear()
         return self.fuzz.state.wait(predicate)
 
-    def _token(self, token):
-        return self.live if token is LIVE else token
+    def _signed(self, signature, command) -> tuple[dict, bool]:
+        """The message fields of ``signature`` for ``command``, and whether they are a fresh live signature."""
+        fresh = signature is LIVE and self.key is not None
+        if fresh:
+            self.last = self.key.sign(command)
+        fields = self.last if signature is LIVE or signature is REPLAYED else signature
+        return dict(zip(("session", "counter", "mac"), fields)), fresh
 
     @rule(goal=ramp_goals)
     def ramp(self, goal):
-        channel, target, slew, token = goal
-        token = self._token(token)
+        channel, target, slew, signature = goal
+        fields, fresh = self._signed(signature, ramp_command(channel, target, slew))
         sent = self.fuzz.ramp.send_goal_async(RampChannel.Goal(channel=channel, target=target, slew_rate=slew,
-                                                                token=token))
+                                                                **fields))
         handle = wait_for(sent.done, what="the goal response") and sent.result()
         assert handle.accepted  # refusals come back as aborted results naming the reason
-        self.goals.append((bool(self.live) and token == self.live, handle.get_result_async()))
+        self.goals.append((fresh, handle.get_result_async()))
 
     @rule(fault=faults, channel=names)
     def inject_fault(self, fault, channel):
@@ -124,37 +131,41 @@ class DriverInputs(RuleBasedStateMachine):
     @rule()
     def estop(self):
         assert call(self.fuzz.services["estop"], Trigger.Request()).success
-        self.live = ""
-        state = self._state(lambda s: s.estop)
-        assert all(not c.output_enabled and c.faults & c.FAULT_ESTOP for c in state.channels)
+        self.key = None
+        # Shown off once the device confirmed the cut; over a failing link (an injected no_reply or deaf) it stays
+        # shown on until LINK names why.
+        state = self._state(lambda s: s.estop and all(not c.output_enabled or c.faults & c.FAULT_LINK
+                                                      for c in s.channels))
+        assert all(c.faults & c.FAULT_ESTOP and c.setpoint == 0.0 for c in state.channels)
 
     @rule()
     def reset_faults(self):
         assert call(self.fuzz.services["reset_faults"], Trigger.Request()).message.startswith("faults cleared")
         self.settled = None  # faults may clear now
 
-    @rule(client=names)
-    def claim(self, client):
-        reply = call(self.fuzz.services["claim_control"], ClaimControl.Request(client=client))
+    @rule(client=names, nonce=text)
+    def claim(self, client, nonce):
+        reply = call(self.fuzz.services["claim_control"], ClaimControl.Request(client=client, nonce=nonce))
         if reply.success:
             assert len(reply.token) == 32 and reply.heartbeat_timeout == 1.0
-            self.live = reply.token
+            self.key = SessionKey(reply.token)
+            assert reply.session == self.key.session
         else:
-            assert reply.token == "" and reply.message
+            assert reply.token == reply.session == "" and reply.message
 
-    @rule(token=tokens)
-    def release(self, token):
-        token = self._token(token)
-        reply = call(self.fuzz.services["release_control"], ReleaseControl.Request(token=token))
+    @rule(signature=signatures)
+    def release(self, signature):
+        fields, fresh = self._signed(signature, RELEASE)
+        reply = call(self.fuzz.services["release_control"], ReleaseControl.Request(**fields))
         if reply.success:
-            assert token == self.live
-            self.live = ""
+            assert fresh
+            self.key = None
         else:
-            assert reply.message.startswith("refused:")
+            assert reply.message.startswith("refused:")  # a fresh one too, once the session lapsed
 
-    @rule(token=tokens)
-    def heartbeat(self, token):
-        self.fuzz.heartbeat.publish(HvHeartbeat(token=self._token(token)))
+    @rule(signature=signatures)
+    def heartbeat(self, signature):
+        self.fuzz.heartbeat.publish(HvHeartbeat(**self._signed(signature, HEARTBEAT)[0]))
 
     @rule(voltage=numbers)
     def safe_voltage(self, voltage):
@@ -174,14 +185,14 @@ class DriverInputs(RuleBasedStateMachine):
         self.settled = state
 
     def teardown(self):
-        """Every goal ended; those sent without the live token were refused, naming the control holder."""
+        """Every goal ended; those not signed afresh for the live session were refused, naming the control holder."""
         if not hasattr(self, "goals"):
             return
         call(self.fuzz.services["estop"], Trigger.Request())  # ends every ramp still running
-        for live, future in self.goals:
+        for fresh, future in self.goals:
             wait_for(future.done, what="a ramp goal's result")
             result = future.result().result
-            if not live:
+            if not fresh:
                 assert not result.success and result.message.startswith(
                     ("refused:", "target=", "slew_rate=", "channel=")), result.message
 

@@ -12,7 +12,7 @@ from action_msgs.msg import GoalStatus
 from geometry_msgs.msg import PoseStamped
 from fake_hv import FakeHv
 from rclpy.parameter import Parameter
-from ros_testing import Inbox, wait_for
+from ros_testing import Inbox, Spinner, wait_for
 from sequence_files import scaled
 from softblock_interfaces.action import RunSequence
 from softblock_interfaces.msg import SequenceEvent
@@ -53,7 +53,7 @@ def stack(ros_context, spin, tmp_path_factory):
     action = ActionClient(client, RunSequence, "sequencer/run")
     spin(sequencer, arm, hv, client)
     assert action.wait_for_server(timeout_sec=10.0)
-    return {"dir": directory, "hv": hv, "events": events, "action": action, "poses": poses}
+    return {"dir": directory, "hv": hv, "events": events, "action": action, "poses": poses, "client": client}
 
 
 @pytest.fixture
@@ -91,8 +91,8 @@ def test_finger_grasp_runs_to_success(stack, hv):
     assert len(result.step_names) == len(result.step_durations) == 12
     assert [ramp for ramp in hv.ramps] == [("back", 2400.0), ("back", 0.0), ("front", 2400.0), ("front", 0.0),
                                            ("back", 2400.0), ("back", 0.0)]
-    assert channels_off(hv) and hv.heartbeats > 0  # heartbeats with the session's token
-    assert hv.token == ""  # control released at the end
+    assert channels_off(hv) and hv.heartbeats > 0  # heartbeats signed for the session
+    assert hv.control.owner is None and hv.control.ended == "control released by 'sequencer'"
     assert [(f.step_index, f.phase) for f in run.feedback if f.phase == "succeeded"] == [(i, "succeeded")
                                                                                        for i in range(12)]
     assert all(f.step_count == 12 for f in run.feedback)
@@ -192,11 +192,11 @@ def test_goals_name_sequences_and_never_read_other_files(stack, hv, goal):
 
 
 def test_a_sequence_is_refused_while_another_client_holds_hv_control(stack, hv):
-    hv.token = "session-of-another-client"
+    hv.control.claim("another client", time.monotonic())
     status, result = Run(stack["action"], scaled("finger_grasp", stack["dir"], speed=2.0)).result()
     assert status == GoalStatus.STATUS_ABORTED and not result.success
-    assert result.message == "hv/claim_control refused: control is held by another client"
-    assert hv.ramps == [] and hv.token == "session-of-another-client"
+    assert result.message.startswith("hv/claim_control refused: control is held by 'another client'")
+    assert hv.ramps == [] and hv.control.owner == "another client"
 
 
 def test_second_goal_is_rejected_while_one_runs(stack, hv):
@@ -207,6 +207,25 @@ def test_second_goal_is_rejected_while_one_runs(stack, hv):
     first.handle.cancel_goal_async()
     status, _ = first.result()
     assert status == GoalStatus.STATUS_CANCELED
+
+
+def test_while_two_sequencers_serve_sequencer_run_both_reject_the_goal_and_nothing_runs(stack, hv):
+    """Two sequencers used to accept one finger_grasp goal: one ran it to 2.4 kV, the caller got ABORTED from
+    the other. Now the caller gets one clear answer, rejected, until one of them is gone."""
+    spinner = Spinner(stack["client"].context, num_threads=4)
+    try:
+        spinner.add(make_sequencer(stack["dir"], context=stack["client"].context))
+        wait_for(lambda: stack["client"].count_publishers("/sequencer/run/_action/status") == 2,
+                 what="the second sequencer's action server")
+        run = Run(stack["action"], scaled("finger_grasp", stack["dir"], speed=2.0))
+        assert not run.handle.accepted
+    finally:
+        spinner.close()
+    wait_for(lambda: stack["client"].count_publishers("/sequencer/run/_action/status") == 1,
+             what="the second sequencer gone")
+    assert hv.ramps == [] and hv.control.owner is None
+    status, result = Run(stack["action"], scaled("trunk_flower", stack["dir"], speed=2.0)).result()
+    assert status == GoalStatus.STATUS_SUCCEEDED, result.message
 
 
 def test_legged_gait_pulses_the_legs(stack, hv):

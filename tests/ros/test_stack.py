@@ -30,7 +30,7 @@ def console_scripts() -> dict[str, str]:
 def test_the_shipped_stack_names_real_modules_executables_and_parameter_files():
     stack = load_stack()
     assert stack.names == ("hv_driver", "assembly_state", "planner", "sim_arm", "sim_camera", "estimator", "sequencer",
-                           "recorder")
+                           "recorder", "foxglove_bridge")
     scripts = console_scripts()
     for spec in stack.nodes:
         assert spec.executable in scripts, spec
@@ -55,6 +55,7 @@ def write_stack(tmp_path, **node):
     ({"parameters": ["../stack.yaml"]}, r"nodes\[0\].parameters='stack.yaml': a parameter file in"),
     ({"parameters": ["missing.yaml"]}, r"nodes\[0\].parameters='missing.yaml'"),
     ({"module": ""}, r"nodes\[0\].module='': a non-empty string"),
+    ({"optional": "yes"}, r"nodes\[0\].optional='yes': true or false"),
 ])
 def test_a_bad_stack_file_is_refused_naming_the_field(tmp_path, node, message):
     with pytest.raises(ValueError, match=message):
@@ -84,6 +85,13 @@ def test_the_launcher_gives_each_node_its_stack_files_then_the_extra_params(tmp_
     assert Stack(nodes=["recorder"]).command("recorder")[1:] == ["-m", "softblock_ros.recording", "record"]
     with pytest.raises(ValueError, match="unknown nodes \\['nope'\\]"):
         Stack(nodes=["nope"])
+
+
+def test_an_optional_node_starts_only_when_named():
+    stack = load_stack()
+    assert stack.node("foxglove_bridge").optional and not stack.node("recorder").optional
+    assert Stack().nodes == [name for name in stack.names if name != "foxglove_bridge"]
+    assert Stack(nodes=["hv_driver", "foxglove_bridge"]).nodes == ["hv_driver", "foxglove_bridge"]
 
 
 class Recorded:
@@ -125,7 +133,7 @@ def test_the_launch_file_starts_every_node_of_the_stack_as_described(launch_stan
     nodes = [action for action in actions if not isinstance(action, SetEnvironment)]
     assert argument.args == ("namespace",) and argument.kwargs["default_value"] == ""
     stack = load_stack()
-    assert [n.kwargs["executable"] for n in nodes] == [spec.executable for spec in stack.nodes]
+    assert [n.kwargs["executable"] for n in nodes] == [spec.executable for spec in stack.nodes if not spec.optional]
     by_name = {n.kwargs["name"]: n.kwargs for n in nodes}
     assert by_name["hv_driver"]["parameters"] == [str(launch_stand_ins / "config" / "hv_driver.yaml")]
     assert by_name["planner"]["prefix"] == "nice -n 10" and by_name["hv_driver"]["prefix"] is None

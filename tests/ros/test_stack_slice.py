@@ -59,7 +59,7 @@ def latest(inbox, predicate):
 def ramp(client, channel, target):
     action = ActionClient(client, RampChannel, "hv/ramp")
     assert action.wait_for_server(timeout_sec=15.0)
-    sent = action.send_goal_async(RampChannel.Goal(channel=channel, target=target, token=client.control.token))
+    sent = action.send_goal_async(client.control.ramp_goal(channel, target))
     goal = wait_for(sent.done) and sent.result()
     assert goal.accepted
     done = goal.get_result_async()

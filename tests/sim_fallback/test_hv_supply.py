@@ -10,9 +10,11 @@ import serial
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
+from hv_driver.clock import SimulatedClock
 from hv_driver.dialects.iseg_edcp import ChannelStatus
 from sim_fallback.hv_plant import ChannelDefaults, DeaLoad, PlantChannel
 from sim_fallback.hv_supply import ERROR_REPLY, SimulatedSupply, channel_status
+from sim_fallback.memory_port import MemoryPort
 
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -137,7 +139,7 @@ def test_device_current_trip_switches_off_after_the_trip_time():
     assert not ch.switch_on()  # refused until the events are cleared
 
 
-def test_watchdog_cuts_the_outputs_without_traffic():
+def test_watchdog_cuts_the_outputs_without_traffic_on_a_real_pty():
     with SimulatedSupply(channels=1, watchdog_s=0.05) as sim:
         with serial.serial_for_url(sim.port, timeout=1.0) as link:
             exchange(link, ":VOLT ON,(@0);*OPC?")
@@ -145,6 +147,21 @@ def test_watchdog_cuts_the_outputs_without_traffic():
             deadline = time.monotonic() + 2.0
             while sim.plant[0].output_on and time.monotonic() < deadline:
                 time.sleep(0.01)
+    assert not sim.plant[0].output_on and sim.plant[0].emergency
+
+
+def test_watchdog_cuts_the_outputs_once_its_time_without_traffic_has_passed():
+    """In simulated time: on while lines keep arriving, off (emergency) the moment the watchdog time has passed."""
+    clock = SimulatedClock()
+    sim = SimulatedSupply(channels=1, watchdog_s=0.05, clock=clock)
+    link = MemoryPort(sim)
+    for _ in range(10):  # traffic every 40 ms keeps it on
+        link.write(b":VOLT ON,(@0);*OPC?\r\n")
+        clock.advance(0.04)
+        sim.poll()
+        assert sim.plant[0].output_on
+    clock.advance(0.0101)
+    sim.poll()
     assert not sim.plant[0].output_on and sim.plant[0].emergency
 
 

@@ -27,6 +27,7 @@ setup(
         "console_scripts": [
             "assembly_state = softblock_ros.assembly_state_node:main",
             "estimator = softblock_ros.estimator_node:main",
+            "foxglove_bridge = softblock_ros.foxglove_bridge_node:main",
             "hv_driver = softblock_ros.hv_driver_node:main",
             "planner = softblock_ros.planner_node:main",
             "launcher = softblock_ros.launcher:main",
@@ -36,6 +37,9 @@ setup(
             "sequencer = softblock_ros.sequencer_node:main",
             "sim_arm = softblock_ros.sim_arm_node:main",
             "sim_camera = softblock_ros.sim_camera_node:main",
+            "hv_console = softblock_ros.hv_console:main",
+            "run_sequence = softblock_ros.run_sequence:main",
+            "demo = softblock_ros.demo:main",
         ],
     },
 )

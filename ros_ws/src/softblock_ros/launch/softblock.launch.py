@@ -2,7 +2,7 @@
 
     ros2 launch softblock_ros softblock.launch.py [namespace:=/robot1]
 
-Each node of the description runs as ``ros2 run softblock_ros <executable>`` with its parameter files from
+Each node of the description (but the optional ones, e.g. the live view) runs as ``ros2 run softblock_ros <executable>`` with its parameter files from
 this package's share/softblock_ros/config and its niceness as a ``nice`` prefix, in the DDS network of the
 description's `network` section (over the environment's; LOCALHOST when neither chooses a range).
 """
@@ -23,7 +23,7 @@ def generate_launch_description() -> LaunchDescription:
     nodes = [Node(package="softblock_ros", executable=spec.executable, name=spec.name, namespace=namespace,
                   parameters=[str(path) for path in spec.parameters], output="screen",
                   prefix=f"nice -n {spec.niceness}" if spec.niceness else None)
-             for spec in stack.nodes]
+             for spec in stack.nodes if not spec.optional]
     network = [SetEnvironmentVariable(name, value) for name, value in stack.network.variables(os.environ).items()]
     return LaunchDescription([
         DeclareLaunchArgument("namespace", default_value=stack.namespace, description="namespace of every node"),

@@ -3,8 +3,9 @@
 Latched (transient_local): the assembly on ``assembly/current`` and the lowest safe voltage over its
 blocks on ``assembly/safe_voltage`` (the HV driver's ceiling). At ``publish_rate_hz``: the predicted per-block angles
 and centerlines at the channel voltages measured on ``hv/state`` (``assembly/state``) and RViz markers
-(``assembly/markers``). ``assembly/set`` replaces the assembly; an invalid one is refused, the old kept (so is
-one with a name, channel, serial or frame longer than MAX_NAME_LENGTH characters).
+(``assembly/markers``), and each chain's frames on ``/tf`` (the blocks) and ``/tf_static`` (the mounts, latched;
+``softblock_ros.tf_frames``). ``assembly/set`` replaces the assembly; an invalid one is refused, the old kept (so
+is one with a name, channel, serial or frame longer than MAX_NAME_LENGTH characters).
 Block calibration offsets (``block_calibration`` file, by serial) are added to the predicted angles; an
 offset a request gives (not 0) wins over the file's for that block.
 """
@@ -17,6 +18,7 @@ from rclpy.qos import qos_profile_sensor_data
 from softblock_interfaces.msg import Assembly, AssemblyState, HvState
 from softblock_interfaces.srv import SetAssembly
 from std_msgs.msg import Float64, Header
+from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
 from planner.assembly import load_assembly
@@ -31,6 +33,7 @@ from .parameters import Param, declare
 from .paths import resolve_path
 from .qos import LATCHED, stream_qos
 from .runner import run_node
+from .tf_frames import blocks_msg, mounts_msg, stamped
 
 MAX_NAME_LENGTH = 100  # [characters] of each string of an assembly request; the shipped names are below 20
 
@@ -69,8 +72,10 @@ class AssemblyStateNode(Node):
         self._safe_voltage_pub = self.create_publisher(Float64, "assembly/safe_voltage", LATCHED)
         self._state_pub = self.create_publisher(AssemblyState, "assembly/state", stream_qos(rate))
         self._markers_pub = self.create_publisher(MarkerArray, "assembly/markers", stream_qos(rate))
+        self._tf_pub = self.create_publisher(TFMessage, "/tf", stream_qos(rate))
+        self._tf_static_pub = self.create_publisher(TFMessage, "/tf_static", LATCHED)
         self._voltages: dict[str, float] = {}  # measured channel voltages [V]; absent = not actuated
-        self._prediction = None  # (voltages, state, markers) of the last computation
+        self._prediction = None  # (voltages, state, markers, block frames) of the last computation
         assembly = load_assembly(resolve_path(assembly_file))
         check_assembly(assembly, self._table)
         self._use(assembly, self._block_calibration.offsets(assembly))
@@ -100,6 +105,7 @@ class AssemblyStateNode(Node):
         current.header = self._header()
         self._current_pub.publish(current)
         self._safe_voltage_pub.publish(Float64(data=safe_voltage(assembly, self._table)))
+        self._tf_static_pub.publish(stamped(mounts_msg(assembly.chains, self._frame_id), current.header.stamp))
 
     def _on_set(self, request, response):
         overlong = overlong_string(request.assembly)
@@ -131,18 +137,20 @@ class AssemblyStateNode(Node):
             chain_state_msg(chain, shapes[chain.name], voltages.get(chain.hv_channel, 0.0))
             for chain in self._assembly.chains
         ]
-        return voltages, state, assembly_markers(self._assembly, shapes, self._table, Header(frame_id=self._frame_id))
+        markers = assembly_markers(self._assembly, shapes, self._table, Header(frame_id=self._frame_id))
+        return voltages, state, markers, blocks_msg(shapes)
 
     def _publish_state(self) -> None:
         voltages = {ch: self._voltages[ch] for ch in self._assembly.hv_channels if ch in self._voltages}
         if self._prediction is None or self._prediction[0] != voltages:  # recompute only on change
             self._prediction = self._predict(voltages)
-        _, state, markers = self._prediction
+        _, state, markers, frames = self._prediction
         state.header = self._header()
         for marker in markers.markers:
             marker.header = state.header
         self._state_pub.publish(state)
         self._markers_pub.publish(markers)
+        self._tf_pub.publish(stamped(frames, state.header.stamp))
 
 
 def main(args=None):

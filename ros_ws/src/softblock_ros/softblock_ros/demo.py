@@ -3,8 +3,8 @@
     python -m softblock_ros.demo --out out/demo          (what `make demo` runs)
 
 1. starts hv_driver (sim backend), assembly_state, planner, sim_arm, sim_camera (a side view of the front left
-   finger, its blocks slightly off their design), estimator (angles and mistakes from that view), sequencer
-   and the MCAP recorder (config/stack.yaml);
+   finger, its blocks slightly off their design), estimator (angles and mistakes from that view), sequencer,
+   the MCAP recorder and the live view for Foxglove (foxglove_bridge, ws://127.0.0.1:8765) (config/stack.yaml);
 2. asks the planner for the paper's gripper fingers for the asymmetric sample object: front fingers of
    4 blocks with the top 2 stiff, back fingers of 5 blocks with the top 3 stiff (Figure 5);
 3. loads them into the gripper assembly (assembly/set);
@@ -51,6 +51,7 @@ from .client import ActionClient, ClientError, call_service, run_action, status_
 from .conversions import assembly_msg, chain_from_msg
 from .hv_control import HvControl
 from .launcher import Stack
+from .stack import load_stack
 
 DEMO_ASSEMBLY = "assemblies/gripper.yaml"
 FINGER_SETS = {  # paper Figure 5: blocks per finger, top blocks forced stiff
@@ -60,6 +61,7 @@ FINGER_SETS = {  # paper Figure 5: blocks per finger, top blocks forced stiff
 SERVICE_TIMEOUT = 60.0  # [s] first calls wait for the nodes to start on a loaded machine
 FINGER_TIME_BUDGET = 1.0  # [s] per finger pair: the best design found by then, certified if the search ended
 FAULT_CHANNEL, FAULT = "front", "over_current"
+LIVE_VIEW = "foxglove_bridge"  # optional in the stack: the demo runs it, to watch in Foxglove
 RESET_CURRENT = 1e-6  # [A] the fault drill resets only once the readback shows no arc current
 
 
@@ -166,20 +168,20 @@ def run_grasp(client: DemoClient) -> dict:
 
 def fault_drill(client: DemoClient) -> dict:
     """The fault drill with the demo holding control of the HV driver (claimed, then released)."""
-    token = client.control.claim()
+    client.control.claim()
     try:
-        return inject_fault_mid_ramp(client, token)
+        return inject_fault_mid_ramp(client)
     finally:
         say(f"  HV control: {client.control.release()}")
 
 
-def inject_fault_mid_ramp(client: DemoClient, token: str) -> dict:
+def inject_fault_mid_ramp(client: DemoClient) -> dict:
     """Ramp a channel, inject an over-current (film breakdown) into the simulated supply mid-ramp,
     and time how long the driver takes to switch the output off with a named fault."""
     say(f"fault drill: ramping {FAULT_CHANNEL} toward 1.2 kV, then injecting {FAULT}")
     outcome = {}
     ramp = threading.Thread(target=lambda: outcome.setdefault("ramp", run_action(
-        client.ramp, RampChannel.Goal(channel=FAULT_CHANNEL, target=1200.0, token=token), timeout=60.0,
+        client.ramp, client.control.ramp_goal(FAULT_CHANNEL, 1200.0), timeout=60.0,
         server_timeout=SERVICE_TIMEOUT)), daemon=True)
     ramp.start()
     wait_until(lambda: (c := client.channel(FAULT_CHANNEL)) and c.measured_voltage > 600.0, 30.0,
@@ -230,7 +232,8 @@ def run(out: Path, object_name: str) -> int:
     report: dict = {"object": object_name}
     with open(out / "stack.log", "w") as log:
         say(f"starting the stack on the simulated backend (node output: {out / 'stack.log'})")
-        stack = Stack(params=params, output=log).start()
+        stack = Stack(nodes=[*load_stack().default_names, LIVE_VIEW], params=params, output=log).start()
+        say("live view: open ws://127.0.0.1:8765 in Foxglove with config/foxglove/softblock_layout.json")
         os.environ.update(stack.network.variables(os.environ))  # the demo's client joins the nodes' network
         rclpy.init()
         client = DemoClient()

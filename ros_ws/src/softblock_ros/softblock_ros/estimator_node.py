@@ -8,6 +8,9 @@ channel voltage; the result is published as an AssemblyState on ``assembly/estim
 and centerline of the chain that explains the image, in the assembly frame; not the prediction's
 ``assembly/state``) and as a DiagnosticStatus on ``/diagnostics``: OK "as built", WARN with the mistakes
 found, ERROR for an image the chain does not explain or a refused image (the reason named; the node stays up).
+With each estimate, the estimated chain's frames, its mount included, go on ``/tf`` under the prefix
+``estimated/`` (``softblock_ros.tf_frames``), beside the predicted ones. (Only assembly_state publishes on the latched
+``/tf_static``: two latched samples published moments apart could reach a replay's reader as one.)
 
 ``estimator/calibrate`` (std_srvs/Trigger): per-block calibration offsets from the last
 ``calibration_images`` images of the current chain (``estimation.calibrate_chain``); the reply lists them,
@@ -30,6 +33,7 @@ from sensor_msgs.msg import Image
 from softblock_interfaces.msg import Assembly, AssemblyState, ChainState, HvState
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
+from tf2_msgs.msg import TFMessage
 
 from estimation import ImagePose, calibrate_chain, estimate_chain
 from estimation.estimate import Status
@@ -41,6 +45,7 @@ from .conversions import assembly_from_msg, channel_voltages, mask_from_image, p
 from .parameters import Param, declare
 from .qos import LATCHED
 from .runner import run_node
+from .tf_frames import ESTIMATED_PREFIX, blocks_msg, mounts_msg, stamped
 
 # Best effort matches any camera; depth 1: images that arrive while one is being estimated replace each other.
 IMAGE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
@@ -90,6 +95,7 @@ class EstimatorNode(Node):
 
         self._estimate_pub = self.create_publisher(AssemblyState, "assembly/estimated", 10)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self._tf_pub = self.create_publisher(TFMessage, "/tf", 10)
         self.create_subscription(Assembly, "assembly/current", self._on_assembly, LATCHED)
         self.create_subscription(HvState, "hv/state", self._on_hv_state, qos_profile_sensor_data)
         self.create_subscription(Image, "camera/silhouette", self._on_image, IMAGE_QOS)
@@ -137,11 +143,16 @@ class EstimatorNode(Node):
         if result.as_built:
             self._recent.append((chain, image, voltage))
         header = Header(stamp=message.header.stamp, frame_id=self._frame_id)
-        self._estimate_pub.publish(self._state_msg(header, result, voltage))
+        state, shape = self._estimated(header, result, voltage)
+        self._estimate_pub.publish(state)
+        mount = mounts_msg([result.chain], self._frame_id, ESTIMATED_PREFIX)
+        blocks = blocks_msg({result.chain.name: shape}, ESTIMATED_PREFIX)
+        self._tf_pub.publish(stamped(TFMessage(transforms=[*mount.transforms, *blocks.transforms]), header.stamp))
         self._report(LEVELS[result.status], result.message, self._values(result), header.stamp)
 
-    def _state_msg(self, header: Header, result, voltage: float) -> AssemblyState:
-        """The estimated chain (the one that explains the image) at its fitted angles, in the assembly frame."""
+    def _estimated(self, header: Header, result, voltage: float) -> tuple[AssemblyState, object]:
+        """The estimated chain (the one that explains the image) at its fitted angles, in the assembly frame: the
+        AssemblyState and the ``planner.kinematics.ChainShape``."""
         built = result.chain
         _, length, phi, _ = chain_blocks(built, self._table)
         shape = chain_shape(result.theta, length, phi).transformed(
@@ -150,7 +161,7 @@ class EstimatorNode(Node):
                            block_angles=[float(a) for a in result.theta], block_valid=[True] * len(result.blocks),
                            centerline=points_msg(shape.points))
         return AssemblyState(header=header, assembly_name=self._assembly.name,
-                             safe_voltage=safe_voltage(self._assembly, self._table), chains=[chain])
+                             safe_voltage=safe_voltage(self._assembly, self._table), chains=[chain]), shape
 
     @staticmethod
     def _values(result) -> list[KeyValue]:

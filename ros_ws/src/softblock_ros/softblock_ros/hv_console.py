@@ -3,6 +3,7 @@
     python -m softblock_ros.hv_console                      # one status line per second
     python -m softblock_ros.hv_console --json               # every hv/state sample and control status, JSON lines
     python -m softblock_ros.hv_console --commands           # also take commands on stdin
+    python -m softblock_ros.hv_console --probe /dev/ttyUSB0  # which supply is on a port (read-only; no ROS)
 
 The status line checks the link to the driver: hv/state samples received per second, samples lost on the way
 (gaps in the driver's publication sequence numbers), the age of the newest, each channel, and from the
@@ -12,7 +13,7 @@ Commands, one per line, each answered with one line (a JSON object with --json):
     reset                     hv/reset_faults
     estop                     hv/estop
     claim <client name>       hv/claim_control; heartbeats follow while the console holds control
-    ramp <channel> <volts>    hv/ramp with the console's token, waits for the result
+    ramp <channel> <volts>    hv/ramp signed for the console's session, waits for the result
     release                   hv/release_control
     quit                      (also end of input): control still held is released first (after Ctrl-C the
                               driver's heartbeat watchdog ends it)
@@ -34,6 +35,9 @@ from rclpy.serialization import deserialize_message
 from softblock_interfaces.action import RampChannel
 from softblock_interfaces.msg import HvState
 from std_srvs.srv import Trigger
+
+from hv_driver import LinkError
+from hv_driver.probe import probe, report
 
 from .client import ActionClient, ClientError, call_service, run_action, status_name
 from .hv_control import HvControl
@@ -126,11 +130,11 @@ class HvConsole:
             return reply.success, reply.message
         if command == "claim" and arguments:
             self.control.client = " ".join(arguments)
-            return True, f"control held, token {self.control.claim()[:8]}..."
+            return True, f"control held, session {self.control.claim()}"
         if command == "release" and not arguments:
             return True, self.control.release()
         if command == "ramp" and len(arguments) == 2:
-            goal = RampChannel.Goal(channel=arguments[0], target=float(arguments[1]), token=self.control.token)
+            goal = self.control.ramp_goal(arguments[0], float(arguments[1]))
             status, result = run_action(self._ramp, goal, RAMP_TIMEOUT, server_timeout=SERVICE_TIMEOUT)
             return result.success, f"{status_name(status)}: {result.message}"
         raise ValueError(f"unknown command {' '.join([command, *arguments])!r}; "
@@ -146,13 +150,29 @@ def read_commands(console: HvConsole, emit, stop: threading.Event) -> None:
     stop.set()
 
 
+def run_probe(port: str, baudrate: int | None) -> int:
+    """Identify the supply on ``port`` without changing anything: 0 found, 1 nothing answered, 2 no such port."""
+    try:
+        result = probe(port, baudrate)
+    except LinkError as error:
+        print(error, file=sys.stderr)
+        return 2
+    print(report(result), flush=True)
+    return 0 if result.found else 1
+
+
 def main(argv=None) -> int:
     argv = sys.argv if argv is None else argv
     parser = argparse.ArgumentParser(prog="python -m softblock_ros.hv_console", description=__doc__.split("\n")[0])
     parser.add_argument("--json", action="store_true", help="every sample and answer as a JSON line")
     parser.add_argument("--commands", action="store_true", help="read commands on stdin")
     parser.add_argument("--period", type=float, default=1.0, help="status line period [s] (default 1)")
+    parser.add_argument("--probe", metavar="PORT", help="identify the supply on serial PORT with each dialect's "
+                        "identification query (nothing is set), print the node parameters for it and exit")
+    parser.add_argument("--baudrate", type=int, help="with --probe: ask at this rate (default: each dialect's own)")
     args = parser.parse_args(rclpy.utilities.remove_ros_args(argv)[1:])
+    if args.probe:
+        return run_probe(args.probe, args.baudrate)
     output_lock, stop = threading.Lock(), threading.Event()
 
     def emit(record: dict) -> None:
@@ -178,7 +198,7 @@ def main(argv=None) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        if console.control.token and rclpy.ok():
+        if console.control.session and rclpy.ok():
             try:
                 console.control.release()
             except ClientError as error:

@@ -1,14 +1,26 @@
 """HV driver node (lifecycle): the safety-supervised HV supply behind ROS topics, services and an action.
 
-configure = open the supplies of the ``dialect`` (backend ``sim``: simulated ones in a process of their own, one per
-supply the channels name; ``serial``: the ``ports`` parameter, one per supply) and identify them; activate = outputs on at 0 V; deactivate = ramp to 0 V
-and off; cleanup / shutdown = close (outputs off); error = outputs off at once. Only the client holding
-control (hv/claim_control) may ramp (hv/ramp), run pulse trains (hv/pulse: on the device where it switches itself,
-else in the driver's loop) and feed the heartbeat watchdog; hv/estop is open to everyone.
+The supplies, the safety supervisor and the control loop run in a supervisor process of their own, without rclpy
+(`hv_driver.server`; backend ``sim``: `sim_fallback.supervised`, which also runs the simulated supplies, one per
+supply the channels name; ``serial``: the ``ports`` parameter). This node is its client (`hv_driver.RemoteSupply`):
+when the node dies, the supervisor ramps every energised output down (NODE_LOST); when the supervisor dies, the node
+reports SUPERVISOR_LOST and refuses every client.
+
+configure = start the supervisor process, which opens and identifies the supplies; activate = outputs on at 0 V;
+deactivate = ramp to 0 V and off; cleanup / shutdown = close (outputs off, supervisor ended); error = outputs off at
+once. Only the client holding control (hv/claim_control) may ramp (hv/ramp), run pulse trains (hv/pulse: on the
+device where it switches itself, else in the driver's loop) and feed the heartbeat watchdog; hv/estop is open to
+everyone.
 """
 from __future__ import annotations
 
+import dataclasses
+import logging
 import os
+import shutil
+import sys
+import tempfile
+from pathlib import Path
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.action import ActionServer, CancelResponse
@@ -22,8 +34,9 @@ from softblock_interfaces.srv import ClaimControl, InjectFault, ReleaseControl
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
-from hv_driver import HvError, HvSupply, dialect
-from sim_fallback.hv_supply_process import SimulatedSupplyProcess
+from hv_driver import HvError, RemoteSupply
+from hv_driver.control import session_id, signed
+from hv_driver.events import snapshot_events
 
 from . import PUBLICATION_MODE, PUBLICATION_MODE_VARIABLE
 from .hv_conversions import diagnostics_msg, hv_state_msg
@@ -40,7 +53,8 @@ from .runner import run_node
 # heartbeat period), which the watchdog would take for a silent client.
 HEARTBEAT_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
 SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
-SIM_ERRORS = (RuntimeError, ValueError, OSError)  # the simulated supply's process: not started, unknown fault
+SUPERVISOR_COMMANDS = {"sim": [sys.executable, "-m", "sim_fallback.supervised"],
+                       "serial": [sys.executable, "-m", "hv_driver.server"]}
 SIM_CHANNELS = 4  # a simulated multi-channel supply models a 4-channel module; configured indices must exist on it
 REFUSAL_LOG_PERIOD = 5.0  # [s] at most one log line per kind of ignored heartbeat
 
@@ -55,7 +69,8 @@ class HvDriverNode(LifecycleNode):
         if self._settings["backend"] == "serial" and len(ports) != self._devices:
             raise ParameterError(f"parameter ports={ports} refused: backend 'serial' needs one port per supply the "
                                  f"channels are on ({self._devices}), e.g. [/dev/ttyUSB0]")
-        self._supply = self._sim = None
+        self._supply = None
+        self._socket_dir: str | None = None
         self._entities = []
         self._active = False
         self._group = ReentrantCallbackGroup()
@@ -74,22 +89,16 @@ class HvDriverNode(LifecycleNode):
                                       f"hv/state's publish, and with it the control loop, for up to 1 s "
                                       f"({PUBLICATION_MODE} never blocks)")
         try:
-            if backend == "sim":
-                self._sim = SimulatedSupplyProcess(channels=SIM_CHANNELS, dialect=self._param("dialect"),
-                                                   devices=self._devices).start()
-                ports = self._sim.ports
-            # A heartbeat_timeout_s of .inf (watchdog off) is warned by the driver itself at open.
-            self._supply = HvSupply(ports, self._param("baudrate") or None, channels,
-                                    dialect=dialect(self._param("dialect")), loop_rate_hz=self._param("loop_rate_hz"),
-                                    link_timeout_s=self._param("link_timeout_s"),
-                                    heartbeat_timeout_s=self._param("heartbeat_timeout_s"),
-                                    expected_identity=self._param("expected_identity"), handle_signals=False).open()
-        except (HvError, *SIM_ERRORS) as error:
+            # A heartbeat_timeout_s of .inf (watchdog off) is warned by the supervisor itself at open.
+            self._supply = RemoteSupply(SUPERVISOR_COMMANDS[backend], self._supervisor_spec(),
+                                        self._socket_path(), on_lost=self._on_supervisor_lost).open()
+        except (HvError, OSError) as error:
             self.get_logger().fatal(f"configure failed: {error}")
             self._stop()
             return FAILURE
+        ports = [port for port in self._supply.snapshot().port.split(", ") if port]
         self._index = {c.name: (c.index, c.device) for c in channels}
-        self._published, self._diag_time = None, 0
+        self._published, self._diag_time, self._logged = None, 0, None
         self._state_pub = self.create_publisher(HvState, "hv/state", stream_qos(self._param("publish_rate_hz")))
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         g = self._group
@@ -110,17 +119,48 @@ class HvDriverNode(LifecycleNode):
                          cancel_callback=lambda _: CancelResponse.ACCEPT),
             ActionServer(self, PulseChannels, "hv/pulse", self._execute_pulse, callback_group=g,
                          cancel_callback=lambda _: CancelResponse.ACCEPT)]
-        self.get_logger().info(f"configured: {self._supply.device_id} on {', '.join(ports)} ({backend})")
+        self.get_logger().info(f"configured: {self._supply.device_id} on {', '.join(ports)} ({backend}), supervisor "
+                               f"process {self._supply.pid}")
         return SUCCESS
 
+    def _supervisor_spec(self) -> dict:
+        """What the supervisor process builds its HvSupply from (hv_driver.server.supply_from_spec)."""
+        spec = {"ports": self._param("ports"), "baudrate": self._param("baudrate") or None,
+                "channels": [dataclasses.asdict(c) for c in self._channels], "dialect": self._param("dialect"),
+                **{name: self._param(name) for name in ("loop_rate_hz", "link_timeout_s", "heartbeat_timeout_s",
+                                                        "expected_identity", "realtime_priority", "orphan_timeout_s")},
+                "keepalive_timeout_s": self._param("node_keepalive_timeout_s")}
+        if self._param("backend") == "sim":
+            spec["simulated"] = {"channels": SIM_CHANNELS, "devices": self._devices}
+        return spec
+
+    def _socket_path(self) -> str:
+        """The supervisor_socket parameter (a fixed path: a restarted node takes its supervisor over), else one of
+        this node's own."""
+        if self._param("supervisor_socket"):
+            return self._param("supervisor_socket")
+        self._socket_dir = tempfile.mkdtemp(prefix="softblock-hv-")
+        return str(Path(self._socket_dir) / "supervisor.sock")
+
+    def _on_supervisor_lost(self, reason: str) -> None:
+        self.get_logger().fatal(f"HV supervisor process lost ({reason}): hv/state reports SUPERVISOR_LOST on every "
+                                f"channel and every client is refused; only the supplies' own means still hold")
+
     def on_activate(self, state) -> TransitionCallbackReturn:
+        """Outputs on at 0 V, except those with latched faults (a supervisor taken over after its node was lost):
+        they stay off until hv/reset_faults."""
+        faulted = {c.name: c.fault_text for c in self._supply.snapshot().channels if c.faults}
         try:
             for name in self._index:
-                self._supply.enable(name)
+                if name not in faulted:
+                    self._supply.enable(name)
         except HvError as error:
             self.get_logger().error(f"activate refused: {error}")
             return FAILURE
+        for name, text in faulted.items():
+            self.get_logger().error(f"channel {name!r} stays off until hv/reset_faults: {text}")
         self._active = True
+        self.get_logger().info("active: outputs on at 0 V")
         return super().on_activate(state)
 
     def on_deactivate(self, state) -> TransitionCallbackReturn:
@@ -130,18 +170,24 @@ class HvDriverNode(LifecycleNode):
         if not self._supply.wait_outputs_off(timeout=30.0):
             self.get_logger().error("deactivate: outputs still on after 30 s")
             return FAILURE
+        self.get_logger().info("inactive: outputs ramped to 0 V and off")
         return super().on_deactivate(state)
 
     def on_cleanup(self, state) -> TransitionCallbackReturn:
         self._stop()
+        self.get_logger().info("unconfigured: outputs off, supplies closed")
         return SUCCESS
 
-    on_shutdown = on_cleanup
+    def on_shutdown(self, state) -> TransitionCallbackReturn:
+        self._stop()
+        self.get_logger().info("shut down: outputs off, supplies closed")
+        return SUCCESS
 
     def on_error(self, state) -> TransitionCallbackReturn:
         if self._supply is not None:
             self._supply.abort()
         self._stop()
+        self.get_logger().error("error: outputs switched off at once, supplies closed")
         return SUCCESS
 
     def _stop(self) -> None:
@@ -152,9 +198,9 @@ class HvDriverNode(LifecycleNode):
         self._entities = []
         if self._supply is not None:
             self._supply.close()
-        if self._sim is not None:
-            self._sim.stop()
-        self._supply = self._sim = None
+        if self._socket_dir is not None:
+            shutil.rmtree(self._socket_dir, ignore_errors=True)
+        self._supply, self._socket_dir = None, None
 
     def _destroy(self, entity) -> None:
         for destroy in (self.destroy_publisher, self.destroy_timer, self.destroy_service, self.destroy_subscription):
@@ -169,12 +215,24 @@ class HvDriverNode(LifecycleNode):
     # --- topics, services, action ----------------------------------------------------------------
     def _publish(self) -> None:
         snapshot, stamp = self._supply.snapshot(), self.get_clock().now().to_msg()
+        for level, line in snapshot_events(self._logged, snapshot):  # faults latched, control lapsed
+            self._log(level, line)
+        self._logged = snapshot
         self._state_pub.publish(hv_state_msg(snapshot, self._param("backend"), stamp))
         shown = (snapshot.controller, tuple(int(c.faults) for c in snapshot.channels))
         now = self.get_clock().now().nanoseconds
         if shown != self._published or now - self._diag_time >= 1e9:  # 1 Hz, and at once on a fault or owner change
             self._published, self._diag_time = shown, now
             self._diag_pub.publish(diagnostics_msg(snapshot, self.get_name(), self._param("backend"), stamp))
+
+    def _log(self, level: int, line: str) -> None:
+        """``line`` at a `logging` level (rclpy wants one severity per call site)."""
+        if level >= logging.ERROR:
+            self.get_logger().error(line)
+        elif level >= logging.WARNING:
+            self.get_logger().warning(line)
+        else:
+            self.get_logger().info(line)
 
     def _on_estop(self, request, response):
         self._supply.estop()
@@ -195,10 +253,11 @@ class HvDriverNode(LifecycleNode):
 
     def _on_claim(self, request, response):
         try:
-            response.token = self._supply.claim_control(request.client)
+            response.token = self._supply.claim_control(request.client, request.nonce)
         except HvError as error:  # another client holds control, or a name that cannot be shown
             response.success, response.message = False, str(error)
             return response
+        response.session = session_id(response.token)
         response.heartbeat_timeout = self._supply.snapshot().heartbeat_timeout_s
         response.success, response.message = True, f"control held by {request.client!r}"
         self.get_logger().info(response.message)
@@ -206,8 +265,8 @@ class HvDriverNode(LifecycleNode):
 
     def _on_release(self, request, response):
         try:
-            client = self._supply.release_control(request.token)
-        except HvError as error:  # not the live session's token
+            client = self._supply.release_control(signed(request.session, request.counter, request.mac))
+        except HvError as error:  # not the live session's, or a copied or replayed release
             response.success, response.message = False, str(error)
             return response
         response.success, response.message = True, f"control released by {client!r}; its energised outputs ramp to 0 V"
@@ -216,23 +275,23 @@ class HvDriverNode(LifecycleNode):
 
     def _on_heartbeat(self, msg: HvHeartbeat) -> None:
         try:
-            self._supply.heartbeat(msg.token)
-        except HvError as error:  # another client, an ended session, a replayed recording
+            self._supply.heartbeat(signed(msg.session, msg.counter, msg.mac))
+        except HvError as error:  # another client, an ended session, a copied heartbeat, a replayed recording
             self.get_logger().warning(f"hv/heartbeat ignored: {error}", throttle_duration_sec=REFUSAL_LOG_PERIOD)
 
     def _on_inject(self, request, response):
         try:
-            if self._sim is None:
+            if self._param("backend") != "sim":
                 raise ValueError(f"inject_fault needs backend 'sim', this node runs {self._param('backend')!r}")
             if request.fault == "clear":
-                self._sim.clear_faults()
+                self._supply.clear_faults()
             else:
                 address = self._index.get(request.channel)
                 if request.channel and address is None:
                     raise ValueError(f"channel={request.channel!r}: unknown, configured are {sorted(self._index)}")
-                self._sim.inject(request.fault, *(address or (None, None)))
+                self._supply.inject_fault(request.fault, *(address or (None, None)))
             response.success, response.message = True, f"injected {request.fault} on {request.channel or 'the device'}"
-        except SIM_ERRORS as error:
+        except (HvError, ValueError) as error:
             response.success, response.message = False, str(error)
         return response
 

@@ -4,6 +4,9 @@ from __future__ import annotations
 import math
 
 from hv_driver import DIALECTS, ChannelConfig, HvSupply, IsegEdcp
+from hv_driver.realtime import DEFAULT_PRIORITY
+from hv_driver.ipc import NODE_KEEPALIVE_TIMEOUT_S
+from hv_driver.server import ORPHAN_TIMEOUT_S
 
 from .parameters import Param, ParameterError
 
@@ -38,6 +41,17 @@ PARAMETERS = (
              "this often or its control lapses and its energised outputs ramp to 0 V; .inf = off (logged)", "s",
              0.05, math.inf),
     Param("publish_rate_hz", 50.0, "hv/state rate", "Hz", 20.0, 200.0),
+    Param("realtime_priority", DEFAULT_PRIORITY, "SCHED_FIFO priority of the supervisor process where the host "
+          "permits it (else normal priority, logged); 0 = normal priority on purpose (logged)", low=0, high=99,
+          kind=int),
+    Param("node_keepalive_timeout_s", NODE_KEEPALIVE_TIMEOUT_S, "the supervisor process latches NODE_LOST and ramps "
+          "every energised output to 0 V when this node's keep-alive stops for this long (its death: at once)", "s",
+          0.2, 10.0),
+    Param("orphan_timeout_s", ORPHAN_TIMEOUT_S, "a supervisor process without its node this long switches every "
+          "output off, closes the ports and exits; a node restarted within it takes it over, faults latched", "s",
+          1.0, 3600.0),
+    Param("supervisor_socket", "", "Unix socket of the supervisor process; empty = a new one for this node "
+          "process; a fixed path lets a restarted node take its supervisor over", kind=str),
     Param("autostart", True, "configure and activate at start (console script / python -m)", kind=bool),
 )
 

@@ -5,8 +5,9 @@ from __future__ import annotations
 from softblock_interfaces.action import PulseChannels
 
 from hv_driver import HvError, HvSupply
+from hv_driver.control import signed
 
-from .hv_ramp_goal import end_goal
+from .hv_ramp_goal import abort_goal, end_goal
 
 FEEDBACK_PERIOD = 0.1  # [s]
 EDGES = {PulseChannels.Goal.EDGE_SMOOTH: "smooth", PulseChannels.Goal.EDGE_SQUARE: "square"}
@@ -22,21 +23,25 @@ def execute_pulse_goal(supply: HvSupply, goal_handle) -> PulseChannels.Result:
             raise ValueError(f"edge={goal.edge}: EDGE_SMOOTH ({PulseChannels.Goal.EDGE_SMOOTH}) or EDGE_SQUARE "
                              f"({PulseChannels.Goal.EDGE_SQUARE})")
         handle = supply.pulse(list(goal.channels), goal.amplitude, goal.frequency, goal.duty, goal.phase,
-                              goal.cycles, edge, goal.slew_rate or None, token=goal.token)
+                              goal.cycles, edge, goal.slew_rate or None,
+                              token=signed(goal.session, goal.counter, goal.mac))
     except (HvError, ValueError) as error:
         result.message = str(error)
         goal_handle.abort()
         return result
     canceled = False
-    while not handle.wait(FEEDBACK_PERIOD):
-        if goal_handle.is_cancel_requested and not canceled:
-            handle.cancel()
-            canceled = True
-        snapshot = supply.snapshot()
-        goal_handle.publish_feedback(PulseChannels.Feedback(
-            cycles_done=handle.cycles_done,
-            measured_voltage=[snapshot.channel(name).measured_voltage for name in goal.channels]))
-    result.cycles_done, result.frequency, result.generated_by = handle.cycles_done, handle.frequency, \
-        handle.generated_by
-    return end_goal(goal_handle, result, handle, canceled,
-                    f"canceled after {handle.cycles_done} cycles: {handle.message}")
+    try:
+        while not handle.wait(FEEDBACK_PERIOD):
+            if goal_handle.is_cancel_requested and not canceled:
+                handle.cancel()
+                canceled = True
+            snapshot = supply.snapshot()
+            goal_handle.publish_feedback(PulseChannels.Feedback(
+                cycles_done=handle.cycles_done,
+                measured_voltage=[snapshot.channel(name).measured_voltage for name in goal.channels]))
+        result.cycles_done, result.frequency, result.generated_by = handle.cycles_done, handle.frequency, \
+            handle.generated_by
+        return end_goal(goal_handle, result, handle, canceled,
+                        f"canceled after {handle.cycles_done} cycles: {handle.message}")
+    except HvError as error:  # the supervisor process lost or closed while the train ran
+        return abort_goal(goal_handle, result, error)

@@ -65,7 +65,7 @@ class Stack:
                  stop_timeout: float = DEFAULT_STOP_TIMEOUT, namespace: str | None = None,
                  description: StackDescription | None = None, network: NetworkSettings = NetworkSettings()):
         self.description = description or load_stack()
-        self.nodes = list(self.description.names if nodes is None else nodes)
+        self.nodes = list(self.description.default_names if nodes is None else nodes)
         unknown = [name for name in self.nodes if name not in self.description.names]
         if unknown:
             raise ValueError(f"unknown nodes {unknown}; known: {', '.join(self.description.names)}")
@@ -180,7 +180,7 @@ def _option(parse):
 
 def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="python -m softblock_ros.launcher", description=__doc__.split("\n")[0])
-    parser.add_argument("--nodes", help="comma-separated nodes to start, in order (default: every node of the stack)")
+    parser.add_argument("--nodes", help="comma-separated nodes to start, in order (default: every node of the stack not marked optional)")
     parser.add_argument("--params", help="ROS parameter YAML passed to every node after its own files (--params-file)")
     parser.add_argument("--namespace", help="namespace of every node, e.g. /robot1 (default: the stack's)")
     parser.add_argument("--stack", type=Path, help="stack description (default: config/stack.yaml)")

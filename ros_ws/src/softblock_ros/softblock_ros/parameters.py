@@ -122,7 +122,11 @@ class Param:
 
     # -- declaration -----------------------------------------------------------------------------------
     def descriptor(self) -> ParameterDescriptor:
+        """Read-only, with the description and unit, the range of a number, the choices of a string (in
+        ``additional_constraints``, as ``ros2 param describe`` shows them)."""
         descriptor = ParameterDescriptor(description=self.text(), read_only=True)
+        if self.choices:
+            descriptor.additional_constraints = self._range_text()
         if self.kind in (int, float) and self.low is not None and self.high is not None and self.size is None:
             if self.kind is float:
                 descriptor.floating_point_range = [FloatingPointRange(from_value=float(self.low),
@@ -136,7 +140,8 @@ class Param:
 
     def text(self) -> str:
         unit = f" [{self.unit}]" if self.unit else ""
-        return f"{self.description}{unit}"
+        choices = f" ({self._range_text()})" if self.choices else ""
+        return f"{self.description}{unit}{choices}"
 
 
 def with_defaults(schema: tuple[Param, ...], **defaults) -> tuple[Param, ...]:
@@ -176,7 +181,8 @@ def markdown_table(schema: tuple[Param, ...]) -> str:
 NODE_SCHEMAS = {"hv_driver": "softblock_ros.hv_parameters", "assembly_state": "softblock_ros.assembly_state_node",
                 "planner": "softblock_ros.planner_node", "sim_arm": "softblock_ros.sim_arm_node",
                 "sequencer": "softblock_ros.sequencer_node", "recorder": "softblock_ros.recording.recorder_node",
-                "sim_camera": "softblock_ros.sim_camera_node", "estimator": "softblock_ros.estimator_node"}
+                "sim_camera": "softblock_ros.sim_camera_node", "estimator": "softblock_ros.estimator_node",
+                "foxglove_bridge": "softblock_ros.foxglove_bridge_node"}
 
 
 def node_schema(node: str) -> tuple[Param, ...]:

@@ -77,9 +77,6 @@ def _pulse_outcome(status: int, result: PulseChannels.Result) -> Outcome:
     return Outcome(success, how if success else result.message)
 
 
-PULSE_EDGES = {"smooth": PulseChannels.Goal.EDGE_SMOOTH, "square": PulseChannels.Goal.EDGE_SQUARE}
-
-
 def _move_outcome(status: int, result: MoveArm.Result) -> Outcome:
     return Outcome(status == GoalStatus.STATUS_SUCCEEDED and result.success, result.message)
 
@@ -142,17 +139,22 @@ class RosRobot:
 
     def ramp(self, channel: str, target: float, slew_rate: float) -> ActionMotion:
         self._ready(self._ramp, "hv/ramp")
-        goal = RampChannel.Goal(channel=channel, target=float(target), slew_rate=float(slew_rate),
-                                token=self._control.token)
-        return ActionMotion(self._ramp, goal, _ramp_outcome)
+        return ActionMotion(self._ramp, self._signed(self._control.ramp_goal, channel, target, slew_rate),
+                            _ramp_outcome)
 
     def pulse(self, channels, voltage: float, frequency: float, duty: float, phase: float, cycles: int, edge: str,
               slew_rate: float) -> ActionMotion:
         self._ready(self._pulse, "hv/pulse")
-        goal = PulseChannels.Goal(channels=list(channels), amplitude=float(voltage), frequency=float(frequency),
-                                  duty=float(duty), phase=float(phase), cycles=int(cycles), edge=PULSE_EDGES[edge],
-                                  slew_rate=float(slew_rate), token=self._control.token)
+        goal = self._signed(self._control.pulse_goal, channels, voltage, frequency, duty, phase, cycles, edge,
+                            slew_rate)
         return ActionMotion(self._pulse, goal, _pulse_outcome)
+
+    @staticmethod
+    def _signed(make_goal, *arguments):
+        try:
+            return make_goal(*arguments)
+        except ClientError as error:  # control not held (lost to an e-stop, never claimed)
+            raise RobotError(str(error)) from None
 
     def channel_states(self) -> dict[str, ChannelReading]:
         """Latest hv/state; a driver silent for longer than the state timeout (stopped, or the network to it

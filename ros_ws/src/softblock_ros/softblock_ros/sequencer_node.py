@@ -4,9 +4,14 @@ Loads <sequences_dir>/<name>.yaml (a goal names a sequence, never a path), runs 
 engine against the arm (`arm/move`) and the HV driver (`hv/ramp`, `hv/state`, `hv/estop`), publishes
 feedback and a `sequencer/events` message per step transition. It holds control of the HV driver while a sequence runs
 (`hv/claim_control`, then `hv/heartbeat` at `heartbeat_rate_hz`, `hv/release_control` at the end).
-One goal at a time: a second goal is rejected while one runs. See docs/sequences.md.
+One goal at a time: a second goal is rejected while one runs, and every goal while another node serves
+sequencer/run as well (each would take it). SIGINT / SIGTERM cancel a running sequence first: its safe stop ramps
+every channel to 0 V and control is released, then the node shuts down (a second signal shuts it down at once).
+See docs/sequences.md.
 """
+import signal
 import threading
+import time
 
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
@@ -25,6 +30,7 @@ from .ros_robot import RosRobot
 from .runner import run_node
 
 FEEDBACK_PHASES = {"precondition", "running", "succeeded"}
+RESULT_GRACE_S = 1.0  # [s] after a goal stopped by a signal ended, for its result to reach the caller
 EVENT_PHASES = {"running": "started", "succeeded": "succeeded", "failed": "failed", "canceled": "canceled"}
 
 PARAMETERS = (
@@ -68,11 +74,63 @@ class SequencerNode(Node):
         self._busy = threading.Lock()
         self._cancel = threading.Event()
         self._running_name = ""
+        self._stop_signal: int | None = None  # the signal that asked the node to stop
+        self._stop_asked, self._stop_now = threading.Event(), threading.Event()
+        # The longest a safe stop may take: the ramp-down, then the release of control.
+        self._stop_timeout_s = value["safe_stop_timeout_s"] + value["server_timeout_s"]
         self._server = ActionServer(self, RunSequence, "sequencer/run", execute_callback=self._execute,
                                     goal_callback=self._on_goal, cancel_callback=self._on_cancel,
                                     callback_group=group)
+        self._server_name = self.resolve_topic_name("sequencer/run")
+
+    def destroy_node(self):
+        self._server.destroy()  # rclpy's destroy_node leaves action servers serving
+        return super().destroy_node()
+
+    def stop_safely_on_signals(self) -> None:
+        """SIGINT / SIGTERM: the running sequence's safe stop first, then shutdown (call from the main thread).
+
+        rclpy's own handler would shut the context down at once, and the sequence's safe stop could then send
+        nothing (its ramps and the release fail on a shut-down context): only the driver's watchdog would bring
+        the voltage down. This handler only sets an event: a thread of its own does the rest."""
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(signum, self._on_signal)
+        threading.Thread(target=self._stop_when_asked, name="sequencer stop", daemon=True).start()
+
+    def _on_signal(self, signum, _frame) -> None:
+        if self._stop_asked.is_set():
+            self._stop_now.set()
+        self._stop_signal = signum
+        self._stop_asked.set()
+
+    def _stop_when_asked(self) -> None:
+        self._stop_asked.wait()
+        name = signal.Signals(self._stop_signal).name
+        running = self._busy.locked()
+        if running:
+            self.get_logger().warning(f"{name}: canceling sequence {self._running_name!r} (safe stop: every channel "
+                                      f"to 0 V, control released), then shutting down")
+            self._cancel.set()
+        deadline = time.monotonic() + self._stop_timeout_s
+        while not self._busy.acquire(timeout=0.05):  # held from now on: no goal starts any more
+            if self._stop_now.is_set() or time.monotonic() > deadline:
+                self.get_logger().error(f"{name}: shutting down before the safe stop ended")
+                break
+        else:
+            if running:  # its result leaves in an executor task after its callback returned: let it go out
+                self._stop_now.wait(RESULT_GRACE_S)
+        self.get_logger().info(f"{name}: shutting down")
+        self.context.try_shutdown()
 
     def _on_goal(self, goal: RunSequence.Goal) -> GoalResponse:
+        servers = self.count_publishers(f"{self._server_name}/_action/status")  # one per action server
+        if servers > 1:
+            self.get_logger().error(f"rejected sequence {goal.sequence!r}: {servers} nodes serve "
+                                    f"{self._server_name}, and each would run it; stop all but one")
+            return GoalResponse.REJECT
+        if self._stop_asked.is_set():
+            self.get_logger().warning(f"rejected sequence {goal.sequence!r}: the sequencer is shutting down")
+            return GoalResponse.REJECT
         if not self._busy.acquire(blocking=False):
             self.get_logger().warning(f"rejected sequence {goal.sequence!r}: "
                                       f"sequence {self._running_name!r} is still running")
@@ -119,15 +177,19 @@ class SequencerNode(Node):
                 outcome = engine.run(sequence, self._cancel)
             finally:
                 self.get_logger().info(f"HV control: {self._robot.give_up_control()}")
-            if outcome.canceled:
+            result = RunSequence.Result(success=outcome.success, message=outcome.message,
+                                        failed_step=outcome.failed_step, step_names=outcome.step_names,
+                                        step_durations=outcome.step_durations)
+            if outcome.canceled and not goal_handle.is_cancel_requested:  # stopped by a signal, not by its client
+                result.message = f"sequencer stopped: {outcome.message}"
+                goal_handle.abort()
+            elif outcome.canceled:
                 goal_handle.canceled()
             elif outcome.success:
                 goal_handle.succeed()
             else:
                 goal_handle.abort()
-            return RunSequence.Result(success=outcome.success, message=outcome.message,
-                                      failed_step=outcome.failed_step, step_names=outcome.step_names,
-                                      step_durations=outcome.step_durations)
+            return result
         finally:
             self._busy.release()
 
@@ -135,7 +197,11 @@ class SequencerNode(Node):
 def main(args=None) -> int:
     # The goal's execute callback blocks one thread for the whole sequence; the others serve hv/state,
     # the heartbeat timer and the action clients' responses (several per pulse-train edge).
-    return run_node(SequencerNode, "sequencer", lambda: MultiThreadedExecutor(num_threads=8), args=args)
+    def make_node() -> SequencerNode:
+        node = SequencerNode()
+        node.stop_safely_on_signals()
+        return node
+    return run_node(make_node, "sequencer", lambda: MultiThreadedExecutor(num_threads=8), args=args)
 
 
 if __name__ == "__main__":

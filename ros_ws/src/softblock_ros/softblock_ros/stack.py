@@ -14,7 +14,7 @@ from .parameter_files import check_parameter_file
 
 DEFAULT_STACK_FILE = config_file("stack.yaml")
 MAX_FILE_SIZE = 64 * 1024  # [bytes] a stack description is a page of YAML
-NODE_KEYS = {"name", "module", "arguments", "executable", "parameters", "niceness"}
+NODE_KEYS = {"name", "module", "arguments", "executable", "parameters", "niceness", "optional"}
 
 
 @dataclass(frozen=True)
@@ -25,6 +25,7 @@ class NodeSpec:
     arguments: tuple[str, ...] = ()
     parameters: tuple[Path, ...] = ()   # parameter files, in order
     niceness: int = 0
+    optional: bool = False             # started only when named (e.g. the live view)
 
 
 @dataclass(frozen=True)
@@ -42,6 +43,11 @@ class StackDescription:
     @property
     def names(self) -> tuple[str, ...]:
         return tuple(spec.name for spec in self.nodes)
+
+    @property
+    def default_names(self) -> tuple[str, ...]:
+        """The nodes started when none are named: all but the optional ones."""
+        return tuple(spec.name for spec in self.nodes if not spec.optional)
 
 
 def _fail(source, where: str, value, expectation: str):
@@ -67,13 +73,16 @@ def _node(source, index: int, entry, folder: Path) -> NodeSpec:
     niceness = entry.get("niceness", 0)
     if isinstance(niceness, bool) or not isinstance(niceness, int) or not 0 <= niceness <= 19:
         _fail(source, f"{where}.niceness", niceness, "an integer 0..19")
+    if not isinstance(entry.get("optional", False), bool):
+        _fail(source, f"{where}.optional", entry["optional"], "true or false")
     parameters = tuple(folder / name for name in _strings(source, f"{where}.parameters", entry.get("parameters", [])))
     for path in parameters:
         if path.parent != folder or not path.is_file():
             _fail(source, f"{where}.parameters", path.name, f"a parameter file in {folder}")
         check_parameter_file(path)
     return NodeSpec(entry["name"], entry["module"], entry["executable"],
-                    _strings(source, f"{where}.arguments", entry.get("arguments", [])), parameters, niceness)
+                    _strings(source, f"{where}.arguments", entry.get("arguments", [])), parameters, niceness,
+                    entry.get("optional", False))
 
 
 def load_stack(path: str | Path = DEFAULT_STACK_FILE) -> StackDescription:

@@ -1,0 +1,142 @@
+"""The HV supervisor in a process of its own (`sim_fallback.supervised`: a simulated rig behind `hv_driver.server`)
+and its client `RemoteSupply`: a node that dies or falls silent leaves no output energised (NODE_LOST), a lost
+supervisor is reported (SUPERVISOR_LOST) and refuses every call, a second node cannot take a supervisor over that
+its node still holds. Waits are for events, with generous deadlines; nothing here asserts a duration."""
+import dataclasses
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+
+import pytest
+
+from hv_driver import ChannelConfig, ControlError, Fault, FaultLatchedError, HvError, RemoteSupply, SupervisorLostError
+
+SUPERVISED = [sys.executable, "-m", "sim_fallback.supervised"]
+CHANNELS = [ChannelConfig("front", 0, slew_rate_v_per_s=8000.0), ChannelConfig("back", 1, slew_rate_v_per_s=8000.0)]
+DEADLINE = 60.0  # [s] for an event; generous, the host may be loaded
+
+# A node stand-in in a process of its own: takes control, ramps front to 2400 V, says "up", then beats on (its
+# client stays alive) until it is killed.
+NODE = """
+import json, sys, time
+from hv_driver import RemoteSupply
+supply = RemoteSupply(json.loads(sys.argv[1]), json.loads(sys.argv[2]), sys.argv[3]).open()
+token = supply.claim_control("sequencer")
+supply.enable("front")
+handle = supply.ramp_to("front", 2400.0, token=token)
+assert handle.wait(60.0) and handle.succeeded, handle.message
+print("up", flush=True)
+while True:
+    supply.heartbeat(token)
+    time.sleep(0.1)
+"""
+
+
+def spec(**overrides) -> dict:
+    return {"ports": [], "baudrate": None, "channels": [dataclasses.asdict(c) for c in CHANNELS],
+            "dialect": "iseg-edcp", "loop_rate_hz": 100.0, "link_timeout_s": 0.5, "heartbeat_timeout_s": 2.0,
+            "expected_identity": "", "realtime_priority": 10, "orphan_timeout_s": 60.0, "keepalive_timeout_s": 1.0,
+            "simulated": {"channels": 4, "devices": 1}, **overrides}
+
+
+@pytest.fixture
+def socket_path():
+    directory = tempfile.mkdtemp(prefix="hv-")  # short: a Unix socket path has at most 107 bytes
+    yield os.path.join(directory, "s.sock")
+    shutil.rmtree(directory, ignore_errors=True)
+
+
+def wait_until(predicate, what: str):
+    deadline = time.monotonic() + DEADLINE
+    while not predicate():
+        assert time.monotonic() < deadline, f"no {what} within {DEADLINE:g} s"
+        time.sleep(0.02)
+
+
+def front(supply):
+    return supply.snapshot().channel("front")
+
+
+def test_a_killed_node_leaves_no_output_energised_and_nothing_comes_back_by_itself(socket_path):
+    node = subprocess.Popen([sys.executable, "-c", NODE, json.dumps(SUPERVISED), json.dumps(spec()), socket_path],
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        assert node.stdout.readline().strip() == "up"
+        os.kill(node.pid, signal.SIGKILL)  # its client (the beating thread) dies with it
+        node.wait()
+        with pytest.raises(HvError, match="other settings"):  # only a node of the same settings takes it over
+            RemoteSupply(SUPERVISED, spec(loop_rate_hz=50.0), socket_path).open()
+        supply = RemoteSupply(SUPERVISED, spec(), socket_path).open()
+    finally:
+        node.kill()
+    try:
+        wait_until(lambda: front(supply).measured_voltage < 50.0 and not front(supply).output_enabled,
+                   "output below 50 V and off after the node's death")
+        lost = front(supply)
+        assert Fault.NODE_LOST in lost.faults and "channel to the supervisor closed" in lost.fault_text
+        assert Fault.NODE_LOST in supply.snapshot().channel("back").faults  # every channel latches it
+        assert supply.snapshot().controller == ""  # the dead node's client lost control
+        token = supply.claim_control("operator")
+        with pytest.raises(FaultLatchedError):  # latched until reset on purpose
+            supply.enable("front")
+        assert supply.reset_faults() == ["front", "back"]
+        supply.enable("front")
+        assert front(supply).measured_voltage < 50.0  # a reset switches nothing back on
+        assert supply.ramp_to("front", 600.0, token=token).wait(DEADLINE)
+    finally:
+        supply.close()
+
+
+def test_a_node_whose_keep_alive_stops_is_lost_and_its_outputs_ramp_down(socket_path):
+    supply = RemoteSupply(SUPERVISED, spec(), socket_path).open()
+    try:
+        token = supply.claim_control("sequencer")
+        supply.enable("front")
+        assert supply.ramp_to("front", 1500.0, token=token).wait(DEADLINE)
+        supply._stop.set()  # fault injection: the keep-alive thread stops, the channel stays open
+        supply._beater.join()
+        wait_until(lambda: Fault.NODE_LOST in front(supply).faults, "NODE_LOST after the keep-alive stopped")
+        assert "no keep-alive for more than 1 s" in front(supply).fault_text
+        wait_until(lambda: front(supply).measured_voltage < 50.0, "the output ramped down")
+        with pytest.raises(ControlError):  # the session ended with the node
+            supply.heartbeat(token)
+    finally:
+        supply.close()
+
+
+def test_a_lost_supervisor_is_reported_on_every_channel_and_refuses_every_call(socket_path):
+    reasons = []
+    supply = RemoteSupply(SUPERVISED, spec(), socket_path, on_lost=reasons.append).open()
+    assert front(supply).faults == Fault(0)
+    os.kill(supply.pid, signal.SIGKILL)
+    wait_until(lambda: supply.lost is not None, "the supervisor's loss noticed")
+    snapshot = supply.snapshot()
+    assert all(Fault.SUPERVISOR_LOST in c.faults for c in snapshot.channels)
+    assert "only the supplies' own means still hold" in snapshot.channel("front").fault_text
+    with pytest.raises(SupervisorLostError, match="supervisor process lost"):
+        supply.claim_control("sequencer")
+    with pytest.raises(SupervisorLostError):
+        supply.ramp_to("front", 100.0, token="x")
+    assert len(reasons) == 1
+    supply.close()  # nothing left to close: no error, no wait
+
+
+def test_a_second_node_cannot_take_over_a_supervisor_its_node_still_holds(socket_path):
+    supply = RemoteSupply(SUPERVISED, spec(), socket_path).open()
+    try:
+        with pytest.raises(HvError, match="does not answer"):
+            RemoteSupply(SUPERVISED, spec(), socket_path).open()
+        supply.enable("front")  # the first node is still served
+    finally:
+        supply.close()
+
+
+def test_a_supply_that_cannot_be_opened_is_refused_with_the_supervisors_reason(socket_path):
+    bad = spec(channels=[dataclasses.asdict(ChannelConfig("front", 7))])
+    with pytest.raises(HvError, match="index 7 is not on the supply"):
+        RemoteSupply(SUPERVISED, bad, socket_path).open()

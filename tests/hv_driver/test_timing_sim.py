@@ -1,0 +1,123 @@
+"""Timing of the whole loop, driver and simulated supplies on one simulated clock (deterministic, no sleeps): a
+ramp's minimum-jerk end time and its slew, a silent supply's LINK trip within the link timeout's bound on every
+dialect, a breakdown caught within its readbacks, smooth pulse edges on their time grid, and (property) a deaf
+supply's cut confirmed whatever the silence lasts."""
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from dialect_rig import Rig
+
+from hv_driver import Fault
+from hv_driver.clock import SimulatedClock
+from hv_driver.dialects import DIALECTS
+from hv_driver.ramp import MIN_JERK_PEAK_RATE
+from hv_driver.supervisor import COLLAPSE_READBACKS, DEFAULT_PERIOD_S
+
+LIMITS = dict(max_voltage_v=3000.0, slew_rate_v_per_s=8000.0, mismatch_tolerance_v=150.0, mismatch_time_s=0.2,
+              current_trip_a=100e-6)
+LINK_TIMEOUT_S = 0.5
+REPLY_TIMEOUT_S = LINK_TIMEOUT_S / 4  # the driver's default
+PERIOD = DEFAULT_PERIOD_S
+EPSILON = 1e-9  # rounding of sums of simulated periods
+
+
+def rig_for(name: str, **options) -> Rig:
+    rig = Rig(name, LIMITS, link_timeout_s=LINK_TIMEOUT_S, clock=SimulatedClock(), **options)
+    for channel in "ab":
+        rig.supply.enable(channel)
+    return rig
+
+
+@pytest.fixture(params=list(DIALECTS))
+def rig(request):
+    made = rig_for(request.param)
+    yield request.param, made
+    made.close()
+
+
+def test_a_ramp_ends_at_its_minimum_jerk_time_and_never_outruns_the_slew_limit(rig):
+    name, made = rig
+    start = made.clock()
+    handle = made.supply.ramp_to("a", 2400.0, token=made.token)
+    setpoints = [(start, 0.0)]
+    while not handle.done:
+        made.supply.step()
+        setpoints.append((made.clock(), made.supply.snapshot().channel("a").setpoint))
+    assert handle.succeeded, handle.message
+    duration = MIN_JERK_PEAK_RATE * 2400.0 / LIMITS["slew_rate_v_per_s"]
+    # Done once the end is sent and read back within the tolerance: at the ramp's end, or the cycle after.
+    assert duration - EPSILON <= made.clock() - start <= duration + 2 * PERIOD + EPSILON
+    times, volts = np.array(setpoints).T
+    rates = np.diff(volts) / np.maximum(np.diff(times), EPSILON)
+    assert rates.max() <= LIMITS["slew_rate_v_per_s"] * (1 + 1e-9)
+
+
+@pytest.mark.parametrize("fault", ["no_reply", "deaf"])
+def test_a_silent_supply_trips_link_within_the_link_timeouts_bound(rig, fault):
+    """The first failed exchange, the link timeout from it, and the failing cycle that finds it passed (a resync and
+    a reply timeout): no later than link_timeout_s + 3 reply timeouts after the silence began."""
+    name, made = rig
+    made.ramp(1000.0)
+    made.inject(fault, "a")
+    silent_since = made.clock()
+    while Fault.LINK not in made.supply.snapshot().channel("a").faults:
+        made.supply.step()
+    tripped = made.clock() - silent_since
+    assert LINK_TIMEOUT_S < tripped <= LINK_TIMEOUT_S + 3 * REPLY_TIMEOUT_S + PERIOD + EPSILON
+
+
+def test_a_breakdown_on_the_ppv_is_caught_within_its_readbacks():
+    made = rig_for("ppv")
+    try:
+        made.ramp(1200.0)
+        made.supply.run_for(0.1)  # held
+        made.inject("over_current", "a")
+        arced = made.clock()
+        while Fault.BREAKDOWN not in made.supply.snapshot().channel("a").faults:
+            made.supply.step()
+        # The voltage collapses within 2 ms (10 ms cycles): the next COLLAPSE_READBACKS readbacks are far below.
+        assert made.clock() - arced <= COLLAPSE_READBACKS * PERIOD + EPSILON
+        made.supply.step()
+        assert not made.plant("a").output_on
+    finally:
+        made.close()
+
+
+def test_smooth_pulse_edges_cross_half_the_amplitude_on_their_grid_at_half_the_edge_time():
+    made = rig_for("iseg-edcp")
+    try:
+        made.watch("a", 300.0)
+        handle = made.supply.pulse(["a"], 600.0, 2.0, duty=0.5, cycles=4, token=made.token)
+        assert handle.wait(10.0) and handle.succeeded, handle.message
+        train = handle.trains["a"]
+        edges = made.edges("a")
+        due = train.start + np.arange(4) * train.period + train.edge_duration / 2  # min-jerk: half-way at half time
+        assert len(edges) == 4
+        # The device follows each streamed setpoint at its ramp (1.2 x the slew limit) within a cycle.
+        assert np.all((edges >= due - PERIOD) & (edges <= due + 2 * PERIOD)), edges - due
+    finally:
+        made.close()
+
+
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(name=st.sampled_from(list(DIALECTS)), silence_s=st.floats(0.05, 2.0), cycles_before=st.integers(0, 20))
+def test_whatever_a_supplys_deafness_lasts_its_output_is_never_claimed_off_and_the_cut_is_confirmed(
+        name, silence_s, cycles_before):
+    made = rig_for(name)
+    try:
+        made.ramp(600.0)
+        made.supply.run_for(cycles_before * PERIOD)
+        sim, _ = made.where["a"]
+        made.inject("deaf", "a")
+        made.supply.estop()  # the cut goes out into the silence
+        made.clock.call_at(made.clock() + silence_s, sim.clear_faults)
+        end = made.clock() + silence_s + 0.5
+        while made.clock() < end:
+            made.supply.step()
+            snap = made.supply.snapshot().channel("a")
+            assert snap.output_enabled or not made.plant("a").output_on
+        assert not made.plant("a").output_on and not made.supply.snapshot().channel("a").output_enabled
+    finally:
+        made.close()
