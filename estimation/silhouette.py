@@ -15,12 +15,12 @@ from pathlib import Path
 
 import contourpy
 import numpy as np
-from PIL import Image
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from estimation.view import ImagePose
 from planner.contours import DEFAULT_SPECK_FRACTION, GREY_MODES, clean_mask, load_mask
+from planner.image_file import open_image
 
 MAX_IMAGE_PIXELS = 25_000_000  # 5000 x 5000: far beyond any useful side view; bounds memory and time
 MIN_IMAGE_SIDE = 8
@@ -33,12 +33,9 @@ OCCLUSION_MARGIN = 2  # [pixels] image outline this close to an occluder is its 
 def read_image(source) -> np.ndarray:
     """A 2D grey array from a path (PNG, PGM, ... via Pillow) or an array, size checked before decoding."""
     if isinstance(source, (str, Path)):
-        try:
-            with Image.open(source) as image:
-                _check_size(image.size[::-1], f"image {source}")
-                grey = np.asarray(image if image.mode in GREY_MODES else image.convert("L"))
-        except OSError as error:
-            raise ValueError(f"cannot read image {source}: {error}") from None
+        with open_image(source) as image:
+            _check_size(image.size[::-1], f"image {source}")
+            grey = np.asarray(image if image.mode in GREY_MODES else image.convert("L"))
     else:
         grey = np.asarray(source)
         if grey.ndim != 2:

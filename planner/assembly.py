@@ -12,6 +12,8 @@ from pathlib import Path
 
 import yaml
 
+from .bounded_yaml import YAMLInputError, load_yaml_file
+
 SNAP_FITS = 12
 ROTATION_STEP = 2.0 * math.pi / SNAP_FITS  # 30 degrees [rad]
 
@@ -180,9 +182,9 @@ def assembly_to_dict(assembly: Assembly) -> dict:
 def load_assembly(path: str | Path) -> Assembly:
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as error:
-        raise ValueError(f"cannot read assembly file {path}: {error}") from None
+        data = load_yaml_file(path)
+    except YAMLInputError as error:
+        raise ValueError(f"cannot read assembly file {error}") from None
     try:
         return assembly_from_dict(data)
     except ValueError as error:

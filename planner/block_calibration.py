@@ -13,9 +13,9 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-import yaml
 from softblock_config import config_file
 
+from planner.bounded_yaml import load_yaml_file
 from planner.table import design_indices
 
 DEFAULT_CALIBRATION_PATH = config_file("block_calibration.yaml")
@@ -86,9 +86,4 @@ def load_block_calibration(path=DEFAULT_CALIBRATION_PATH) -> BlockCalibration:
     path = Path(path)
     if not path.is_file():
         return BlockCalibration(blocks={})
-    with path.open() as handle:
-        try:
-            document = yaml.safe_load(handle)
-        except yaml.YAMLError as error:
-            raise ValueError(f"{path}: not valid YAML: {error}") from None
-    return parse_block_calibration(document, str(path))
+    return parse_block_calibration(load_yaml_file(path), str(path))

@@ -15,10 +15,11 @@ from pathlib import Path
 
 import contourpy
 import numpy as np
-import yaml
-from PIL import Image
 from scipy import ndimage
 from softblock_config import config_file
+
+from .bounded_yaml import load_yaml_file
+from .image_file import open_image
 
 OBJECTS_CATALOG = config_file("objects/objects.yaml")
 DEFAULT_SPECK_FRACTION = 0.01
@@ -42,16 +43,10 @@ def load_mask(source, threshold: float | None = None) -> np.ndarray:
     file before its pixels are decoded (the size is in its header).
     """
     if isinstance(source, (str, Path)):
-        if not Path(source).is_file():  # a FIFO or a device would block or never end
-            problem = "not a regular file" if Path(source).exists() else "no such file"
-            raise ValueError(f"cannot read object image {source}: {problem}")
-        try:
-            with Image.open(source) as image:
-                _check_pixel_count(image.width, image.height, source)
-                # single-channel modes keep their values (16-bit PGM included); colour becomes grey
-                grey = np.asarray(image if image.mode in GREY_MODES else image.convert("L"))
-        except OSError as error:
-            raise ValueError(f"cannot read object image {source}: {error}") from None
+        with open_image(source, "object image") as image:
+            _check_pixel_count(image.width, image.height, source)
+            # single-channel modes keep their values (16-bit PGM included); colour becomes grey
+            grey = np.asarray(image if image.mode in GREY_MODES else image.convert("L"))
     else:
         grey = np.asarray(source)
     if grey.ndim != 2 or grey.size == 0:
@@ -178,8 +173,8 @@ def extract_contours(mask, pixel_size: float, speck_fraction: float = DEFAULT_SP
 def load_catalog_object(name: str, catalog: str | Path = OBJECTS_CATALOG, threshold: float | None = None) -> ObjectContours:
     """Contours of an object listed in ``catalog`` (YAML: name -> {file, pixel_size_m})."""
     catalog = Path(catalog)
-    entries = yaml.safe_load(catalog.read_text())
-    if name not in entries:
-        raise ValueError(f"object {name!r} is not in {catalog}; known: {sorted(entries)}")
+    entries = load_yaml_file(catalog)
+    if not isinstance(entries, dict) or name not in entries:
+        raise ValueError(f"object {name!r} is not in {catalog}; known: {sorted(entries) if isinstance(entries, dict) else []}")
     entry = entries[name]
     return extract_contours(load_mask(catalog.parent / entry["file"], threshold), float(entry["pixel_size_m"]))

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
+from .bounded_mcap import open_bounded, undecodable
 from .gaps import checkable, find_gaps
 from .mcap_file import require_complete
 
@@ -56,10 +57,15 @@ def fault_names(bits: int, names: dict) -> list[str]:
 
 def load(path: str) -> RecordingData:
     """Decodes the HvState, SequenceEvent and AssemblyState messages of `path`."""
+    with undecodable(path):
+        return _load(path)
+
+
+def _load(path: str) -> RecordingData:
     require_complete(path)
     data = RecordingData()
     rows = []
-    with open(path, "rb") as stream:
+    with open_bounded(path) as stream:
         reader = make_reader(stream, decoder_factories=[DecoderFactory()])
         summary = reader.get_summary()
         for schema in summary.schemas.values():
@@ -102,7 +108,7 @@ def _lost_samples(channels, numbered: dict, origin: int) -> dict:
     """Per topic: the gaps in its publication sequence numbers (times in s from ``origin``), or why not checked."""
     report = {}
     for channel in sorted(channels, key=lambda c: c.topic):
-        reason = checkable(channel.metadata.get("offered_qos_profiles", ""))
+        reason = checkable(channel.metadata.get("offered_qos_profiles", ""), channel.topic)
         if reason:
             report[channel.topic] = {"checked": False, "reason": reason}
             continue

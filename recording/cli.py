@@ -1,6 +1,7 @@
-"""Recordings without ROS: inspect, recover and analyse MCAP files.
+"""Recordings without ROS: inspect, recover, analyse and export MCAP files.
 
-    python -m recording {info,recover,analyze} FILE ...
+    python -m recording {info,recover,analyze,export} FILE ...
+    python -m recording export --csv DIR FILE     # one CSV per topic (recording.export)
 
 The same subcommands are part of `python -m softblock_ros.recording`, which adds record and play.
 """
@@ -9,13 +10,14 @@ import json
 import os
 import sys
 
+import zstandard
 from mcap.exceptions import McapError
 
 from .mcap_file import describe, recover
 
 
 def add_file_commands(commands) -> None:
-    """The info, recover and analyze subcommands, on an argparse subparsers object."""
+    """The info, recover, analyze and export subcommands, on an argparse subparsers object."""
     info = commands.add_parser("info", help="topics, types, counts and QoS of a recording")
     info.add_argument("recording")
     info.add_argument("--json", action="store_true", help="print JSON instead of text")
@@ -27,6 +29,10 @@ def add_file_commands(commands) -> None:
     analyze = commands.add_parser("analyze", help="plots and summary of a grasp recording")
     analyze.add_argument("recording")
     analyze.add_argument("--out-dir", help="where <name>.png/.json go (default: beside it)")
+
+    export = commands.add_parser("export", help="one CSV file per topic (flattened fields, SI units, time in s)")
+    export.add_argument("recording")
+    export.add_argument("--csv", required=True, metavar="DIR", help="directory for <topic>.csv (created)")
 
 
 def _info(args) -> int:
@@ -65,14 +71,23 @@ def _analyze(args) -> int:
     return 0
 
 
-FILE_COMMANDS = {"info": _info, "recover": _recover, "analyze": _analyze}
+def _export(args) -> int:
+    from .export import csv_name, export_csv
+    counts = export_csv(args.recording, args.csv)
+    for topic, rows in sorted(counts.items()):
+        print(f"{topic}: {rows} rows -> {os.path.join(args.csv, csv_name(topic))}")
+    return 0
+
+
+FILE_COMMANDS = {"info": _info, "recover": _recover, "analyze": _analyze, "export": _export}
 
 
 def run_file_command(args) -> int:
-    """Run a parsed info/recover/analyze command; a bad file is one line on stderr and exit status 1."""
+    """Run a parsed info/recover/analyze/export command; a bad file is one line on stderr and exit status 1."""
     try:
         return FILE_COMMANDS[args.command](args)
-    except (OSError, ValueError, McapError) as error:
+    # A chunk of corrupt compressed data: zstd raises ZstdError, python-lz4 RuntimeError.
+    except (OSError, ValueError, McapError, zstandard.ZstdError, RuntimeError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 1
 

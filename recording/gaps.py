@@ -11,12 +11,12 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
-import yaml
+from .qos_profiles import parse_offered_qos
 
 
-def checkable(offered_qos_profiles: str) -> str:
+def checkable(offered_qos_profiles: str, topic: str = "") -> str:
     """Why a topic's numbers cannot be checked ("" when they can), from its channel's QoS metadata."""
-    profiles = yaml.safe_load(offered_qos_profiles or "[]") or []
+    profiles = parse_offered_qos(offered_qos_profiles, topic)
     if len(profiles) != 1:
         return f"{len(profiles)} publishers when recorded (their counters interleave)"
     if profiles[0].get("reliability") != "reliable":

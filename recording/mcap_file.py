@@ -17,7 +17,9 @@ from mcap.writer import MCAP0_MAGIC, CompressionType, Writer
 
 from planner.atomic_file import atomic_write
 
+from .bounded_mcap import BoundedFile, open_bounded, scan
 from .message_definitions import SCHEMA_ENCODING, full_definition
+from .qos_profiles import parse_offered_qos
 
 PROFILE = "ros2"
 MESSAGE_ENCODING = "cdr"
@@ -30,18 +32,35 @@ BAG_METADATA_VERSION = 9  # rosbag2_storage::BagMetadata of ROS 2 Jazzy
 NO_MESSAGE_TIME = 2**63 - 1  # rosbag2's starting_time of a bag without messages
 
 
+def create_new(path: str, overwrite: bool = False):
+    """A new file at ``path`` open for binary writing, never written through a symlink.
+
+    An existing ``path`` (a file, a link, anything) is refused with FileExistsError, as ``ros2 bag record``
+    refuses an existing bag; with ``overwrite`` it is removed first (a link itself, not what it points to), so
+    an old recording is replaced, never truncated in place."""
+    if overwrite and os.path.lexists(path) and not os.path.isdir(path):
+        os.unlink(path)
+    try:
+        descriptor = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
+    except FileExistsError:
+        raise FileExistsError(f"{path} exists; choose another output, or overwrite it on purpose "
+                              "(--overwrite, parameter overwrite)") from None
+    return os.fdopen(descriptor, "wb")
+
+
 class RecordingWriter:
-    """Writes one ROS 2 MCAP file: a schema per message type, a channel per topic."""
+    """Writes one ROS 2 MCAP file: a schema per message type, a channel per topic. The file must not
+    exist unless ``overwrite`` (see create_new)."""
 
     def __init__(self, path: str, compression: str = "zstd",
-                 chunk_size: int = DEFAULT_CHUNK_SIZE):
+                 chunk_size: int = DEFAULT_CHUNK_SIZE, overwrite: bool = False):
         if compression not in COMPRESSIONS:
             raise ValueError(f"compression must be one of {sorted(COMPRESSIONS)}, "
                              f"not {compression!r}")
         if chunk_size <= 0:
             raise ValueError(f"chunk_size must be positive, not {chunk_size}")
         self.path = path
-        self._stream = open(path, "wb")
+        self._stream = create_new(path, overwrite)
         self._writer = Writer(self._stream, chunk_size=chunk_size,
                               compression=COMPRESSIONS[compression])
         self._writer.start(profile=PROFILE, library=LIBRARY)
@@ -68,7 +87,7 @@ class RecordingWriter:
         self.message_counts[topic] = 0
         self._topic_metadata[topic] = {
             "name": topic, "type": type_name, "serialization_format": MESSAGE_ENCODING,
-            "offered_qos_profiles": yaml.safe_load(offered_qos_profiles) or [],
+            "offered_qos_profiles": parse_offered_qos(offered_qos_profiles, topic),
             "type_description_hash": type_hash}
         return channel_id
 
@@ -120,8 +139,8 @@ class RecordingWriter:
 
 
 def require_complete(path: str) -> None:
-    """McapError unless `path` ends with the footer magic that `RecordingWriter.close` writes."""
-    with open(path, "rb") as stream:
+    """McapError unless `path` (a regular file) ends with the footer magic that `RecordingWriter.close` writes."""
+    with BoundedFile(path) as stream:
         stream.seek(0, os.SEEK_END)
         size = stream.tell()
         stream.seek(max(size - len(MCAP0_MAGIC), 0))
@@ -139,18 +158,17 @@ class RecoveryResult:
     topics: dict = field(default_factory=dict)
 
 
-def _readable_records(path: str):
-    """Records of `path` in file order, stopping quietly at a truncated tail."""
-    with open(path, "rb") as stream:
-        records = StreamReader(stream, validate_crcs=True).records
-        while True:
-            try:
-                record = next(records)
-            except StopIteration:
-                return
-            except (McapError, struct.error, ValueError, EOFError):
-                return  # torn record at the end of a file whose writer died
-            yield record
+def _readable_records(stream: BoundedFile):
+    """Records of `stream` in file order, stopping quietly at a truncated tail (or wherever its size says)."""
+    records = StreamReader(stream, validate_crcs=True).records
+    while True:
+        try:
+            record = next(records)
+        except StopIteration:
+            return
+        except (McapError, struct.error, ValueError, EOFError):
+            return  # torn record at the end of a file whose writer died
+        yield record
 
 
 class _NotMcap(Exception):
@@ -167,16 +185,19 @@ def recover(source: str, target: str) -> RecoveryResult:
     if os.path.exists(target) and os.path.samefile(source, target):
         raise ValueError(f"target {target} is the recording {source} itself; choose another output")
     counts: dict[str, int] = {}
-    try:
-        with atomic_write(target, "wb") as stream:
-            _copy_readable(source, stream, counts)
-    except _NotMcap:
-        return RecoveryResult(False, f"{source} does not start with an MCAP header")
-    return RecoveryResult(True, f"recovered {sum(counts.values())} messages into {target}",
+    with BoundedFile(source) as records:
+        records.size, problem = scan(records)  # reads end where the sound records do (recording.bounded_mcap)
+        try:
+            with atomic_write(target, "wb") as stream:
+                _copy_readable(records, stream, counts)
+        except _NotMcap:
+            return RecoveryResult(False, f"{source} does not start with an MCAP header")
+    stopped = f" (stopped at what follows: {problem})" if problem else ""
+    return RecoveryResult(True, f"recovered {sum(counts.values())} messages into {target}{stopped}",
                           sum(counts.values()), counts)
 
 
-def _copy_readable(source: str, stream, counts: dict[str, int]) -> None:
+def _copy_readable(source: BoundedFile, stream, counts: dict[str, int]) -> None:
     """Writes the readable records of `source` as a complete MCAP file; counts per topic."""
     schema_ids: dict[int, int] = {}
     channel_ids: dict[int, int] = {}
@@ -217,7 +238,7 @@ def describe(path: str) -> dict:
     Raises McapError for an unfinished file (writer killed): run `recover` on it.
     """
     require_complete(path)
-    with open(path, "rb") as stream:
+    with open_bounded(path) as stream:
         reader = make_reader(stream)
         header = reader.get_header()
         summary = reader.get_summary()
@@ -227,11 +248,11 @@ def describe(path: str) -> dict:
     topics = {}
     for channel_id, channel in sorted(summary.channels.items()):
         schema = summary.schemas.get(channel.schema_id)
-        offered = yaml.safe_load(channel.metadata.get("offered_qos_profiles") or "[]") or []
+        offered = parse_offered_qos(channel.metadata.get("offered_qos_profiles", ""), channel.topic)
         topics[channel.topic] = {
             "type": schema.name if schema else "",
             "count": stats.channel_message_counts.get(channel_id, 0),
-            "durability": sorted({p.get("durability", "") for p in offered}),
+            "durability": sorted({str(p.get("durability", "")) for p in offered}),
         }
     return {
         "path": path, "profile": header.profile, "library": header.library,

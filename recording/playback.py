@@ -1,7 +1,9 @@
 """What to replay and when: topic selection and the recorded timing. No rclpy import.
 
 Command topics (recording.topics) are left out unless `include_commands` is set, so a replay next to
-a live stack never feeds its HV watchdog or moves its voltage ceiling by default.
+a live stack never feeds its HV watchdog or moves its voltage ceiling by default. State topics (hv/state,
+/diagnostics, ...) are played under STATE_NAMESPACE unless `include_state` is set (or every topic goes to a
+`namespace`), so a live client never takes a recorded state for the live one (a dead driver stays visible).
 """
 import re
 import threading
@@ -12,10 +14,12 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.records import Channel
 
+from .bounded_mcap import open_bounded
 from .mcap_file import require_complete
-from .topics import is_command_topic
+from .topics import is_command_topic, is_state_topic
 
 _NAMESPACE = re.compile(r"^(/[A-Za-z][A-Za-z0-9_]*)+$")
+STATE_NAMESPACE = "/replay"  # where a default replay puts the state topics
 
 
 @dataclass
@@ -33,6 +37,15 @@ class PlaybackOptions:
                                  # so subscribers can discover and match the publishers first
     include_commands: bool = False  # also play command topics (recording.topics)
     namespace: str = ""          # prefix of every topic, e.g. /replay; "": topics as recorded
+    include_state: bool = False  # state topics under their own names too (else under STATE_NAMESPACE)
+
+    def published_name(self, topic: str) -> str:
+        """The name a recorded topic is played under."""
+        if self.namespace:
+            return self.namespace + topic
+        if is_state_topic(topic) and not self.include_state:
+            return STATE_NAMESPACE + topic
+        return topic
 
     def validate(self) -> None:
         if not self.rate > 0:
@@ -58,7 +71,7 @@ class Recording:
     def __init__(self, path: str):
         require_complete(path)
         self.path = path
-        self._stream = open(path, "rb")
+        self._stream = open_bounded(path)
         self._reader = make_reader(self._stream)
         summary = self._reader.get_summary()
         if summary is None or summary.statistics is None:
@@ -80,6 +93,10 @@ class Recording:
     def command_topics(self) -> list[str]:
         """The recorded command topics (see recording.topics)."""
         return sorted(c.topic for c in self.channels if is_command_topic(c.topic))
+
+    def state_topics(self) -> list[str]:
+        """The recorded state topics (see recording.topics)."""
+        return sorted(c.topic for c in self.channels if is_state_topic(c.topic))
 
     def start_of_playback(self, options: PlaybackOptions) -> int:
         """Recorded time (ns) playback starts at: the first message plus the start offset."""

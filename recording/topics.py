@@ -1,4 +1,4 @@
-"""Which topics are what, for recording and replay: hidden and command topics. No rclpy import."""
+"""Which topics are what, for recording and replay: hidden, command and state topics. No rclpy import."""
 import re
 
 # Topics the stack obeys rather than reports on, as the HV driver subscribes to them:
@@ -22,3 +22,16 @@ def is_command_topic(topic: str) -> bool:
     """A topic that commands or limits a node (in any namespace); action goals, feedback and status
     and service events (hidden topics) count as commands too."""
     return bool(_COMMAND.search(topic)) or is_hidden(topic)
+
+
+# Topics live clients watch to know the state of the stack: the sequencer and the estimator take hv/state
+# (a stale one is how a dead driver is noticed), the camera and the estimator the assembly and the image, the
+# console /diagnostics, log viewers /rosout. Replayed under their own names into a live domain, a recorded
+# hv/state hid a dead driver for 28 s; the player moves them to a namespace unless asked.
+STATE_TOPICS = ("hv/state", "assembly/current", "camera/silhouette", "diagnostics", "rosout")
+_STATE = re.compile(r"(^|/)(" + "|".join(map(re.escape, STATE_TOPICS)) + r")$")
+
+
+def is_state_topic(topic: str) -> bool:
+    """A topic live clients watch for the stack's state (in any namespace)."""
+    return bool(_STATE.search(topic))

@@ -15,24 +15,21 @@ of any value quoted in an error are limited, and YAML anchors and aliases are re
 from __future__ import annotations
 
 import math
-import os
 import re
 import reprlib
-import stat
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-import yaml
 from hv_driver.pulse import EDGES as PULSE_EDGES
 from hv_driver.ramp import MIN_JERK_PEAK_RATE
+from planner.bounded_yaml import YAMLInputError, load_yaml_file
 
 ON_FAILURE = ("safe_stop", "estop")  # ramp every channel to 0 V (e-stop if that fails) | e-stop at once
 STEP_KINDS = ("move_arm", "ramp", "wait", "parallel", "pulse_train")
 COMMON_KEYS = {"name", "description", "precondition", "timeout", "on_failure"}
 _NAME = re.compile(r"^[A-Za-z0-9_\-]+$")
 MAX_FILE_SIZE = 256 * 1024  # [bytes]; the shipped sequences are below 10 KB
-MAX_DEPTH = 32              # nested lists and mappings in a file
 MAX_NAME_LENGTH = 100       # characters of a sequence name in a goal
 MAX_EXCERPT = 80            # characters of a value quoted in an error message
 _EXCERPT = reprlib.Repr()
@@ -395,58 +392,13 @@ def parse_sequence(document, limits: Limits = Limits(), source: str = "", defaul
                     steps=parser.steps(document.get("steps", _MISSING), "steps"), source=source)
 
 
-class _BoundedLoader(yaml.SafeLoader):
-    """PyYAML's safe loader without anchors and aliases, and with a nesting limit (the composer recurses)."""
-
-    def __init__(self, stream):
-        super().__init__(stream)
-        self._depth = 0
-
-    def compose_node(self, parent, index):
-        event = self.peek_event()
-        if isinstance(event, yaml.AliasEvent) or getattr(event, "anchor", None):
-            problem = "anchors and aliases (&name, *name) are not allowed; write the value out"
-            raise yaml.MarkedYAMLError(problem=problem, problem_mark=event.start_mark)
-        if self._depth >= MAX_DEPTH:
-            raise yaml.MarkedYAMLError(problem=f"nested deeper than {MAX_DEPTH} levels",
-                                       problem_mark=event.start_mark)
-        self._depth += 1
-        try:
-            return super().compose_node(parent, index)
-        finally:
-            self._depth -= 1
-
-
-def _yaml_error(source: str, error: yaml.YAMLError) -> SequenceError:
-    """One line naming the place, without the document's text (PyYAML's message quotes the line)."""
-    mark = getattr(error, "problem_mark", None)
-    where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
-    problem = getattr(error, "problem", None) or str(error)
-    return SequenceError(f"{source}: invalid YAML: {where}{problem[:MAX_EXCERPT]}")
-
-
-def _read_bounded(path: Path) -> bytes:
-    """The bytes of a regular file of at most MAX_FILE_SIZE; SequenceError otherwise (nothing else read)."""
-    try:
-        with open(path, "rb") as stream:
-            info = os.fstat(stream.fileno())
-            if not stat.S_ISREG(info.st_mode):
-                raise SequenceError(f"{path}: not a regular file")
-            data = stream.read(MAX_FILE_SIZE + 1)
-    except OSError as error:
-        raise SequenceError(f"{path}: cannot read: {error.strerror}") from None
-    if len(data) > MAX_FILE_SIZE:
-        raise SequenceError(f"{path}: larger than {MAX_FILE_SIZE} bytes, the limit for a sequence file")
-    return data
-
-
 def load_sequence_file(path: str | Path, limits: Limits = Limits(), defaults: Mapping | None = None) -> Sequence:
     """Read (bounded, see the module docstring) and validate one sequence file; SequenceError otherwise."""
     path = Path(path)
     try:
-        document = yaml.load(_read_bounded(path), Loader=_BoundedLoader)  # a SafeLoader
-    except yaml.YAMLError as error:
-        raise _yaml_error(str(path), error) from None
+        document = load_yaml_file(path, MAX_FILE_SIZE)
+    except YAMLInputError as error:
+        raise SequenceError(str(error)) from None
     return parse_sequence(document, limits, source=str(path), defaults=defaults)
 
 

@@ -10,7 +10,7 @@ import threading
 import pytest
 from hypothesis import settings
 from processes import adopt_orphans, descendants, kill_tree, reap
-from ros_domains import domain_for
+from ros_domains import DEFAULT_TEST_DOMAINS, domain_for
 
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("MPLBACKEND", "Agg")
@@ -27,7 +27,7 @@ settings.load_profile("suite")
 # and gives each of its modules the next one, counted from an offset derived from the run's id (a plain
 # run: from its pid); see ros_domains.domain_for. Suites that run at the same time on one machine (two
 # checkouts) each take their own range: SOFTBLOCK_TEST_DOMAINS=100-160.
-_FIRST, _LAST = (int(bound) for bound in os.environ.get("SOFTBLOCK_TEST_DOMAINS", "10-99").split("-"))
+_FIRST, _LAST = (int(bound) for bound in os.environ.get("SOFTBLOCK_TEST_DOMAINS", DEFAULT_TEST_DOMAINS).split("-"))
 if not 0 <= _FIRST <= _LAST <= 232:
     raise ValueError(f"SOFTBLOCK_TEST_DOMAINS={_FIRST}-{_LAST}: a range within 0-232 (Fast DDS's port limit)")
 _RUN = os.environ.get("PYTEST_XDIST_TESTRUNUID", str(os.getpid()))

@@ -1,4 +1,12 @@
-"""Which ROS domain a test module runs in, so that parallel test workers never cross-talk."""
+"""Which ROS domain a test module runs in, so that parallel test workers never cross-talk.
+
+The suite's domains (DEFAULT_TEST_DOMAINS unless SOFTBLOCK_TEST_DOMAINS says otherwise) and those that
+scripts/with_env.sh gives a command started by hand without ROS_DOMAIN_ID (WRAPPER_DOMAINS) are disjoint, so
+a stack started by hand never reaches a running suite.
+"""
+
+DEFAULT_TEST_DOMAINS = "10-99"
+WRAPPER_DOMAINS = range(1, 10)  # scripts/with_env.sh: $$ % 9 + 1
 
 
 def domain_for(first: int, last: int, offset: int, worker: int, workers: int, module_index: int) -> int:

@@ -1,9 +1,14 @@
 """Parallel test workers never share a ROS domain, whatever the range and however many modules each runs
 (a shared domain let one worker's fuzz test e-stop another worker's HV driver in a fresh-clone run)."""
 import itertools
+import os
+import subprocess
+from pathlib import Path
 
 import pytest
-from ros_domains import domain_for
+from ros_domains import DEFAULT_TEST_DOMAINS, WRAPPER_DOMAINS, domain_for
+
+WRAPPER = Path(__file__).resolve().parents[1] / "scripts" / "with_env.sh"
 
 pytestmark = pytest.mark.fast
 
@@ -21,3 +26,15 @@ def test_workers_never_share_a_domain_and_stay_in_the_range(first, last, workers
 def test_a_range_smaller_than_the_workers_is_refused_by_name():
     with pytest.raises(ValueError, match="SOFTBLOCK_TEST_DOMAINS=10-11: fewer domains than the 3 test workers"):
         domain_for(10, 11, 0, 0, 3, 0)
+
+
+def test_the_env_wrappers_default_domain_is_outside_the_suites_default_range():
+    """A stack started by hand through scripts/with_env.sh without ROS_DOMAIN_ID must not join a running suite
+    (the old default, $$ % 100 + 1, fell inside 10-99 for 90 pids in 100). Each run has another pid."""
+    first, last = (int(bound) for bound in DEFAULT_TEST_DOMAINS.split("-"))
+    environment = {name: value for name, value in os.environ.items() if name != "ROS_DOMAIN_ID"}
+    domains = {int(subprocess.run([str(WRAPPER), "sh", "-c", "echo $ROS_DOMAIN_ID"], env=environment,
+                                  capture_output=True, text=True, check=True, timeout=60).stdout)
+               for _ in range(8)}
+    assert domains <= set(WRAPPER_DOMAINS)
+    assert not set(WRAPPER_DOMAINS) & set(range(first, last + 1))

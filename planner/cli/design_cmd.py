@@ -11,10 +11,10 @@ import time
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from planner import design
 from planner.assembly import ROTATION_STEP, Assembly, Chain, PlacedBlock, save_assembly
+from planner.bounded_yaml import load_yaml_file
 from planner.contours import OBJECTS_CATALOG, extract_contours, load_mask
 
 
@@ -59,7 +59,7 @@ def _progress(progress) -> None:
 
 
 def _object_mask(name: str, pixel_size: float | None):
-    catalog = yaml.safe_load(OBJECTS_CATALOG.read_text())
+    catalog = load_yaml_file(OBJECTS_CATALOG)
     if name in catalog:
         entry = catalog[name]
         scale = float(entry["pixel_size_m"]) if pixel_size is None else pixel_size  # 0 is an error, not "default"
@@ -72,7 +72,7 @@ def _object_mask(name: str, pixel_size: float | None):
 def _load_inventory(path: Path | None) -> dict[int, int] | None:
     if path is None:
         return None
-    data = yaml.safe_load(path.read_text())
+    data = load_yaml_file(path)
     if not isinstance(data, dict):
         raise ValueError(f"{path}: inventory must map design IDs to counts")
     return {int(k): int(v) for k, v in data.items()}

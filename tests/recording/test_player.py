@@ -1,6 +1,6 @@
 """Player: recorded timing order, recorded QoS (latched stays latched), filters, offset, loop,
-/clock, command topics left out unless asked for, and a clear error for message types that cannot
-be imported."""
+/clock, command topics left out and state topics kept away from live clients unless asked for, and a clear
+error for message types that cannot be imported."""
 import subprocess
 import sys
 
@@ -21,10 +21,10 @@ from softblock_ros.qos import LATCHED
 from softblock_ros.recording.message_types import UnknownMessageTypeError
 from recording.mcap_file import RecordingWriter
 from recording.playback import PlaybackOptions
-from recording.topics import is_command_topic
+from recording.topics import is_command_topic, is_state_topic
 from softblock_ros.recording.player_node import PlayerNode
-from softblock_ros.recording.qos_metadata import (offered_qos_yaml, parse_offered_qos,
-                                                  playback_qos)
+from recording.qos_profiles import parse_offered_qos
+from softblock_ros.recording.qos_metadata import offered_qos_yaml, playback_qos
 
 pytestmark = pytest.mark.integration
 
@@ -53,7 +53,7 @@ def collect(node, msg_type, topic, qos):
 
 def test_replay_in_order_and_latched_topic_reaches_a_late_subscriber(ros_context,
                                                                      grasp_recording):
-    player = PlayerNode(grasp_recording, PlaybackOptions(rate=2.0), context=ros_context)
+    player = PlayerNode(grasp_recording, PlaybackOptions(rate=2.0, include_state=True), context=ros_context)
     listener = rclpy.create_node("listener", context=ros_context)
     hv = collect(listener, HvState, "/hv/state", QoSProfile(depth=100))
     spinner = Spinner(ros_context, player, listener)
@@ -79,7 +79,7 @@ def test_topic_filters_and_start_offset_select_what_is_played(ros_context, grasp
                               start_offset_s=10 * STEP / 1e9)
     player = PlayerNode(grasp_recording, options, context=ros_context)
     try:
-        assert [p.topic_name for p in player.publishers_by_channel.values()] == ["/hv/state"]
+        assert [p.topic_name for p in player.publishers_by_channel.values()] == ["/replay/hv/state"]
         player.start()
         wait_for(player.finished.is_set, "end of playback")
     finally:
@@ -92,7 +92,7 @@ def test_loop_replays_until_stopped_and_clock_follows_recorded_time(ros_context,
     options = PlaybackOptions(rate=20.0, loop=True, include="hv", clock_frequency_hz=50.0)
     player = PlayerNode(grasp_recording, options, context=ros_context)
     listener = rclpy.create_node("listener", context=ros_context)
-    hv = collect(listener, HvState, "/hv/state", QoSProfile(depth=100))
+    hv = collect(listener, HvState, "/replay/hv/state", QoSProfile(depth=100))
     clock = collect(listener, Clock, "/clock", QoSProfile(depth=10))
     spinner = Spinner(ros_context, player, listener)
     try:
@@ -199,25 +199,61 @@ class DriverLike:
         return any(s.channels[0].measured_voltage == SAMPLES - 1 for s in self.states)
 
 
-def test_command_topics_are_not_replayed_to_a_live_driver_by_default(ros_context,
-                                                                      recording_with_commands):
-    driver = DriverLike(ros_context)
+def test_neither_commands_nor_state_reach_a_live_driver_or_client_by_default(ros_context, recording_with_commands):
+    """Old: a default replay published the recorded hv/state into the live domain, where the sequencer took it
+    for the live driver's (a SIGKILLed driver went unnoticed for 28 s). By default it goes under /replay."""
+    driver, replay = DriverLike(ros_context), DriverLike(ros_context, namespace="/replay")
     player = PlayerNode(recording_with_commands, PlaybackOptions(), context=ros_context)
+    spinner = Spinner(ros_context, player, driver.node, replay.node)
+    try:
+        assert sorted(p.topic_name for p in player.publishers_by_channel.values()) == ["/replay/hv/state"]
+        state = next(iter(player.publishers_by_channel.values()))
+        wait_for(lambda: state.get_subscription_count() >= 1, "the replay namespace's node to match")
+        player.start()
+        wait_for(player.finished.is_set, "end of playback")
+        wait_for(replay.got_the_last_state, "the last hv/state sample under /replay")
+        for topic in ("/hv/heartbeat", "/assembly/safe_voltage", "/hv/state"):
+            assert driver.node.count_publishers(topic) == 0, topic
+    finally:
+        spinner.close()
+        player.destroy_node()
+    assert (driver.heartbeats, driver.safe_voltages, driver.states) == ([], [], [])
+    assert player.published == SAMPLES
+
+
+def test_include_state_plays_the_state_topics_under_their_own_names(ros_context, recording_with_commands):
+    driver = DriverLike(ros_context)
+    player = PlayerNode(recording_with_commands, PlaybackOptions(include_state=True), context=ros_context)
     spinner = Spinner(ros_context, player, driver.node)
     try:
         assert sorted(p.topic_name for p in player.publishers_by_channel.values()) == ["/hv/state"]
         state = next(iter(player.publishers_by_channel.values()))
         wait_for(lambda: state.get_subscription_count() >= 1, "the driver-like node to match")
         player.start()
-        wait_for(player.finished.is_set, "end of playback")
         wait_for(driver.got_the_last_state, "the last hv/state sample")
-        assert driver.node.count_publishers("/hv/heartbeat") == 0
-        assert driver.node.count_publishers("/assembly/safe_voltage") == 0
     finally:
         spinner.close()
         player.destroy_node()
-    assert (driver.heartbeats, driver.safe_voltages) == ([], [])
-    assert player.published == SAMPLES
+
+
+@pytest.mark.parametrize("flag, logged", [
+    ([], "playing state topics ['/hv/state'] under /replay (--include-state plays them under their own names)"),
+    (["--include-state"], "playing state topics ['/hv/state'] under their own names: a live client takes them")])
+def test_cli_says_where_the_state_topics_go(recording_with_commands, flag, logged):
+    result = subprocess.run([sys.executable, "-m", "softblock_ros.recording", "play", "--rate", "10",
+                             recording_with_commands, *flag], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert logged in result.stderr
+
+
+@pytest.mark.parametrize("topic, state", [("/hv/state", True), ("/robot1/hv/state", True), ("/diagnostics", True),
+                                          ("/rosout", True), ("/assembly/current", True), ("/assembly/state", False),
+                                          ("/sequencer/events", False), ("/hv/state_x", False)])
+def test_which_topics_are_state_topics(topic, state):
+    assert is_state_topic(topic) is state
+    assert PlaybackOptions().published_name(topic) == ("/replay" + topic if state else topic)
+    assert PlaybackOptions(include_state=True).published_name(topic) == topic
+    assert PlaybackOptions(namespace="/x").published_name(topic) == "/x" + topic
 
 
 def test_include_commands_plays_them_and_a_namespace_keeps_them_away(ros_context,

@@ -1,10 +1,15 @@
 """Fuzzing every service and action input of the non-HV nodes (planner, assembly_state, sequencer, sim_arm)
 with messages drawn from their types (message_strategies): each request is answered, a refusal says why
-in one line, an accepted one gives sane outputs, and the node keeps serving afterwards.
+in one line, an accepted one gives sane outputs, and the node keeps serving afterwards. The files the stack
+reads are fuzzed too: stack descriptions, parameter files, MCAP files (headers and record lengths) and image
+headers each load or are refused in one line.
 
 Draws lean toward what the nodes accept (``mostly``), so the searches and moves behind them run too.
 `pytest --hypothesis-show-statistics` shows the share of accepted requests and refusal reasons."""
+import contextlib
+import io
 import math
+import struct
 from types import SimpleNamespace
 
 import numpy as np
@@ -23,18 +28,22 @@ from softblock_interfaces.msg import Assembly, AssemblyState, BlockDesign, Chain
 from softblock_interfaces.srv import DesignFingers, DesignPath, SetAssembly
 from std_msgs.msg import Float64, Header
 
+from crafted_images import png_header
 from crafted_yaml import BILLION_LAUGHS, SELF_REFERENCE
 from planner.assembly import load_assembly
 from planner.contours import load_mask
 from planner.table import load_table
+from recording.cli import main as recording_main
 from softblock_ros.assembly_state_node import AssemblyStateNode
 from softblock_ros.client import ActionClient, ClientError
 from softblock_ros.conversions import assembly_msg, image_msg
+from softblock_ros.parameter_files import check_parameter_file
 from softblock_ros.paths import resolve_path
 from softblock_ros.planner_node import PlannerNode
 from softblock_ros.qos import LATCHED
 from softblock_ros.sequencer_node import SequencerNode
 from softblock_ros.sim_arm_node import SimArmNode
+from softblock_ros.stack import load_stack
 
 pytestmark = pytest.mark.integration
 
@@ -62,6 +71,8 @@ def nodes(ros_context, spin, tmp_path_factory):
     (sequences / "laughs.yaml").write_text(BILLION_LAUGHS)
     (sequences / "loop.yaml").write_text(SELF_REFERENCE)
     (sequences / "passwd.yaml").symlink_to("/etc/passwd")
+    bomb = tmp_path_factory.mktemp("images") / "bomb.png"
+    bomb.write_bytes(png_header(30_000, 30_000))
     planner = PlannerNode(context=ros_context, parameter_overrides=[
         Parameter("max_blocks", value=2), Parameter("default_time_budget_s", value=0.5)])
     assembly_state = AssemblyStateNode(context=ros_context, parameter_overrides=[Parameter("publish_rate_hz", value=20.0)])
@@ -74,6 +85,7 @@ def nodes(ros_context, spin, tmp_path_factory):
     client = rclpy.create_node("fuzz_client", context=ros_context)
     spin(planner, assembly_state, sequencer, arm, client)
     return SimpleNamespace(
+        bomb=str(bomb),
         design_fingers=client.create_client(DesignFingers, "planner/design_fingers"),
         design_path=client.create_client(DesignPath, "planner/design_path"),
         set_assembly=client.create_client(SetAssembly, "assembly/set"),
@@ -143,6 +155,14 @@ def test_design_path_answers_every_request(nodes, request_message):
         assert one_line_reason(reply.message), reply.message
 
 
+def test_an_image_whose_header_claims_900_megapixels_is_refused_in_one_line(nodes):
+    """Old: Pillow's DecompressionBombError escaped the planner's checks ("request failed", a bug's answer)."""
+    reply = call(nodes.design_fingers, DesignFingers.Request(image_path=nodes.bomb, pixel_size=0.00025,
+                                                              num_blocks=2, time_budget=0.5), ANSWER)
+    assert not reply.success and one_line_reason(reply.message), reply.message
+    assert "its header claims more than" in reply.message
+
+
 def test_the_planner_still_designs_after_the_fuzzing(nodes):
     request = DesignFingers.Request(image=STRAWBERRY, pixel_size=0.00025, num_blocks=2, time_budget=30.0)
     reply = call(nodes.design_fingers, request, 60.0)
@@ -178,6 +198,24 @@ def test_set_assembly_answers_every_request_and_keeps_predicting(nodes, request_
         assert reply.message.startswith("assembly refused: ") and one_line_reason(reply.message), reply.message
     state = next_message(nodes.assembly_state)  # the timer still runs
     assert all(finite(*chain.block_angles) for chain in state.chains)
+
+
+@pytest.mark.parametrize("field", ["name", "chain", "hv_channel", "serial"])
+def test_set_assembly_refuses_a_100000_character_string_by_its_length(nodes, field):
+    """Old: a 100,000-character assembly name was accepted, and published with every state."""
+    long = "x" * 100_000
+    message = assembly_msg(load_assembly(resolve_path("config/assemblies/gripper.yaml")), TABLE)
+    if field == "name":
+        message.name = long
+    elif field == "chain":
+        message.chains[0].name = long
+    elif field == "hv_channel":
+        message.chains[0].hv_channel = long
+    else:
+        message.chains[0].blocks[0].serial = long
+    reply = call(nodes.set_assembly, SetAssembly.Request(assembly=message), ANSWER)
+    assert not reply.success and one_line_reason(reply.message) and long not in reply.message
+    assert reply.message.startswith("assembly refused: ") and "(100000 characters) is longer than 100" in reply.message
 
 
 def test_the_assembly_state_node_takes_a_good_assembly_after_the_fuzzing(nodes):
@@ -238,3 +276,74 @@ def test_move_arm_answers_every_goal_and_the_pose_stays_finite(nodes, goal):
     assert result.success == (status == GoalStatus.STATUS_SUCCEEDED) and (result.success or result.message)
     pose = next_message(nodes.arm_pose).pose
     assert finite(pose.position.x, pose.position.y, pose.position.z, pose.orientation.w)
+
+
+# --- files the stack reads -----------------------------------------------------------------------------
+YAML_TEXT = st.text(st.sampled_from("abnmode:-[]{}&*!|>'\"#\t\n ,?%@0.9"), max_size=200) | st.sampled_from([
+    BILLION_LAUGHS, SELF_REFERENCE, "nodes:\n\t- name: x\n", "[" * 40 + "]" * 40, "nodes: []\n",
+    "namespace: ''\nnodes:\n  - {name: a, module: m, executable: e}\n"])
+
+
+def one_line_refusal(error: BaseException) -> bool:
+    return isinstance(error, ValueError) and "\n" not in str(error) and len(str(error)) < 500
+
+
+@settings(FUZZ, max_examples=200)
+@given(text=YAML_TEXT)
+def test_any_stack_file_loads_or_is_refused_in_one_line(tmp_path_factory, text):
+    path = tmp_path_factory.mktemp("stack") / "stack.yaml"
+    path.write_text(text)
+    try:
+        load_stack(path)
+    except Exception as error:  # noqa: BLE001 - the assertion names what escaped
+        assert one_line_refusal(error), repr(error)
+
+
+@settings(FUZZ, max_examples=200)
+@given(text=YAML_TEXT | YAML_TEXT.map(lambda body: "node:\n  ros__parameters:\n    " + body))
+def test_any_parameter_file_passes_or_is_refused_in_one_line(tmp_path_factory, text):
+    path = tmp_path_factory.mktemp("params") / "params.yaml"
+    path.write_text(text)
+    try:
+        check_parameter_file(path)
+    except Exception as error:  # noqa: BLE001
+        assert one_line_refusal(error), repr(error)
+
+
+@pytest.fixture(scope="module")
+def small_recording(tmp_path_factory):
+    """The bytes of a finished recording of a few hv/state messages."""
+    from rclpy.serialization import serialize_message
+    from softblock_interfaces.msg import HvChannelState, HvState
+
+    from recording.mcap_file import RecordingWriter
+    path = tmp_path_factory.mktemp("mcap") / "small.mcap"
+    writer = RecordingWriter(str(path))
+    channel = writer.add_topic("/hv/state", "softblock_interfaces/msg/HvState")
+    for i in range(3):
+        writer.write(channel, serialize_message(HvState(channels=[HvChannelState(name="front", setpoint=float(i))])), i, i)
+    writer.close()
+    return path.read_bytes()
+
+
+@settings(FUZZ, max_examples=150)
+@given(data=st.data())
+def test_any_damage_to_an_mcap_file_is_read_or_refused_in_one_line(small_recording, tmp_path_factory, data):
+    """Header, record lengths and chunk fields overwritten at random (a terabyte claim among them), or the
+    file cut: info, recover, analyze and export each finish with status 0 or 1 and at most one error line."""
+    damaged = bytearray(small_recording)
+    for _ in range(data.draw(st.integers(1, 3))):
+        offset = data.draw(st.integers(0, len(damaged) - 8))
+        value = data.draw(st.sampled_from([0, 1, 255, 1 << 31, 1 << 40, 2**64 - 1]) | st.integers(0, 2**64 - 1))
+        struct.pack_into("<Q", damaged, offset, value)
+    damaged = damaged[:data.draw(st.integers(0, len(damaged)))] if data.draw(st.booleans()) else damaged
+    folder = tmp_path_factory.mktemp("damaged")
+    path = folder / "damaged.mcap"
+    path.write_bytes(bytes(damaged))
+    for command in (["info", str(path)], ["recover", str(path), "-o", str(folder / "fixed.mcap")],
+                    ["analyze", str(path), "--out-dir", str(folder)], ["export", str(path), "--csv", str(folder)]):
+        errors = io.StringIO()
+        with contextlib.redirect_stderr(errors), contextlib.redirect_stdout(io.StringIO()):
+            status = recording_main(command)
+        event(f"{command[0]} -> {status}")
+        assert status in (0, 1) and errors.getvalue().count("\n") <= 1, (command, errors.getvalue())

@@ -1,6 +1,9 @@
-"""Stack launcher: nodes as processes reachable over ROS, prefixed output, clean stop on SIGTERM (wherever
-the signal lands), non-zero exit when a node dies, SIGKILL for a node that ignores SIGINT."""
+"""Stack launcher: nodes as processes reachable over ROS, prefixed output, clean stop on SIGTERM and SIGHUP
+(wherever the signal lands), nodes that end with a killed launcher, non-zero exit when a node dies, SIGKILL for
+a node that ignores SIGINT; a hostile stack or parameter file is one line; a node's --help is its usage."""
 import io
+import os
+import re
 import signal
 import subprocess
 import sys
@@ -8,6 +11,8 @@ import textwrap
 
 import pytest
 import rclpy
+from crafted_yaml import BILLION_LAUGHS
+from processes import _parents, reap
 from ros_testing import Inbox, wait_for
 from softblock_interfaces.msg import Assembly
 
@@ -157,3 +162,93 @@ def test_sigterm_stops_the_launcher_wherever_it_lands_in_wait():
         last = (timeout.stdout or b"").decode().split()[-1:]
         pytest.fail(f"the launcher hung with SIGTERM landing at line {last} of wait()")
     assert probe.stdout.split()[-1] == "done", probe.stderr[-2000:]
+
+
+def node_pids(launcher: subprocess.Popen) -> dict[str, int]:
+    """The node processes the launcher started, once its node is up ("[name] ... publishing at")."""
+    for line in launcher.stdout:
+        if line.startswith("[assembly_state]") and "publishing at" in line:
+            break
+    return {pid: parent for pid, parent in _parents().items() if parent == launcher.pid}
+
+
+def gone(pid: int) -> bool:
+    """Ended (or a zombie waiting for its new parent to collect it)."""
+    reap([pid], timeout=0.0)
+    return pid not in _parents()
+
+
+@pytest.mark.parametrize("signum", [signal.SIGKILL, signal.SIGHUP])
+def test_the_nodes_never_outlive_the_launcher(params, signum):
+    """Old: a launcher ended by SIGKILL, or by SIGHUP (its terminal closed), left its nodes running headless
+    (hv_driver included), 236 s later still. A SIGHUP is now a clean stop; after a SIGKILL the kernel sends each
+    node SIGTERM (its parent-death signal), which stops it as a Ctrl-C would."""
+    launcher = launch("--nodes", "assembly_state", "--params", str(params))
+    nodes = node_pids(launcher)
+    assert len(nodes) == 1
+    launcher.send_signal(signum)
+    rest = launcher.stdout.read()
+    launcher.wait()
+    wait_for(lambda: all(gone(pid) for pid in nodes), what="the node to end with its launcher")
+    if signum == signal.SIGHUP:
+        assert launcher.returncode == 0 and "launcher: stopped (assembly_state=0)" in rest, rest
+
+
+@pytest.mark.parametrize("content, problem", [
+    (BILLION_LAUGHS, r"stack.yaml: invalid YAML: line 1, column \d+: anchors and aliases"),
+    ("namespace: ''\nnodes:\n\t- name: planner\n", r"stack.yaml: invalid YAML: line 3, column 1: found character '\\t'"),
+    ("[" * 100 + "]" * 100, r"stack.yaml: invalid YAML: line 1, column 33: nested deeper than 32 levels"),
+    ("# padding\n" * 7000, r"stack.yaml: larger than 65536 bytes")])
+def test_a_hostile_stack_file_is_one_line_and_exit_2(tmp_path, content, problem):
+    """Old: 412 bytes of aliases hung the launcher (killed at 60 s, or MemoryError at 2.2 GB); a tab was a
+    traceback. In a child with bounded memory and time."""
+    stack = tmp_path / "stack.yaml"
+    stack.write_text(content)
+    result = bounded_launch(["--stack", str(stack)])
+    assert result.returncode == 2, result.stderr[-2000:]
+    assert re.fullmatch(rf"launcher: \S*{problem}[^\n]*\n", result.stderr), result.stderr[-2000:]
+
+
+def bounded_launch(args) -> subprocess.CompletedProcess:
+    code = ("import resource, sys; resource.setrlimit(resource.RLIMIT_AS, (2 << 30, 2 << 30)); "
+            "from softblock_ros.launcher import main; sys.exit(main(sys.argv[1:]))")
+    return subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=60)
+
+
+def test_a_stack_file_that_is_a_device_or_a_fifo_is_refused_without_reading(tmp_path):
+    """Old: --stack /dev/zero ended in MemoryError after 5.6 s; a FIFO hung the launcher."""
+    fifo = tmp_path / "stack.yaml"
+    os.mkfifo(fifo)
+    for path in ("/dev/zero", str(fifo)):
+        result = bounded_launch(["--stack", path])
+        assert (result.returncode, result.stderr) == (2, f"launcher: {path}: not a regular file\n")
+
+
+@pytest.mark.parametrize("content, problem", [
+    ("assembly_state: &a\n  ros__parameters: {frame_id: x}\nplanner: *a\n", "anchors and aliases"),
+    ("assembly_state:\n  ros__parameters:\n    frame_id: [unclosed\n", "invalid YAML: line 4, column 1"),
+    ("- assembly_state\n", "not a parameter file: expected <node name>: {ros__parameters: {...}}")])
+def test_a_bad_parameter_file_is_one_line_from_the_launcher_and_from_a_node(tmp_path, content, problem):
+    """Old: rclpy parsed it and printed a 20-line traceback (from every node of the stack)."""
+    params = tmp_path / "params.yaml"
+    params.write_text(content)
+    assert main(["--nodes", "assembly_state", "--params", str(params)]) == 2
+    node = subprocess.run([sys.executable, "-m", "softblock_ros.assembly_state_node", "--ros-args", "--params-file",
+                           str(params)], capture_output=True, text=True, timeout=120)
+    assert node.returncode == 1 and "Traceback" not in node.stderr, node.stderr[-3000:]
+    assert re.fullmatch(rf"\[FATAL\] \[assembly_state\]: cannot start: .*params.yaml: [^\n]*{re.escape(problem)}"
+                        r"[^\n]*\n", node.stderr), node.stderr
+
+
+@pytest.mark.parametrize("flag", ["--help", "-h"])
+@pytest.mark.parametrize("module, node, parameter", [
+    ("softblock_ros.assembly_state_node", "assembly_state", "publish_rate_hz"),
+    ("softblock_ros.hv_driver_node", "hv_driver", "heartbeat_timeout_s"),
+    ("softblock_ros.planner_node", "planner", "max_blocks")])
+def test_help_prints_the_nodes_parameters_and_starts_nothing(module, node, parameter, flag):
+    """Old: the nodes ignored --help and started (an HV driver among them)."""
+    result = subprocess.run([sys.executable, "-m", module, flag], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert result.stdout.startswith("usage: ") and f"parameters of node {node}:" in result.stdout
+    assert re.search(rf"^  {parameter} \(default ", result.stdout, re.MULTILINE), result.stdout
+    assert result.stderr == ""  # nothing started, nothing logged

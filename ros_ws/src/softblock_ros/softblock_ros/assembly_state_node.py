@@ -4,7 +4,8 @@ Latched (transient_local): the assembly on ``assembly/current`` and the lowest s
 blocks on ``assembly/safe_voltage`` (the HV driver's ceiling). At ``publish_rate_hz``: the predicted per-block angles
 and centerlines at the channel voltages measured on ``hv/state`` (``assembly/state``) and RViz markers
 (``assembly/markers``), and each chain's frames on ``/tf`` (the blocks) and ``/tf_static`` (the mounts, latched;
-``softblock_ros.tf_frames``). ``assembly/set`` replaces the assembly; an invalid one is refused, the old kept.
+``softblock_ros.tf_frames``). ``assembly/set`` replaces the assembly; an invalid one is refused, the old kept (so
+is one with a name, channel, serial or frame longer than MAX_NAME_LENGTH characters).
 Block calibration offsets (``block_calibration`` file, by serial) are added to the predicted angles; an
 offset a request gives (not 0) wins over the file's for that block.
 """
@@ -33,6 +34,19 @@ from .paths import resolve_path
 from .qos import LATCHED, stream_qos
 from .runner import run_node
 from .tf_frames import blocks_msg, mounts_msg, stamped
+
+MAX_NAME_LENGTH = 100  # [characters] of each string of an assembly request; the shipped names are below 20
+
+
+def overlong_string(message: Assembly) -> str:
+    """The first string of an assembly request above MAX_NAME_LENGTH characters, as ``field (N characters)``,
+    or "". Checked before anything else reads the request, so no error message quotes such a string."""
+    fields = [("name", message.name), ("header.frame_id", message.header.frame_id)]
+    for c, chain in enumerate(message.chains):
+        fields += [(f"chains[{c}].name", chain.name), (f"chains[{c}].hv_channel", chain.hv_channel)]
+        fields += [(f"chains[{c}].blocks[{b}].serial", block.serial) for b, block in enumerate(chain.blocks)]
+    return next((f"{field} ({len(text)} characters)" for field, text in fields if len(text) > MAX_NAME_LENGTH), "")
+
 
 PARAMETERS = (
     Param("assembly_file", "assemblies/gripper.yaml", "assembly YAML loaded at start (relative and not found from "
@@ -94,6 +108,12 @@ class AssemblyStateNode(Node):
         self._tf_static_pub.publish(stamped(mounts_msg(assembly.chains, self._frame_id), current.header.stamp))
 
     def _on_set(self, request, response):
+        overlong = overlong_string(request.assembly)
+        if overlong:
+            response.success = False
+            response.message = f"assembly refused: {overlong} is longer than {MAX_NAME_LENGTH} characters"
+            self.get_logger().warning(response.message)
+            return response
         try:
             assembly, requested = assembly_from_msg(request.assembly, self._table)
             calibration = {**self._block_calibration.offsets(assembly),

@@ -38,6 +38,7 @@ from softblock_interfaces.srv import DesignFingers, InjectFault, SetAssembly
 from std_srvs.srv import Trigger
 
 from planner.assembly import load_assembly
+from planner.bounded_yaml import load_yaml_file
 from planner.contours import OBJECTS_CATALOG
 from planner.design import DEFAULT_MIN_STIFF_ROD_DIAMETER
 from planner.finger_plot import plot_fingers
@@ -115,7 +116,7 @@ class DemoClient:
 def design_gripper(client: DemoClient, object_name: str) -> tuple[dict, dict]:
     """Front and back finger designs from the planner node; returns (finger set -> side -> (chain, objective),
     summary)."""
-    catalog = yaml.safe_load(OBJECTS_CATALOG.read_text())[object_name]
+    catalog = load_yaml_file(OBJECTS_CATALOG)[object_name]
     fingers, summary = {}, {}
     for finger_set, constraints in FINGER_SETS.items():
         request = DesignFingers.Request(

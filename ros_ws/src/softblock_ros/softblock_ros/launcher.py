@@ -8,11 +8,16 @@ The nodes, their parameter files, niceness, namespace and network settings come 
 Each node runs as ``python -m <module> --ros-args --params-file <its files> [--params-file <params>]
 [-r __ns:=<namespace>]`` in its own process group, so a terminal's Ctrl-C reaches only the launcher, which
 then stops the nodes in reverse start order: SIGINT, then SIGKILL after ``stop_timeout``. The launcher exits
-non-zero when a node dies on its own. As a library: ``with Stack(nodes=["planner"]) as stack: ...``.
+non-zero when a node dies on its own. SIGHUP (the terminal closed) is a stop like SIGINT and SIGTERM. A node
+never outlives the launcher: each is started with the parent-death signal SIGTERM (Linux prctl
+PR_SET_PDEATHSIG), so a SIGKILLed launcher's nodes stop as on a Ctrl-C. What a node starts itself (e.g. the HV
+driver's supervisor) is not the launcher's child and keeps its own life. As a library:
+``with Stack(nodes=["planner"]) as stack: ...``.
 """
 from __future__ import annotations
 
 import argparse
+import ctypes
 import os
 import signal
 import subprocess
@@ -24,10 +29,28 @@ from pathlib import Path
 from typing import TextIO
 
 from .network import NetworkSettings, describe, parse_discovery_range, parse_domain_id, parse_static_peers
+from .parameter_files import check_parameter_file
 from .stack import StackDescription, load_stack
 
 DEFAULT_STOP_TIMEOUT = 10.0  # [s] per node, before SIGKILL
 PUMP_DRAIN_TIMEOUT = 10.0  # [s] to copy a stopped node's last output (bounded: a grandchild may hold the pipe)
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+_prctl = ctypes.CDLL(None, use_errno=True).prctl if sys.platform.startswith("linux") else None
+
+
+def _die_with(launcher_pid: int):
+    """A Popen preexec_fn: the child gets SIGTERM when the launcher ends, however it ends.
+
+    The kernel sends the signal when the thread that forked the child exits; the launcher starts its nodes
+    from its main thread. A launcher that died before the prctl took effect is caught by the getppid check.
+    The function is looked up before the fork, so the child only makes the call."""
+    def preexec() -> None:
+        if _prctl is None:
+            return
+        if _prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0) != 0 or os.getppid() != launcher_pid:
+            os._exit(1)  # cannot be tied to the launcher, or it is gone already: do not start
+    return preexec
 
 
 class NodeDied(RuntimeError):
@@ -48,6 +71,8 @@ class Stack:
             raise ValueError(f"unknown nodes {unknown}; known: {', '.join(self.description.names)}")
         if params is not None and not Path(params).is_file():
             raise ValueError(f"params file {params} does not exist")
+        if params is not None:
+            check_parameter_file(params)
         self.params = params
         # e.g. "/robot1": every node's relative names move under it
         self.namespace = self.description.namespace if namespace is None else namespace
@@ -74,7 +99,7 @@ class Stack:
         for name in self.nodes:
             process = subprocess.Popen(self.command(name), env=self.env, stdin=subprocess.DEVNULL,
                                        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                                       process_group=0)
+                                       process_group=0, preexec_fn=_die_with(os.getpid()))
             if self.description.node(name).niceness:
                 niceness = min(os.getpriority(os.PRIO_PROCESS, 0) + self.description.node(name).niceness, 19)
                 os.setpriority(os.PRIO_PROCESS, process.pid, niceness)
@@ -182,7 +207,7 @@ def main(argv=None) -> int:
     except (ValueError, OSError) as error:
         print(f"launcher: {error}", file=sys.stderr)
         return 2
-    for signum in (signal.SIGINT, signal.SIGTERM):
+    for signum in STOP_SIGNALS:
         signal.signal(signum, lambda *_: stack.request_stop())
     stack.start()
     try:

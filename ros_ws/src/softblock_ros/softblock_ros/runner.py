@@ -2,17 +2,24 @@
 
 A callback that raises (a timer, a subscription, a service) is logged and the node keeps running: one
 bad message or one failing computation must not end the node, and with it (under the launcher) the stack.
+``--help`` / ``-h`` prints the node's parameters (its schema) and exits 0 without starting it. The
+``--params-file`` files are checked (softblock_ros.parameter_files) before rclpy parses them, so a bad file
+ends the start with one line instead of rcl's traceback.
 """
 from __future__ import annotations
 
 import os
 import signal
+import sys
 import traceback
 from collections.abc import Callable
 
 import rclpy
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+
+from .parameter_files import check_parameter_files
+from .parameters import NODE_SCHEMAS, node_schema
 
 
 def _stop_quietly(signum, frame) -> None:
@@ -26,10 +33,30 @@ def _stop_quietly(signum, frame) -> None:
 
 
 def init(args=None) -> None:
-    """rclpy.init for a node process, with Ctrl-C / SIGTERM ending spin instead of raising anywhere."""
+    """rclpy.init for a node process, with Ctrl-C / SIGTERM ending spin instead of raising anywhere.
+    ValueError (one line) for a bad ``--params-file``, before rclpy is initialized."""
+    check_parameter_files(sys.argv if args is None else args)
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, _stop_quietly)
     rclpy.init(args=args)
+
+
+def usage(name: str) -> str:
+    """The node's command line and its parameters, from its schema (softblock_ros.parameters)."""
+    lines = [f"usage: {os.path.basename(sys.argv[0]) or name} [--ros-args [-p NAME:=VALUE]... "
+             "[--params-file FILE]... [-r __ns:=/NAMESPACE]]", ""]
+    if name in NODE_SCHEMAS:
+        lines.append(f"parameters of node {name}:")
+        for param in node_schema(name):
+            lines.append(f"  {param.name} (default {param.default!r}; {param._range_text()}): {param.text()}")
+    return "\n".join(lines)
+
+
+def _asks_for_help(args) -> bool:
+    """-h or --help among the node's own arguments (those before --ros-args)."""
+    own = list(sys.argv[1:] if args is None else args)
+    own = own[:own.index("--ros-args")] if "--ros-args" in own else own
+    return "-h" in own or "--help" in own
 
 
 def where(error: BaseException) -> str:
@@ -62,8 +89,16 @@ def spin_logging_errors(executor: Executor, logger, keep_spinning: Callable[[], 
 
 def run_node(make_node: Callable[[], Node], name: str, executor: Callable[[], Executor] = SingleThreadedExecutor,
              args=None) -> int:
-    """Spin the node built by ``make_node``; exit status 1 when it cannot start (bad configuration or file)."""
-    init(args)
+    """Spin the node built by ``make_node``; exit status 1 when it cannot start (bad configuration or file).
+    ``--help`` prints the usage and returns 0."""
+    if _asks_for_help(args):
+        print(usage(name))
+        return 0
+    try:
+        init(args)
+    except ValueError as error:
+        print(f"[FATAL] [{name}]: cannot start: {error}", file=sys.stderr)
+        return 1
     node = None
     try:
         node = make_node()

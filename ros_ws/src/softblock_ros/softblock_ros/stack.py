@@ -6,10 +6,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import yaml
+from planner.bounded_yaml import load_yaml_file
 from softblock_config import config_file
 
 from .network import NetworkSettings, parse_network
+from .parameter_files import check_parameter_file
 
 DEFAULT_STACK_FILE = config_file("stack.yaml")
 MAX_FILE_SIZE = 64 * 1024  # [bytes] a stack description is a page of YAML
@@ -78,17 +79,17 @@ def _node(source, index: int, entry, folder: Path) -> NodeSpec:
     for path in parameters:
         if path.parent != folder or not path.is_file():
             _fail(source, f"{where}.parameters", path.name, f"a parameter file in {folder}")
+        check_parameter_file(path)
     return NodeSpec(entry["name"], entry["module"], entry["executable"],
                     _strings(source, f"{where}.arguments", entry.get("arguments", [])), parameters, niceness,
                     entry.get("optional", False))
 
 
 def load_stack(path: str | Path = DEFAULT_STACK_FILE) -> StackDescription:
-    """Read and check a stack description; ValueError names the file, the entry and the field."""
+    """Read (bounded: planner.bounded_yaml) and check a stack description; ValueError names the file, the entry
+    and the field."""
     path = Path(path)
-    if path.stat().st_size > MAX_FILE_SIZE:
-        raise ValueError(f"{path}: larger than {MAX_FILE_SIZE} bytes; not a stack description")
-    document = yaml.safe_load(path.read_text())
+    document = load_yaml_file(path, MAX_FILE_SIZE)
     if not isinstance(document, dict) or set(document) - {"namespace", "nodes", "network"}:
         _fail(path, "top level", document if not isinstance(document, dict) else sorted(document),
               "a mapping with the keys namespace, nodes and network")

@@ -1,8 +1,8 @@
 """Record the stack's topics to MCAP, replay, inspect, recover and analyse recordings.
 
-`python -m softblock_ros.recording {record,play,info,recover,analyze} ...`. ROS arguments go
+`python -m softblock_ros.recording {record,play,info,recover,analyze,export} ...`. ROS arguments go
 after `--ros-args` (e.g. `--ros-args -r __ns:=/robot1`). rclpy is imported only by the record
-and play subcommands; info, recover and analyze are the core's (`python -m recording`, no ROS needed).
+and play subcommands; info, recover, analyze and export are the core's (`python -m recording`, no ROS needed).
 """
 import argparse
 import sys
@@ -20,10 +20,12 @@ def _parser() -> argparse.ArgumentParser:
 
     record = commands.add_parser("record", help="record topics to an MCAP file until Ctrl-C")
     # Options left out keep the node's parameters (defaults, or a --params-file after --ros-args).
-    record.add_argument("-o", "--output", help="MCAP file to write (default: recording.mcap)")
+    record.add_argument("-o", "--output", help="MCAP file to write (default: recording.mcap); it must not exist")
+    record.add_argument("--overwrite", action="store_true", default=None,
+                        help="replace an existing output file (a link is replaced, never written through)")
     record.add_argument("topics", nargs="*", help="topics to record (default: all discovered)")
     record.add_argument("--exclude", help="regex of topics not recorded in all-topics mode "
-                        "(default: /rosout and /parameter_events)")
+                        "(default: /parameter_events; /rosout, the nodes' logs, is recorded)")
     record.add_argument("--compression", choices=sorted(COMPRESSIONS), help="default: zstd")
     record.add_argument("--chunk-size", type=int,
                         help=f"bytes per chunk (default: {DEFAULT_CHUNK_SIZE})")
@@ -53,6 +55,10 @@ def _parser() -> argparse.ArgumentParser:
     play.add_argument("--include-commands", action="store_true",
                       help="also play command topics (hv/heartbeat, assembly/safe_voltage, action "
                       "internals), which a live HV driver obeys; left out by default")
+    play.add_argument("--include-state", action="store_true",
+                      help="play state topics (hv/state, assembly/current, camera/silhouette, /diagnostics, "
+                      "/rosout) under their own names, where live clients take them for the live state; by "
+                      "default they go under /replay")
     play.add_argument("--namespace", default="",
                       help="publish every topic under this namespace (e.g. /replay), away from "
                       "a live stack")
@@ -64,7 +70,7 @@ def _parser() -> argparse.ArgumentParser:
 def _record(args, ros_args) -> int:
     from .recorder_node import run
     given = {"output": args.output, "topics": args.topics or None, "exclude": args.exclude,
-             "compression": args.compression, "chunk_size": args.chunk_size,
+             "overwrite": args.overwrite, "compression": args.compression, "chunk_size": args.chunk_size,
              "flush_period_s": args.flush_period, "discovery_period_s": args.discovery_period}
     return run({name: value for name, value in given.items() if value is not None},
                ["--ros-args", *ros_args])
@@ -77,7 +83,7 @@ def _play(args, ros_args) -> int:
                               exclude=args.exclude, start_offset_s=args.start_offset,
                               skip_unknown=args.skip_unknown, clock_frequency_hz=args.clock,
                               delay_s=args.delay, include_commands=args.include_commands,
-                              namespace=args.namespace)
+                              namespace=args.namespace, include_state=args.include_state)
     return run(args.recording, options, args.keep_alive, ["--ros-args", *ros_args])
 
 

@@ -4,7 +4,8 @@ Each topic is published with the Python class of its recorded type (`pkg.msg.Typ
 recorded bytes as they are. A type that cannot be imported stops the player before anything is
 published (UnknownMessageTypeError names type and topic), unless `skip_unknown` is set: then
 that topic is left out with a warning and the rest plays. Command topics (HV heartbeat, safe
-voltage, action internals) are played only with `include_commands`, and that is logged.
+voltage, action internals) are played only with `include_commands`, state topics (hv/state, /diagnostics,
+...) under their own names only with `include_state` (else under /replay); both are logged.
 """
 import sys
 import threading
@@ -16,11 +17,13 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rosgraph_msgs.msg import Clock
 
-from recording.playback import PlaybackClock, PlaybackOptions, Recording, play
+from recording.playback import STATE_NAMESPACE, PlaybackClock, PlaybackOptions, Recording, play
 
 from ..runner import init
 from .message_types import UnknownMessageTypeError, import_message_type
-from .qos_metadata import parse_offered_qos, playback_qos
+from recording.qos_profiles import parse_offered_qos
+
+from .qos_metadata import playback_qos
 
 
 class PlayerNode(Node):
@@ -32,6 +35,7 @@ class PlayerNode(Node):
         self.publishers_by_channel = {}
         self.skipped: dict[str, str] = {}
         self._announce_command_topics()
+        self._announce_state_topics()
         for channel in self.recording.select(self.options):
             self._advertise(channel)
         self.stop_event = threading.Event()
@@ -54,6 +58,19 @@ class PlayerNode(Node):
             self.get_logger().info(
                 f"not playing command topics {commands} (--include-commands plays them)")
 
+    def _announce_state_topics(self) -> None:
+        states = self.recording.state_topics()
+        if not states or self.options.namespace:
+            return
+        if self.options.include_state:
+            self.get_logger().warning(
+                f"playing state topics {states} under their own names: a live client takes them for the live "
+                "state (a replayed hv/state hides a dead HV driver)")
+        else:
+            self.get_logger().info(
+                f"playing state topics {states} under {STATE_NAMESPACE} "
+                "(--include-state plays them under their own names)")
+
     def _advertise(self, channel) -> None:
         type_name = self.recording.type_names.get(channel.id, "")
         try:
@@ -65,8 +82,8 @@ class PlayerNode(Node):
             self.skipped[channel.topic] = str(error)
             self.get_logger().warning(f"not playing {channel.topic}: {error}")
             return
-        qos = playback_qos(parse_offered_qos(channel.metadata.get("offered_qos_profiles", "")))
-        topic = self.options.namespace + channel.topic
+        qos = playback_qos(parse_offered_qos(channel.metadata.get("offered_qos_profiles", ""), channel.topic))
+        topic = self.options.published_name(channel.topic)
         self.publishers_by_channel[channel.id] = self.create_publisher(msg_type, topic, qos)
 
     def start(self) -> None:

@@ -43,14 +43,6 @@ def offered_qos_yaml(profiles: list[QoSProfile]) -> str:
                           default_flow_style=False)
 
 
-def parse_offered_qos(text: str) -> list[dict]:
-    """The recorded profiles as maps; an empty string (no QoS recorded) gives []."""
-    profiles = yaml.safe_load(text) if text.strip() else []
-    if not isinstance(profiles, list) or not all(isinstance(p, dict) for p in profiles):
-        raise ValueError(f"offered_qos_profiles is not a YAML list of QoS maps: {text!r}")
-    return profiles
-
-
 def _all_offer(profiles: list[dict], key: str, value: str) -> bool:
     return bool(profiles) and all(profile.get(key) == value for profile in profiles)
 

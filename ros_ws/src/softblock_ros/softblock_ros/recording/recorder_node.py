@@ -18,14 +18,16 @@ from ..runner import run_node
 from .message_types import UnknownMessageTypeError, import_message_type
 from .qos_metadata import offered_qos_yaml, recording_qos
 
-DEFAULT_EXCLUDE = r"^/(rosout|parameter_events)$"
+DEFAULT_EXCLUDE = r"^/parameter_events$"  # /rosout is recorded: the nodes' logs, HV faults among them
 PARAMETERS = (
-    Param("output", "recording.mcap", "MCAP file to write", kind=str),
+    Param("output", "recording.mcap", "MCAP file to write; an existing one is refused unless overwrite", kind=str),
+    Param.of(RecordingWriter, "overwrite", "replace an existing output file (a link is replaced, never written "
+             "through)"),
     Param("topics", [], "topics to record (relative names resolve in the node's namespace); empty: every "
           "discovered topic", kind=str, size=(0, 10_000)),
     Param("exclude", DEFAULT_EXCLUDE, "regex of topics not recorded in all-topics mode", kind=str),
     Param.of(RecordingWriter, "compression", "chunk compression", choices=tuple(COMPRESSIONS)),
-    Param.of(RecordingWriter, "chunk_size", "bytes per chunk before writing", low=1, high=1 << 30),
+    Param.of(RecordingWriter, "chunk_size", "bytes per chunk before writing", low=1, high=64 << 20),
     Param("flush_period_s", 1.0, "time between flushes: the most a SIGKILL can lose", "s", 0.01, 60.0),
     Param("discovery_period_s", 1.0, "time between topic discoveries", "s", 0.05, 60.0),
 )
@@ -46,7 +48,9 @@ class RecorderNode(Node):
         compression, chunk_size = value["compression"], value["chunk_size"]
         flush_period, discovery_period = value["flush_period_s"], value["discovery_period_s"]
         self.wanted = {self.resolve_topic_name(topic) for topic in self.topics}
-        self.writer = RecordingWriter(self.output, compression, chunk_size)
+        if value["overwrite"]:
+            self.get_logger().warning(f"overwrite is on: an existing {self.output} is replaced")
+        self.writer = RecordingWriter(self.output, compression, chunk_size, value["overwrite"])
         self.skipped: dict[str, str] = {}
         self._recorded = {}
         self.create_timer(flush_period, self.writer.flush)
