@@ -16,6 +16,8 @@ import pytest
 
 from hv_driver import ChannelConfig, ControlError, Fault, FaultLatchedError, HvError, RemoteSupply, SupervisorLostError
 
+pytestmark = pytest.mark.integration
+
 SUPERVISED = [sys.executable, "-m", "sim_fallback.supervised"]
 CHANNELS = [ChannelConfig("front", 0, slew_rate_v_per_s=8000.0), ChannelConfig("back", 1, slew_rate_v_per_s=8000.0)]
 DEADLINE = 60.0  # [s] for an event; generous, the host may be loaded
@@ -25,8 +27,6 @@ DEADLINE = 60.0  # [s] for an event; generous, the host may be loaded
 NODE = """
 import json, sys, time
 from hv_driver import RemoteSupply
-
-pytestmark = pytest.mark.integration
 supply = RemoteSupply(json.loads(sys.argv[1]), json.loads(sys.argv[2]), sys.argv[3]).open()
 token = supply.claim_control("sequencer")
 supply.enable("front")

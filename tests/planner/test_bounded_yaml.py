@@ -15,6 +15,8 @@ from planner.block_calibration import load_block_calibration
 from planner.bounded_yaml import MAX_DEPTH, YAMLInputError, load_yaml_file, parse_yaml
 from planner.contours import load_catalog_object
 
+pytestmark = pytest.mark.fast
+
 LOAD_WITH_MEMORY_LIMIT = """
 import resource, sys
 resource.setrlimit(resource.RLIMIT_AS, (2 << 30, 2 << 30))  # a loader that expands the document fails fast

@@ -11,6 +11,8 @@ from estimation.silhouette import read_image
 from planner.contours import load_mask
 from planner.image_file import open_image
 
+pytestmark = pytest.mark.fast
+
 
 @pytest.mark.parametrize("read, what", [(load_mask, "object image"), (read_image, "image")])
 @pytest.mark.parametrize("side", [30_000, 10_000])  # 900 MP (Pillow's error), 100 MP (Pillow's warning)

@@ -22,6 +22,8 @@ from recording.cli import main
 from recording.message_definitions import full_definition
 from softblock_ros.recording.recorder_node import RecorderNode
 
+pytestmark = pytest.mark.integration
+
 START = 1_700_000_000_000_000_000
 STEP = 10_000_000
 
