@@ -31,6 +31,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from hv_driver import ChannelConfig, RemoteSupply  # noqa: E402
+from hv_loop import summary  # noqa: E402 (benchmarks/, this script's folder)
 from hv_driver.ramp import MinimumJerkRamp  # noqa: E402
 from hv_driver.realtime import make_realtime, normal_priority  # noqa: E402
 from sim_fallback.hv_supply import SimulatedSupply  # noqa: E402
@@ -132,11 +133,6 @@ def kill_to_safe(sim, port: str, priority: int) -> float:
     RemoteSupply(SERVER, node_spec, path).open().close()  # take the orphaned supervisor over and end it
     shutil.rmtree(directory, ignore_errors=True)
     return elapsed
-
-
-def summary(values: np.ndarray, scale: float = 1e3) -> dict:
-    return {"median": float(np.median(values) * scale), "p99": float(np.percentile(values, 99) * scale),
-            "max": float(values.max() * scale), "n": int(values.size)}
 
 
 def main(argv=None) -> int:

@@ -229,8 +229,13 @@ def _drain(connection: socket.socket) -> None:
 
 
 # --- process ---------------------------------------------------------------------------------------
+def announce(line: str) -> None:
+    """A line for the node that started this process (its standard output)."""
+    print(line, flush=True)
+
+
 def serve_spec(spec: dict, path: str, ports: list[str] | None = None,
-               extra_methods: dict[str, Callable] | None = None, announce=print) -> int:
+               extra_methods: dict[str, Callable] | None = None, announce: Callable[[str], None] = announce) -> int:
     """Real-time scheduling where permitted, the supply opened from ``spec``, then serving at ``path``; announces
     "ready <pid>" or "error: <why>" (on stdout for the node that started this process). Exit status."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # a terminal's Ctrl-C reaches the node, which closes the supply
@@ -239,7 +244,10 @@ def serve_spec(spec: dict, path: str, ports: list[str] | None = None,
     make_realtime(int(spec.get("realtime_priority", DEFAULT_PRIORITY)))
     try:
         supply = supply_from_spec(spec, ports).open()
-    except (HvError, ValueError, TypeError, KeyError) as error:
+    except KeyError as error:
+        announce(f"error: spec: {error} missing")
+        return 1
+    except (HvError, ValueError, TypeError) as error:
         announce(f"error: {error}")
         return 1
     signal.signal(signal.SIGTERM, lambda *_: supply.abort() or sys.exit(128 + signal.SIGTERM))
@@ -270,17 +278,23 @@ def read_spec(stream, limit: int = ipc.MAX_MESSAGE_BYTES) -> dict:
     return spec
 
 
-def main(argv=None, ports: list[str] | None = None, extra_methods=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m hv_driver.server", description=__doc__.split("\n\n")[0])
+def process_main(prog: str, description: str, argv=None, serve=None) -> int:
+    """The supervisor process's command line: ``--socket PATH``, the spec as JSON on standard input, logs on
+    standard error. ``serve(spec, path)`` serves it (default: `serve_spec` on the spec's own ports)."""
+    parser = argparse.ArgumentParser(prog=prog, description=description)
     parser.add_argument("--socket", required=True, help="path of the Unix socket to serve the node on")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="[hv_supervisor] %(levelname)s %(message)s")
     try:
         spec = read_spec(sys.stdin)
     except ValueError as error:
-        print(f"error: spec: {error}", flush=True)
+        announce(f"error: spec: {error}")
         return 2
-    return serve_spec(spec, args.socket, ports, extra_methods, announce=lambda line: print(line, flush=True))
+    return (serve or serve_spec)(spec, args.socket)
+
+
+def main(argv=None) -> int:
+    return process_main("python -m hv_driver.server", __doc__.split("\n\n")[0], argv)
 
 
 if __name__ == "__main__":
