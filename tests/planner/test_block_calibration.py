@@ -46,5 +46,5 @@ def test_bad_entries_name_the_problem(document, message):
 def test_invalid_yaml_is_reported(tmp_path):
     path = tmp_path / "cal.yaml"
     path.write_text("blocks: {A: [\n")
-    with pytest.raises(ValueError, match="not valid YAML"):
+    with pytest.raises(ValueError, match="invalid YAML"):
         load_block_calibration(path)

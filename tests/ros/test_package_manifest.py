@@ -19,7 +19,7 @@ CORE = ("planner", "hv_driver", "sim_fallback", "sequencing", "recording", "esti
 # Python libraries by rosdep key; the others come only with `pip install` of the core (see package.xml).
 ROSDEP_KEYS = {"numpy": "python3-numpy", "scipy": "python3-scipy", "yaml": "python3-yaml", "serial": "python3-serial",
                "matplotlib": "python3-matplotlib", "PIL": "python3-pil"}
-PIP_ONLY = {"mcap", "mcap_ros2", "numba", "contourpy", "foxglove"}  # contourpy comes with matplotlib
+PIP_ONLY = {"mcap", "mcap_ros2", "numba", "contourpy", "foxglove", "zstandard", "lz4"}  # contourpy comes with matplotlib; zstandard, lz4 with mcap
 APT_ONLY = {"launch", "launch_ros"}  # ROS packages without PyPI wheels: `ros2 launch` needs the apt install
 NODE_SOURCES = (PACKAGE / "softblock_ros", PACKAGE / "launch")  # setup.py runs at build time only
 OWN = {"softblock_ros", "softblock_config", *CORE}
