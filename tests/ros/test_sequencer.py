@@ -3,6 +3,8 @@ the finger grasp succeeds, an HV fault mid-sequence and a cancel both end in the
 sequences are refused with a clear message, a second goal is rejected, the legged gait pulses its legs.
 
 The shipped strategies run with their timings scaled down (sequence_files.scaled)."""
+import time
+
 import pytest
 import rclpy
 import yaml
