@@ -7,14 +7,18 @@ cd "$(dirname "${BASH_SOURCE[0]}")/.."
 benchmarks=(
     block_model_fidelity.py
     block_table_overview.py
+    block_model_loo.py
     ogden_fit.py
     kinematics_throughput.py
     image_estimation.py
     finger_optimizers.py
     gripper_design.py
     path_optimizers.py
+    reconfiguration.py
     hv_loop.py
     hv_ramp.py
+    hv_fault_bounds.py
+    hv_supervisor_process.py
     recorder_load.py
     ros_nodes.py
     sequencer_gait.py
