@@ -4,8 +4,12 @@ import threading
 
 import pytest
 from fake_robot import FakeOperator, FakeRobot
+from softblock_config import config_file
 
+from planner.assembly import Chain, PlacedBlock, load_assembly
+from planner.reconfigure import swap_steps
 from sequencing.engine import SequenceEngine
+from sequencing.reconfiguration import operator_swap_step
 from sequencing.ports import AssemblyVerdict, ChannelReading, RunOptions
 from sequencing.schema import OperatorSwapStep, SequenceError, Swap, parse_sequence
 
@@ -162,3 +166,17 @@ def test_a_cancel_while_waiting_closes_the_request():
     robot.operator = CancelMidway(confirm_at=None)
     result = run(robot, cancel=cancel)
     assert result.canceled and robot.operator.closed and robot.ramps() == []
+
+
+def test_a_plans_swap_steps_become_one_operator_swap_step():
+    built = load_assembly(config_file("assemblies/gripper.yaml"))
+    finger = built.chains[0]
+    old = finger.blocks[1]
+    changed = finger.blocks[:1] + (PlacedBlock(old.design_id % 84 + 1, 3),) + finger.blocks[2:]
+    target = built.with_chains(*[Chain(finger.name, finger.hv_channel, changed, finger.base_position,
+                                      finger.base_orientation), *built.chains[1:]])
+    steps = swap_steps(built, target, {old.design_id % 84 + 1: 1})
+    spec = operator_swap_step("rebuild", "next_gripper", steps, timeout_s=900)
+    step = parse_sequence({"name": "r", "channels": ["front"], "steps": [spec]}).steps[0]
+    assert step.timeout == 900 and step.assembly == "next_gripper"
+    assert step.swaps == (Swap(finger.name, 1, old.design_id, old.design_id % 84 + 1, 3),)
