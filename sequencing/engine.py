@@ -9,6 +9,10 @@ tests use a fake. Every step:
 2. running: motions are watched until done; a cancel, the step's timeout or an HV fault cancels them;
 3. a ramp must end with the measured voltage within tolerance of its target (allowed ``settle_time_s``).
 
+An ``operator_swap`` step needs every channel at 0 V, asks the operator for the swaps, waits for their
+confirmation and then for the camera estimator to find the new assembly as built; a channel energised
+meanwhile, a mismatch (the message names the block) or the timeout fail it.
+
 On failure the step's ``on_failure`` reaction runs (``safe_stop``: arm stops, every channel ramps to
 0 V, e-stop if a ramp-down fails; ``estop``: arm stops, e-stop at once). A cancel always does the
 safe stop. Blocking calls run in the caller's thread; parallel steps use one thread per branch.
@@ -24,7 +28,8 @@ from dataclasses import dataclass, field
 from hv_driver.ramp import MIN_JERK_PEAK_RATE
 
 from .ports import Motion, Outcome, Robot, RobotError, RunOptions
-from .schema import MoveArmStep, ParallelStep, PulseTrainStep, RampStep, Sequence, Step, WaitStep
+from .schema import (MoveArmStep, OperatorSwapStep, ParallelStep, PulseTrainStep, RampStep, Sequence, Step,
+                     WaitStep)
 
 
 @dataclass(frozen=True)
@@ -146,7 +151,18 @@ class SequenceEngine:
             if channel in states and abs(states[channel].voltage - expected) > tolerance:
                 problems.append(f"channel {channel!r} at {states[channel].voltage:.0f} V, "
                                 f"expected {expected:.0f} +- {tolerance:.0f} V")
+        if isinstance(step, OperatorSwapStep):
+            problems += [f"{problem}; an operator swap needs every channel at 0 V"
+                         for problem in self._energised(sequence)]
         return problems
+
+    def _energised(self, sequence: Sequence) -> list[str]:
+        """Channels that are (or may be) live: output on, above the off voltage, or state unknown."""
+        states, off = self.robot.channel_states(), self.options.off_voltage_v
+        return [f"channel {channel!r} " + ("state unknown" if states[channel].stale else
+                                           f"energised ({states[channel].voltage:.0f} V)")
+                for channel in sequence.channels if channel in states
+                and (states[channel].stale or states[channel].output_enabled or abs(states[channel].voltage) > off)]
 
     def _check_precondition(self, step: Step, ctx: _Context) -> None:
         settle_until = self.clock() + self.options.settle_time_s
@@ -200,6 +216,8 @@ class SequenceEngine:
                 return self._parallel(step, ctx)
             if isinstance(step, PulseTrainStep):
                 return self._pulse_train(step, ctx)
+            if isinstance(step, OperatorSwapStep):
+                return self._operator_swap(step, ctx)
             raise TypeError(f"unknown step type {type(step).__name__}")
         except RobotError as error:
             raise StepFailure(str(error), step.on_failure) from error
@@ -276,6 +294,33 @@ class SequenceEngine:
         for channel in step.channels:
             self._check_reached(channel, 0.0, step.tolerance, Outcome(True), ctx)
         return f"{step.cycles} cycles on {list(step.channels)} at {step.frequency:g} Hz ({outcome.message})"
+
+    def _operator_swap(self, step: OperatorSwapStep, ctx: _Context) -> str:
+        """Confirmation first, then a verdict on the new assembly from an image taken after it; meanwhile
+        every channel must stay at 0 V. A verdict on another assembly (the estimator has not got the new one
+        yet) is waited past."""
+        request = self.robot.request_operator(step.prompt())
+        waiting_for, verdict = "the operator's confirmation", None
+        try:
+            while True:
+                if self.clock() > ctx.deadline:
+                    seen = f"; last verdict: {verdict.message} on assembly {verdict.assembly!r}" if verdict else ""
+                    raise StepFailure(f"timed out after {ctx.timeout:g} s waiting for {waiting_for}{seen}")
+                self._check_interrupts(ctx)
+                energised = self._energised(ctx.sequence)
+                if energised:
+                    raise StepFailure(f"{'; '.join(energised)} during the operator's swap")
+                if request.confirmed():
+                    waiting_for = f"the estimator's verdict on assembly {step.assembly!r}"
+                    verdict = request.verdict()
+                    if verdict is not None and verdict.assembly == step.assembly:
+                        if verdict.as_built:
+                            return f"assembly {step.assembly!r} as built (chain {verdict.chain}: {verdict.message})"
+                        found = "; ".join(verdict.mistakes) or verdict.message
+                        raise StepFailure(f"assembly {step.assembly!r} not as built: chain {verdict.chain}: {found}")
+                ctx.cancel.wait(self.options.poll_period_s)
+        finally:
+            request.close()
 
     # -- reactions --------------------------------------------------------------------------------------
 

@@ -41,6 +41,30 @@ class Motion(Protocol):
         """Ask the backend to stop it (an arm brakes, a channel ramps to 0 V)."""
 
 
+@dataclass(frozen=True)
+class AssemblyVerdict:
+    """The camera estimator's verdict on one image: did the chain it saw match the assembly it believes?"""
+
+    assembly: str                # the assembly the image was compared with
+    chain: str                   # the chain the camera sees
+    as_built: bool
+    message: str = ""
+    mistakes: tuple[str, ...] = ()  # each names the block (position, designs), e.g. "block 3: design 57 instead of 15"
+
+
+class OperatorWait(Protocol):
+    """A pending request to the operator (a block swap): their confirmation, then the estimator's verdict."""
+
+    def confirmed(self) -> bool:
+        """True once the operator confirmed the swap."""
+
+    def verdict(self) -> AssemblyVerdict | None:
+        """The estimator's newest verdict on an image taken after the confirmation (None: none yet)."""
+
+    def close(self) -> None:
+        """No more confirmations are taken for this request."""
+
+
 class Robot(Protocol):
     """What the engine drives. Methods raise `RobotError` when the backend cannot be reached."""
 
@@ -58,6 +82,9 @@ class Robot(Protocol):
     def stop_arm(self) -> None: ...
 
     def estop(self) -> Outcome: ...
+
+    def request_operator(self, prompt: str) -> OperatorWait:
+        """Show ``prompt`` to the operator and take their confirmation from now on."""
 
 
 class RobotError(RuntimeError):

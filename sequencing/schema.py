@@ -1,7 +1,8 @@
 """Manipulation sequences as data: the YAML schema, its loader and validation (no ROS).
 
 A sequence file names the HV channels it drives and lists steps. Each step is a mapping with a
-``name`` and exactly one kind key (``move_arm``, ``ramp``, ``wait``, ``parallel``, ``pulse_train``)
+``name`` and exactly one kind key (``move_arm``, ``ramp``, ``wait``, ``parallel``, ``pulse_train``,
+``operator_swap``)
 plus optional ``description``, ``precondition``, ``timeout`` and ``on_failure``. See docs/sequences.md.
 
 Every problem raises `SequenceError` (a ValueError) whose message names the step and the field,
@@ -26,7 +27,9 @@ from hv_driver.ramp import MIN_JERK_PEAK_RATE
 from planner.bounded_yaml import YAMLInputError, load_yaml_file
 
 ON_FAILURE = ("safe_stop", "estop")  # ramp every channel to 0 V (e-stop if that fails) | e-stop at once
-STEP_KINDS = ("move_arm", "ramp", "wait", "parallel", "pulse_train")
+STEP_KINDS = ("move_arm", "ramp", "wait", "parallel", "pulse_train", "operator_swap")
+ROTATION_STEPS = 12         # a block snaps in at 30 deg steps
+OPERATOR_TIMEOUT_S = 600.0  # an operator_swap's default timeout: a person swaps blocks
 COMMON_KEYS = {"name", "description", "precondition", "timeout", "on_failure"}
 _NAME = re.compile(r"^[A-Za-z0-9_\-]+$")
 MAX_FILE_SIZE = 256 * 1024  # [bytes]; the shipped sequences are below 10 KB
@@ -154,6 +157,37 @@ class PulseTrainStep(Step):
 
 
 @dataclass(frozen=True)
+class Swap:
+    """One block the operator changes; ``position`` 0 is the block at the chain's base (as in the planner's
+    ``SwapStep``). ``remove`` or ``insert`` is None when a position is emptied now and filled later."""
+
+    chain: str
+    position: int
+    remove: int | None
+    insert: int | None
+    rotation_steps: int = 0
+
+    def describe(self) -> str:
+        what = [f"remove design {self.remove}"] if self.remove is not None else []
+        if self.insert is not None:
+            what.append(f"insert design {self.insert} at rotation step {self.rotation_steps}")
+        return f"finger {self.chain}, position {self.position}: " + ", ".join(what)
+
+
+@dataclass(frozen=True, kw_only=True)
+class OperatorSwapStep(Step):
+    """The operator swaps blocks with every channel at 0 V, confirms, and the camera estimator must then find
+    ``assembly`` as built before the sequence goes on."""
+
+    assembly: str               # name of the assembly after the swaps
+    swaps: tuple[Swap, ...] = ()
+
+    def prompt(self) -> str:
+        swaps = "; ".join(swap.describe() for swap in self.swaps) or "check the blocks"
+        return f"build assembly {self.assembly!r}: {swaps}"
+
+
+@dataclass(frozen=True)
 class Sequence:
     name: str
     description: str
@@ -195,6 +229,18 @@ def _number(where: _Where, spec: Mapping, key: str, field_name: str, default=_MI
     if maximum is not None and value > maximum:
         where.fail(field_name, value, f"must be <= {maximum:g}")
     return float(value)
+
+
+def _integer(where: _Where, spec: Mapping, key: str, field_name: str, minimum: int, maximum: int | None = None,
+             default=_MISSING):
+    value = spec.get(key, default)
+    if value is None and default is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum or (maximum is not None
+                                                                                   and value > maximum):
+        bound = f"between {minimum} and {maximum}" if maximum is not None else f">= {minimum}"
+        where.fail(field_name, value, f"an integer {bound}" + (" or null" if default is None else ""))
+    return value
 
 
 def _vector(where: _Where, spec: Mapping, key: str, field_name: str, length: int) -> tuple[float, ...]:
@@ -272,6 +318,10 @@ class _Parser:
         common = dict(name=name, description=description, on_failure=on_failure,
                       precondition=self.precondition(where, spec.get("precondition", {})))
         body = getattr(self, kind)(where, spec[kind], common)
+        live = {channel: v for channel, v in body.precondition.voltages.items() if v != 0}
+        if kind == "operator_swap" and live:
+            channel = next(iter(live))
+            where.fail(f"precondition.voltages.{channel}", live[channel], "an operator_swap needs every channel at 0 V")
         timeout = _number(where, spec, "timeout", "timeout", body.timeout, exclusive_minimum=0.0)
         if timeout < body.timeout and kind in ("wait", "pulse_train"):
             where.fail("timeout", timeout, f"shorter than the step itself ({body.timeout:g} s)")
@@ -325,6 +375,9 @@ class _Parser:
 
     def parallel(self, where: _Where, spec, common) -> ParallelStep:
         steps = self.steps(spec, f"{where.path}.parallel")
+        for index, step in enumerate(steps):
+            if isinstance(step, OperatorSwapStep):  # a sibling could energise a channel during the swap
+                where.fail(f"parallel[{index}].operator_swap", step.name, "not allowed in a parallel step")
         return ParallelStep(**common, steps=steps, timeout=max(step.timeout for step in steps))
 
     def pulse_train(self, where: _Where, spec, common) -> PulseTrainStep:
@@ -364,6 +417,33 @@ class _Parser:
                        f"({MIN_JERK_PEAK_RATE:g} x voltage / slew_rate) but the shortest on/off phase "
                        f"is {shortest_phase * 1e3:.0f} ms")
         return replace(step, timeout=step.length + self.defaults["timeout"])
+
+    def operator_swap(self, where: _Where, spec, common) -> OperatorSwapStep:
+        spec = _mapping(where, spec, "operator_swap", {"assembly", "swaps"})
+        assembly = spec.get("assembly", _MISSING)
+        if not isinstance(assembly, str) or not assembly.strip():
+            where.fail("operator_swap.assembly", assembly, "the name of the assembly after the swaps")
+        items = spec.get("swaps", [])
+        if not isinstance(items, list):
+            where.fail("operator_swap.swaps", items, "a list of swaps (chain, position, remove, insert, rotation_steps)")
+        swaps, seen = [], set()
+        for index, item in enumerate(items):
+            label = f"operator_swap.swaps[{index}]"
+            item = _mapping(where, item, label, {"chain", "position", "remove", "insert", "rotation_steps"})
+            chain = item.get("chain", _MISSING)
+            if not isinstance(chain, str) or not chain:
+                where.fail(f"{label}.chain", chain, "a chain name")
+            swap = Swap(chain, _integer(where, item, "position", f"{label}.position", 0),
+                        _integer(where, item, "remove", f"{label}.remove", 1, default=None),
+                        _integer(where, item, "insert", f"{label}.insert", 1, default=None),
+                        _integer(where, item, "rotation_steps", f"{label}.rotation_steps", 0, ROTATION_STEPS - 1, 0))
+            if swap.remove is None and swap.insert is None:
+                where.fail(f"{label}.insert", None, "give remove, insert or both")
+            if (swap.chain, swap.position, swap.insert is None) in seen:
+                where.fail(f"{label}.position", swap.position, f"swapped twice in chain {swap.chain!r}")
+            seen.add((swap.chain, swap.position, swap.insert is None))
+            swaps.append(swap)
+        return OperatorSwapStep(**common, assembly=assembly, swaps=tuple(swaps), timeout=OPERATOR_TIMEOUT_S)
 
 
 def parse_sequence(document, limits: Limits = Limits(), source: str = "", defaults: Mapping | None = None) -> Sequence:

@@ -103,6 +103,7 @@ def test_an_as_built_chain_is_estimated_on_its_own_topic_with_an_ok_verdict(came
     assert len(chain.centerline) > 3
     values = {v.key: v.value for v in status.values}
     assert values["status"] == "as_built" and "block 3 design 15" in values
+    assert values["assembly"] == "rig"  # what the sequencer's operator_swap checks the verdict is on
 
 
 def test_the_estimated_chain_is_in_tf_under_its_own_prefix(client, camera, table, frame):

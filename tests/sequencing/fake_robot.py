@@ -4,7 +4,7 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable
 
-from sequencing.ports import ChannelReading, Outcome, RobotError
+from sequencing.ports import AssemblyVerdict, ChannelReading, Outcome, RobotError
 
 OVER_CURRENT = 1
 
@@ -33,6 +33,27 @@ class FakeMotion:
         self.finish(Outcome(False, "canceled"))
 
 
+class FakeOperator:
+    """The operator and the camera: confirms on the ``confirm_at``-th poll (None: never), then the estimator
+    reports ``verdicts`` one per poll, the last one repeated."""
+
+    def __init__(self, confirm_at: int | None = 1, verdicts: tuple[AssemblyVerdict, ...] = ()):
+        self.confirm_at, self.verdicts = confirm_at, list(verdicts)
+        self.prompt, self.polls, self.closed = "", 0, False
+
+    def confirmed(self) -> bool:
+        self.polls += 1
+        return self.confirm_at is not None and self.polls >= self.confirm_at
+
+    def verdict(self) -> AssemblyVerdict | None:
+        if not self.verdicts:
+            return None
+        return self.verdicts.pop(0) if len(self.verdicts) > 1 else self.verdicts[0]
+
+    def close(self) -> None:
+        self.closed = True
+
+
 class FakeRobot:
     """Records every call in ``calls``. ``hook(robot, call)`` may return a motion to use instead of the
     default immediate success (e.g. a hanging FakeMotion) and may inject faults."""
@@ -43,6 +64,7 @@ class FakeRobot:
         self.hanging: list[FakeMotion] = []
         self.hook = hook
         self.refuse_ramps = False
+        self.operator = FakeOperator(confirm_at=None)
         self.unreachable = False
         self._lock = threading.Lock()
 
@@ -101,6 +123,11 @@ class FakeRobot:
     def estop(self):
         self._record(("estop",))
         return Outcome(True, "e-stop latched")
+
+    def request_operator(self, prompt: str) -> FakeOperator:
+        self._record(("request_operator", prompt))
+        self.operator.prompt = prompt
+        return self.operator
 
     def ramps(self, channel: str | None = None) -> list[tuple]:
         return [call for call in self.calls if call[0] == "ramp" and (channel is None or call[1] == channel)]

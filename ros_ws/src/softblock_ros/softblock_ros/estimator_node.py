@@ -7,7 +7,8 @@ the camera's ``pixel_size_m`` and ``base_pose`` (where the chain's base sits in 
 channel voltage; the result is published as an AssemblyState on ``assembly/estimated`` (the estimated angles
 and centerline of the chain that explains the image, in the assembly frame; not the prediction's
 ``assembly/state``) and as a DiagnosticStatus on ``/diagnostics``: OK "as built", WARN with the mistakes
-found, ERROR for an image the chain does not explain or a refused image (the reason named; the node stays up).
+found, ERROR for an image the chain does not explain or a refused image (the reason named; the node stays up);
+a verdict's values name the ``assembly`` it was compared with (the sequencer's ``operator_swap`` step needs it).
 With each estimate, the estimated chain's frames, its mount included, go on ``/tf`` under the prefix
 ``estimated/`` (``softblock_ros.tf_frames``), beside the predicted ones. (Only assembly_state publishes on the latched
 ``/tf_static``: two latched samples published moments apart could reach a replay's reader as one.)
@@ -148,7 +149,8 @@ class EstimatorNode(Node):
         mount = mounts_msg([result.chain], self._frame_id, ESTIMATED_PREFIX)
         blocks = blocks_msg({result.chain.name: shape}, ESTIMATED_PREFIX)
         self._tf_pub.publish(stamped(TFMessage(transforms=[*mount.transforms, *blocks.transforms]), header.stamp))
-        self._report(LEVELS[result.status], result.message, self._values(result), header.stamp)
+        assembly = KeyValue(key="assembly", value=self._assembly.name)  # what the verdict is on (operator_swap)
+        self._report(LEVELS[result.status], result.message, [assembly, *self._values(result)], header.stamp)
 
     def _estimated(self, header: Header, result, voltage: float) -> tuple[AssemblyState, object]:
         """The estimated chain (the one that explains the image) at its fitted angles, in the assembly frame: the

@@ -1,5 +1,6 @@
 """The sequencing engine's `Robot` on ROS: `arm/move`, `hv/ramp` and `hv/pulse` action clients, `hv/state`, `hv/estop`,
-and control of the HV driver (`HvControl`: claimed for a sequence, heartbeats while held).
+the operator's `sequencer/operator_done` with the estimator's verdict (`operator_wait`), and control of the HV driver
+(`HvControl`: claimed for a sequence, heartbeats while held).
 
 Nothing here blocks on the executor: goals are sent with futures whose callbacks set a
 threading.Event, so the engine can wait in an action-execute thread of a MultiThreadedExecutor.
@@ -22,6 +23,7 @@ from sequencing.ports import ChannelReading, Outcome, RobotError
 from .client import ActionClient, ClientError
 from .conversions import pose_msg
 from .hv_control import HvControl
+from .operator_wait import OperatorDesk, OperatorRequest
 
 
 class ActionMotion:
@@ -92,6 +94,7 @@ class RosRobot:
         self._pulse = ActionClient(node, PulseChannels, "hv/pulse", callback_group=callback_group)
         self._move = ActionClient(node, MoveArm, "arm/move", callback_group=callback_group)
         self._estop = node.create_client(Trigger, "hv/estop", callback_group=callback_group)
+        self._operator = OperatorDesk(node, callback_group)
         self._lock = threading.Lock()
         self._state: HvState | None = None
         self._state_time = 0.0
@@ -178,6 +181,9 @@ class RosRobot:
             readings[channel.name] = ChannelReading(channel.measured_voltage, faults, text, channel.output_enabled,
                                                     stale=silent)
         return readings
+
+    def request_operator(self, prompt: str) -> OperatorRequest:
+        return self._operator.request(prompt)
 
     def stop_arm(self) -> None:
         """Cancel the running arm goal: the arm brakes and holds."""
