@@ -29,9 +29,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+sys.path[:0] = [os.path.dirname(os.path.dirname(os.path.abspath(__file__))), os.path.dirname(os.path.abspath(__file__))]
 from hv_driver import ChannelConfig, RemoteSupply  # noqa: E402
-from hv_loop import summary  # noqa: E402 (benchmarks/, this script's folder)
+from hv_loop import summary  # noqa: E402 (this script's folder)
 from hv_driver.ramp import MinimumJerkRamp  # noqa: E402
 from hv_driver.realtime import make_realtime, normal_priority  # noqa: E402
 from sim_fallback.hv_supply import SimulatedSupply  # noqa: E402
