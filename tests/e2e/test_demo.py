@@ -75,8 +75,12 @@ def test_demo_recording_replayed_and_recorded_again_gives_the_same_analysis(demo
     replayed = str(tmp_path / "replayed.mcap")
     context = rclpy.Context()
     rclpy.init(context=context)
-    player = PlayerNode(original, PlaybackOptions(rate=4.0), context=context)
-    recorder = RecorderNode(replayed, context=context, parameter_overrides=[Parameter("discovery_period_s", value=0.1)])
+    # State topics under their own names, so the analysis reads the same topics; neither node logs to /rosout,
+    # so the recorded /rosout holds the replayed logs only.
+    player = PlayerNode(original, PlaybackOptions(rate=4.0, include_state=True), context=context,
+                        enable_rosout=False)
+    recorder = RecorderNode(replayed, context=context, enable_rosout=False,
+                            parameter_overrides=[Parameter("discovery_period_s", value=0.1)])
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(player)
     executor.add_node(recorder)
