@@ -7,6 +7,7 @@ import pytest
 import rclpy
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
+from rclpy.time import Time
 from ros_testing import Inbox, wait_for
 from sensor_msgs.msg import Image
 from softblock_interfaces.msg import Assembly, AssemblyState, HvChannelState, HvState
@@ -65,3 +66,29 @@ def test_a_still_scene_gives_no_new_images(nodes):
     quiet_until = client.get_clock().now().nanoseconds + 2_000_000_000  # ten camera periods
     wait_for(lambda: client.get_clock().now().nanoseconds > quiet_until, 10.0, "two seconds")
     assert images.messages == []
+
+
+
+def test_the_world_assembly_replaces_the_belief_and_a_still_scene_is_repeated_when_asked(ros_context, spin):
+    """A swap done wrong: the belief (assembly/current) says design 15 at the tip, the world (sim/assembly_built)
+    holds 22 there; the camera draws the world from then on, and with repeat_period_s its still image comes
+    again, newly stamped."""
+    camera = SimCameraNode(context=ros_context, namespace="/world", parameter_overrides=VIEW + [
+        Parameter("rate_hz", value=10.0), Parameter("repeat_period_s", value=0.5)])
+    client = rclpy.create_node("world_client", context=ros_context, namespace="/world")
+    images = Inbox(client, Image, "camera/silhouette")
+    spin(camera, client)
+    table = load_table()
+    believed = Chain("finger", "front", (PlacedBlock(15), PlacedBlock(15), PlacedBlock(15)))
+    belief = client.create_publisher(Assembly, "assembly/current", LATCHED)
+    belief.publish(assembly_msg(CoreAssembly("believed", (believed,)), table))
+    wait_for(lambda: camera._chain == believed, 30.0, "the camera to draw the belief")
+    client.create_publisher(Assembly, "sim/assembly_built", LATCHED).publish(
+        assembly_msg(CoreAssembly("built", (FINGER,)), table))
+    built = camera._draw(FINGER, 0.0)
+    first = images.wait(lambda msg: np.array_equal(mask_from_image(msg), built), timeout=60.0)
+    belief.publish(assembly_msg(CoreAssembly("believed again", (believed,)), table))  # no longer decides
+    stamp = Time.from_msg(first.header.stamp).nanoseconds
+    again = images.wait(lambda msg: Time.from_msg(msg.header.stamp).nanoseconds > stamp + 1_000_000_000, 60.0)
+    np.testing.assert_array_equal(mask_from_image(again), built)
+    assert camera._chain == FINGER
