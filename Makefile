@@ -1,6 +1,6 @@
 # The two commands of the README: `make demo` (the whole stack on the simulated backend)
 # and `make test`. Both run the idempotent set-up first. `make test-fast` is the quick gate: the fast tier.
-.PHONY: setup demo test test-fast bench
+.PHONY: setup demo demo-reconfigure test test-fast bench
 
 PYTEST := scripts/with_env.sh python -m pytest
 
@@ -9,6 +9,10 @@ setup:
 
 demo: setup
 	scripts/with_env.sh python -m softblock_ros.demo --out out/demo
+
+# The second demo: the strawberry gripper reconfigured for the asymmetric object, one wrong swap caught.
+demo-reconfigure: setup
+	scripts/with_env.sh python -m softblock_ros.demo_reconfigure --out out/reconfigure
 
 # The tiers (pyproject.toml's markers), cheapest first, so that a broken basic stops the run early.
 # Integration modules stay on one worker each (--dist loadfile): they share module-wide nodes and ROS domains.

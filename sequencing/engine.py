@@ -151,18 +151,20 @@ class SequenceEngine:
             if channel in states and abs(states[channel].voltage - expected) > tolerance:
                 problems.append(f"channel {channel!r} at {states[channel].voltage:.0f} V, "
                                 f"expected {expected:.0f} +- {tolerance:.0f} V")
-        if isinstance(step, OperatorSwapStep):
+        if isinstance(step, OperatorSwapStep):  # outputs on at 0 V are fine: the step switches them off
             problems += [f"{problem}; an operator swap needs every channel at 0 V"
-                         for problem in self._energised(sequence)]
+                         for problem in self._energised(sequence, outputs_count=False)]
         return problems
 
-    def _energised(self, sequence: Sequence) -> list[str]:
-        """Channels that are (or may be) live: output on, above the off voltage, or state unknown."""
+    def _energised(self, sequence: Sequence, outputs_count: bool = True) -> list[str]:
+        """Channels that are (or may be) live: above the off voltage, state unknown, or (``outputs_count``)
+        output on."""
         states, off = self.robot.channel_states(), self.options.off_voltage_v
         return [f"channel {channel!r} " + ("state unknown" if states[channel].stale else
                                            f"energised ({states[channel].voltage:.0f} V)")
                 for channel in sequence.channels if channel in states
-                and (states[channel].stale or states[channel].output_enabled or abs(states[channel].voltage) > off)]
+                and (states[channel].stale or (outputs_count and states[channel].output_enabled)
+                     or abs(states[channel].voltage) > off)]
 
     def _check_precondition(self, step: Step, ctx: _Context) -> None:
         settle_until = self.clock() + self.options.settle_time_s
@@ -296,9 +298,11 @@ class SequenceEngine:
         return f"{step.cycles} cycles on {list(step.channels)} at {step.frequency:g} Hz ({outcome.message})"
 
     def _operator_swap(self, step: OperatorSwapStep, ctx: _Context) -> str:
-        """Confirmation first, then a verdict on the new assembly from an image taken after it; meanwhile
-        every channel must stay at 0 V. A verdict on another assembly (the estimator has not got the new one
-        yet) is waited past."""
+        """The HV outputs off (hands near the electrodes), then the confirmation, then a verdict on the new
+        assembly from an image taken after it; meanwhile every channel must stay off at 0 V. A verdict on another
+        assembly (the estimator has not got the new one yet) is waited past. Only an as-built verdict switches
+        the outputs on again: after a mistake they stay off."""
+        self._outputs_off(ctx)
         request = self.robot.request_operator(step.prompt())
         waiting_for, verdict = "the operator's confirmation", None
         try:
@@ -315,12 +319,32 @@ class SequenceEngine:
                     verdict = request.verdict()
                     if verdict is not None and verdict.assembly == step.assembly:
                         if verdict.as_built:
+                            switched = self.robot.hv_outputs(True)
+                            if not switched.success:
+                                raise StepFailure(f"assembly {step.assembly!r} as built, but the HV outputs could "
+                                                  f"not be switched on again: {switched.message}")
                             return f"assembly {step.assembly!r} as built (chain {verdict.chain}: {verdict.message})"
                         found = "; ".join(verdict.mistakes) or verdict.message
-                        raise StepFailure(f"assembly {step.assembly!r} not as built: chain {verdict.chain}: {found}")
+                        raise StepFailure(f"assembly {step.assembly!r} not as built: chain {verdict.chain}: {found}"
+                                          f"; the HV outputs stay off until a swap is verified")
                 ctx.cancel.wait(self.options.poll_period_s)
         finally:
             request.close()
+
+    def _outputs_off(self, ctx: _Context) -> None:
+        """Every HV output off (ramps refused meanwhile), seen off on every channel of the sequence."""
+        switched = self.robot.hv_outputs(False)
+        if not switched.success:
+            raise StepFailure(f"the HV outputs could not be switched off for the swap: {switched.message}")
+        while True:
+            states = self.robot.channel_states()
+            on = [c for c in ctx.sequence.channels if c in states and (states[c].stale or states[c].output_enabled)]
+            if not on:
+                return
+            if self.clock() > ctx.deadline:
+                raise StepFailure(f"timed out after {ctx.timeout:g} s waiting for the outputs of {on} to switch off")
+            self._check_interrupts(ctx)
+            ctx.cancel.wait(self.options.poll_period_s)
 
     # -- reactions --------------------------------------------------------------------------------------
 

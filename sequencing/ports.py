@@ -86,6 +86,10 @@ class Robot(Protocol):
     def request_operator(self, prompt: str) -> OperatorWait:
         """Show ``prompt`` to the operator and take their confirmation from now on."""
 
+    def hv_outputs(self, on: bool) -> Outcome:
+        """False: every output of the HV driver ramped to 0 V and switched off, and ramps refused, until True
+        switches them on again at 0 V (the driver node's lifecycle: inactive, active)."""
+
 
 class RobotError(RuntimeError):
     """The backend could not take a command (server missing, goal refused)."""

@@ -14,6 +14,8 @@ import time
 
 from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
+from lifecycle_msgs.msg import State, Transition
+from lifecycle_msgs.srv import ChangeState, GetState
 from rclpy.node import Node
 from softblock_interfaces.action import PulseChannels, RampChannel
 from softblock_interfaces.msg import HvChannelState, HvHeartbeat, HvState
@@ -45,6 +47,9 @@ class FakeHv(Node):
         self.create_service(Trigger, "hv/estop", self.on_estop, callback_group=group)
         self.create_service(ClaimControl, "hv/claim_control", self.on_claim, callback_group=group)
         self.create_service(ReleaseControl, "hv/release_control", self.on_release, callback_group=group)
+        self.active = True  # the driver's lifecycle: inactive = every output off, ramps refused
+        self.create_service(GetState, "hv_driver/get_state", self.on_get_state, callback_group=group)
+        self.create_service(ChangeState, "hv_driver/change_state", self.on_change_state, callback_group=group)
         self.server = ActionServer(self, RampChannel, "hv/ramp", execute_callback=self.execute,
                                    cancel_callback=lambda _: CancelResponse.ACCEPT, callback_group=group)
         self.pulse_server = ActionServer(self, PulseChannels, "hv/pulse", execute_callback=self.execute_pulse,
@@ -56,6 +61,7 @@ class FakeHv(Node):
             self.control = ControlClaim(math.inf)
             self.pulses = []
             self.silent = False
+            self.active = True
             for channel in self.channels.values():
                 channel.faults, channel.fault_text, channel.measured_voltage = 0, "", 0.0
                 channel.setpoint = channel.target = 0.0
@@ -94,6 +100,25 @@ class FakeHv(Node):
                 response.success, response.message = False, str(error)
         return response
 
+    def on_get_state(self, _request, response):
+        response.current_state = (State(id=State.PRIMARY_STATE_ACTIVE, label="active") if self.active else
+                                  State(id=State.PRIMARY_STATE_INACTIVE, label="inactive"))
+        return response
+
+    def on_change_state(self, request, response):
+        activate = request.transition.id == Transition.TRANSITION_ACTIVATE
+        with self.lock:
+            if activate == self.active or request.transition.id not in (Transition.TRANSITION_ACTIVATE,
+                                                                        Transition.TRANSITION_DEACTIVATE):
+                response.success = False
+                return response
+            self.active = activate
+            for channel in self.channels.values():  # as the driver: on at 0 V when active, off when inactive
+                channel.measured_voltage = channel.setpoint = 0.0
+                channel.output_enabled = activate and not channel.faults
+        response.success = True
+        return response
+
     def publish_state(self) -> None:
         with self.lock:
             if self.silent:
@@ -127,11 +152,11 @@ class FakeHv(Node):
     def execute(self, goal_handle):
         goal = goal_handle.request
         channel = self.channels.get(goal.channel)
-        if channel is None or channel.faults or not self.obeyed(goal, ramp_command(goal.channel, goal.target,
-                                                                                   goal.slew_rate)):
+        if channel is None or channel.faults or not self.active or not self.obeyed(
+                goal, ramp_command(goal.channel, goal.target, goal.slew_rate)):
             goal_handle.abort()
             reason = ("unknown channel" if channel is None else "faults latched" if channel.faults
-                      else "not the client holding control")
+                      else "inactive" if not self.active else "not the client holding control")
             return RampChannel.Result(success=False, message=f"{goal.channel}: {reason}")
         self.ramps.append((goal.channel, goal.target))
         start, slew = channel.measured_voltage, goal.slew_rate or DEFAULT_SLEW_RATE

@@ -59,6 +59,7 @@ def swap_and_see(stack, status: DiagnosticStatus):
     handle = future.result()
     assert handle.accepted
     stack["events"].wait(lambda msg: (msg.step_name, msg.phase) == ("swap", "started"))
+    stack["was_inactive"] = wait_for(lambda: not stack["hv"].active, what="the HV driver deactivated")
     reply = call(stack["done"], Trigger.Request())
     assert reply.success and "confirmed: build assembly 'asymmetric_gripper'" in reply.message, reply.message
     result = handle.get_result_async()
@@ -71,6 +72,7 @@ def swap_and_see(stack, status: DiagnosticStatus):
         return result.done()
 
     wait_for(verdict_sent_and_done, 30.0, what="the sequence result")
+    assert stack["was_inactive"], "the HV driver was not deactivated for the swap"
     return result.result().status, result.result().result
 
 
@@ -85,10 +87,10 @@ def test_a_mismatch_names_the_block_before_any_channel_is_energised(stack):
                                                            [mistake]))
     assert status == GoalStatus.STATUS_ABORTED and result.failed_step == "swap"
     assert f"assembly 'asymmetric_gripper' not as built: chain front_left: {mistake}" in result.message
-    assert stack["hv"].ramps == []
+    assert stack["hv"].ramps == [] and not stack["hv"].active
 
 
 def test_a_match_lets_the_sequence_energise_again(stack):
     status, result = swap_and_see(stack, estimator_status(DiagnosticStatus.OK, "as built"))
     assert status == GoalStatus.STATUS_SUCCEEDED and result.success, result.message
-    assert stack["hv"].ramps == [("front", 2000.0)]
+    assert stack["hv"].ramps == [("front", 2000.0)] and stack["hv"].active

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import threading
+from dataclasses import replace
 from collections.abc import Callable
 
 from sequencing.ports import AssemblyVerdict, ChannelReading, Outcome, RobotError
@@ -66,6 +67,8 @@ class FakeRobot:
         self.refuse_ramps = False
         self.operator = FakeOperator(confirm_at=None)
         self.unreachable = False
+        self.outputs_active = True  # the driver active: hv_outputs(False) switches every output off
+        self.refuse_outputs: str | None = None  # hv_outputs answers this failure
         self._lock = threading.Lock()
 
     def _record(self, call: tuple):
@@ -95,6 +98,8 @@ class FakeRobot:
             return FakeMotion(Outcome(False, f"unknown channel {channel!r}"))
         if self.refuse_ramps or self.states[channel].faults:
             return FakeMotion(Outcome(False, "refused: faults latched"))
+        if not self.outputs_active:
+            return FakeMotion(Outcome(False, "refused: the driver is inactive"))
         self.states[channel] = ChannelReading(target, 0, "", target > 0)
         return FakeMotion(Outcome(True, "", target))
 
@@ -123,6 +128,15 @@ class FakeRobot:
     def estop(self):
         self._record(("estop",))
         return Outcome(True, "e-stop latched")
+
+    def hv_outputs(self, on: bool) -> Outcome:
+        self._record(("hv_outputs", on))
+        if self.refuse_outputs:
+            return Outcome(False, self.refuse_outputs)
+        self.outputs_active = on
+        for name, state in self.states.items():
+            self.states[name] = replace(state, output_enabled=on and not state.faults)
+        return Outcome(True, "active" if on else "inactive")
 
     def request_operator(self, prompt: str) -> FakeOperator:
         self._record(("request_operator", prompt))

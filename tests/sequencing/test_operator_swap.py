@@ -91,7 +91,7 @@ def test_a_match_after_the_confirmation_lets_the_sequence_energise_again():
     robot.operator = FakeOperator(confirm_at=3, verdicts=(MATCH,))
     result = run(robot)
     assert result.success, result.message
-    assert robot.calls[0] == ("request_operator", parse_sequence(document()).steps[0].prompt())
+    assert robot.calls[:2] == [("hv_outputs", False), ("request_operator", parse_sequence(document()).steps[0].prompt())]
     assert robot.operator.closed and robot.operator.polls >= 3
     assert [call[1:3] for call in robot.ramps()] == [("front", 2000.0)]
 
@@ -180,3 +180,50 @@ def test_a_plans_swap_steps_become_one_operator_swap_step():
     step = parse_sequence({"name": "r", "channels": ["front"], "steps": [spec]}).steps[0]
     assert step.timeout == 900 and step.assembly == "next_gripper"
     assert step.swaps == (Swap(finger.name, 1, old.design_id, old.design_id % 84 + 1, 3),)
+
+
+def outputs_on_at_0_v(robot) -> None:
+    """As the HV driver node when active: every output on, at 0 V."""
+    for name in robot.states:
+        robot.states[name] = ChannelReading(0.0, output_enabled=True)
+
+
+def test_outputs_on_at_0_v_are_switched_off_for_the_swap_and_on_again_once_verified():
+    robot = FakeRobot(["front", "back"])
+    outputs_on_at_0_v(robot)
+    seen_during_swap = []
+
+    class Watching(FakeOperator):
+        def confirmed(self):
+            seen_during_swap.append({n: s.output_enabled for n, s in robot.states.items()})
+            return super().confirmed()
+
+    robot.operator = Watching(confirm_at=2, verdicts=(MATCH,))
+    result = run(robot)
+    assert result.success, result.message
+    names = [call[0] for call in robot.calls]
+    assert names[:2] == ["hv_outputs", "request_operator"] and robot.calls[0] == ("hv_outputs", False)
+    assert seen_during_swap and all(not any(seen.values()) for seen in seen_during_swap)
+    assert ("hv_outputs", True) in robot.calls
+    assert names.index("ramp") > robot.calls.index(("hv_outputs", True))
+
+
+def test_after_a_mistake_the_outputs_stay_off():
+    robot = FakeRobot(["front", "back"])
+    outputs_on_at_0_v(robot)
+    robot.operator = FakeOperator(confirm_at=1, verdicts=(WRONG,))
+    result = run(robot)
+    assert not result.success and "the HV outputs stay off until a swap is verified" in result.message
+    assert [call for call in robot.calls if call[0] == "hv_outputs"] == [("hv_outputs", False)]
+    assert not any(state.output_enabled for state in robot.states.values()) and robot.ramps() == []
+
+
+def test_outputs_that_cannot_be_switched_off_keep_the_operator_away():
+    robot = FakeRobot(["front", "back"])
+    outputs_on_at_0_v(robot)
+    robot.refuse_outputs = "hv_driver/change_state: service not available"
+    result = run(robot)
+    assert not result.success and result.failed_step == "swap"
+    assert ("the HV outputs could not be switched off for the swap: hv_driver/change_state: service not "
+            "available") in result.message
+    assert not [call for call in robot.calls if call[0] == "request_operator"]

@@ -40,6 +40,7 @@ setup(
             "hv_console = softblock_ros.hv_console:main",
             "run_sequence = softblock_ros.run_sequence:main",
             "demo = softblock_ros.demo:main",
+            "demo_reconfigure = softblock_ros.demo_reconfigure:main",
         ],
     },
 )

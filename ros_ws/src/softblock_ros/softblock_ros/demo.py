@@ -69,11 +69,13 @@ def say(text: str) -> None:
     print(f"[demo] {text}", flush=True)
 
 
-def write_parameters(out: Path, recording: Path) -> Path:
-    """The demo's additions to the stack's own parameter files (config/stack.yaml): the recorder's output
-    and the assembly the fingers are designed for."""
+def write_parameters(out: Path, recording: Path, extra: dict | None = None) -> Path:
+    """The demo's additions to the stack's own parameter files (config/stack.yaml): the recorder's output,
+    the assembly the fingers are designed for, and ``extra`` (node -> parameter -> value)."""
     parameters = {"recorder": {"ros__parameters": {"output": str(recording)}},
                   "assembly_state": {"ros__parameters": {"assembly_file": DEMO_ASSEMBLY}}}
+    for node, values in (extra or {}).items():
+        parameters.setdefault(node, {"ros__parameters": {}})["ros__parameters"].update(values)
     path = out / "params.yaml"
     path.write_text(yaml.safe_dump(parameters, sort_keys=False))
     return path
@@ -139,16 +141,24 @@ def design_gripper(client: DemoClient, object_name: str) -> tuple[dict, dict]:
     return fingers, summary
 
 
-def load_designs_into_gripper(client: DemoClient, fingers: dict) -> None:
-    """Replace the gripper's finger blocks with the designs; the chains keep their gripper base poses."""
+def load_designs_into_gripper(client: DemoClient, fingers: dict, name: str | None = None):
+    """Replace the gripper's finger blocks with the designs (the chains keep their gripper base poses) and
+    set it on assembly_state, named ``name`` (default: the gripper file's); returns the assembly."""
     gripper = load_assembly(config_file(DEMO_ASSEMBLY))
     designed = gripper.with_chains(*(replace(chain, blocks=fingers[finger_set][side][0].blocks)
                                      for chain in gripper.chains for finger_set, side in [chain.name.split("_")]))
-    request = SetAssembly.Request(assembly=assembly_msg(designed, load_table()))
-    response = call_service(client.set_assembly, request, timeout=SERVICE_TIMEOUT)
+    designed = replace(designed, name=name or designed.name)
+    set_assembly(client, designed)
+    say(f"designed fingers loaded into the gripper assembly {designed.name!r}")
+    return designed
+
+
+def set_assembly(client: DemoClient, assembly) -> None:
+    """assembly/set: what the stack believes is built."""
+    response = call_service(client.set_assembly, SetAssembly.Request(assembly=assembly_msg(assembly, load_table())),
+                            timeout=SERVICE_TIMEOUT)
     if not response.success:
-        raise ClientError(f"assembly/set refused the designed gripper: {response.message}")
-    say("designed fingers loaded into the gripper assembly")
+        raise ClientError(f"assembly/set refused {assembly.name!r}: {response.message}")
 
 
 def run_grasp(client: DemoClient) -> dict:
@@ -215,12 +225,37 @@ def inject_fault_mid_ramp(client: DemoClient) -> dict:
             "ramp_result": ramp_status}
 
 
-def analyse(recording: Path, out: Path) -> dict:
+def analyse(recording: Path, out: Path, title: str = "finger grasp on the simulated stack") -> dict:
     data = load(str(recording))
     summary = summarize(data)
-    plot_recording(data, str(out / "recording.png"), title="finger grasp on the simulated stack")
+    plot_recording(data, str(out / "recording.png"), title=title)
     say(f"recording analysed: {out / 'recording.png'}")
     return summary
+
+
+def run_stack(out: Path, params: Path, scenario, report: dict, nodes=(LIVE_VIEW,), client_class=None) -> None:
+    """Start the stack (its default nodes and ``nodes``) with the parameter files ``params``, wait for hv/state,
+    run ``scenario(client)`` with a ``client_class`` (default DemoClient) and stop the stack. A ClientError is
+    recorded as ``report["error"]``; the nodes' exit codes go to ``report["exit_codes"]``."""
+    with open(out / "stack.log", "w") as log:
+        say(f"starting the stack on the simulated backend (node output: {out / 'stack.log'})")
+        stack = Stack(nodes=[*load_stack().default_names, *nodes], params=params, output=log).start()
+        if LIVE_VIEW in nodes:
+            say("live view: open ws://127.0.0.1:8765 in Foxglove with config/foxglove/softblock_layout.json")
+        os.environ.update(stack.network.variables(os.environ))  # the demo's client joins the nodes' network
+        rclpy.init()
+        client = (client_class or DemoClient)()
+        try:
+            wait_until(lambda: (s := client.hv_state) and len(s.channels) == 2, SERVICE_TIMEOUT, "hv/state")
+            scenario(client)
+        except ClientError as error:
+            say(f"FAILED: {error}")
+            report["error"] = str(error)
+        finally:
+            client.close()
+            rclpy.try_shutdown()
+            say("stopping the stack")
+            report["exit_codes"] = stack.stop()
 
 
 def run(out: Path, object_name: str) -> int:
@@ -230,29 +265,16 @@ def run(out: Path, object_name: str) -> int:
     params = write_parameters(out, recording)
     started = time.monotonic()
     report: dict = {"object": object_name}
-    with open(out / "stack.log", "w") as log:
-        say(f"starting the stack on the simulated backend (node output: {out / 'stack.log'})")
-        stack = Stack(nodes=[*load_stack().default_names, LIVE_VIEW], params=params, output=log).start()
-        say("live view: open ws://127.0.0.1:8765 in Foxglove with config/foxglove/softblock_layout.json")
-        os.environ.update(stack.network.variables(os.environ))  # the demo's client joins the nodes' network
-        rclpy.init()
-        client = DemoClient()
-        try:
-            wait_until(lambda: (s := client.hv_state) and len(s.channels) == 2, SERVICE_TIMEOUT, "hv/state")
-            fingers, report["designs"] = design_gripper(client, object_name)
-            plot_fingers(fingers, object_name, out / "fingers.png")
-            say(f"finger designs drawn over the object: {out / 'fingers.png'}")
-            load_designs_into_gripper(client, fingers)
-            report["grasp"] = run_grasp(client)
-            report["fault_drill"] = fault_drill(client)
-        except ClientError as error:
-            say(f"FAILED: {error}")
-            report["error"] = str(error)
-        finally:
-            client.close()
-            rclpy.try_shutdown()
-            say("stopping the stack")
-            report["exit_codes"] = stack.stop()
+
+    def scenario(client: DemoClient) -> None:
+        fingers, report["designs"] = design_gripper(client, object_name)
+        plot_fingers(fingers, object_name, out / "fingers.png")
+        say(f"finger designs drawn over the object: {out / 'fingers.png'}")
+        load_designs_into_gripper(client, fingers)
+        report["grasp"] = run_grasp(client)
+        report["fault_drill"] = fault_drill(client)
+
+    run_stack(out, params, scenario, report)
     report["recording"] = analyse(recording, out)
     report["duration_s"] = time.monotonic() - started
     (out / "summary.json").write_text(json.dumps(report, indent=2, default=float))

@@ -1,6 +1,7 @@
 """The sequencing engine's `Robot` on ROS: `arm/move`, `hv/ramp` and `hv/pulse` action clients, `hv/state`, `hv/estop`,
-the operator's `sequencer/operator_done` with the estimator's verdict (`operator_wait`), and control of the HV driver
-(`HvControl`: claimed for a sequence, heartbeats while held).
+the operator's `sequencer/operator_done` with the estimator's verdict (`operator_wait`), control of the HV driver
+(`HvControl`: claimed for a sequence, heartbeats while held), and the driver's lifecycle (`<hv_driver>/change_state`:
+inactive, every output off, while an operator swaps blocks).
 
 Nothing here blocks on the executor: goals are sent with futures whose callbacks set a
 threading.Event, so the engine can wait in an action-execute thread of a MultiThreadedExecutor.
@@ -12,6 +13,8 @@ import time
 
 from action_msgs.msg import GoalStatus
 from geometry_msgs.msg import PoseStamped
+from lifecycle_msgs.msg import State, Transition
+from lifecycle_msgs.srv import ChangeState, GetState
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from softblock_interfaces.action import MoveArm, PulseChannels, RampChannel
@@ -20,7 +23,7 @@ from std_srvs.srv import Trigger
 
 from sequencing.ports import ChannelReading, Outcome, RobotError
 
-from .client import ActionClient, ClientError
+from .client import ActionClient, ClientError, call_service
 from .conversions import pose_msg
 from .hv_control import HvControl
 from .operator_wait import OperatorDesk, OperatorRequest
@@ -87,13 +90,15 @@ class RosRobot:
     """Adapts ROS clients of the arm and the HV driver to the engine's `Robot` interface."""
 
     def __init__(self, node: Node, callback_group, server_timeout: float, state_timeout: float,
-                 heartbeat_rate_hz: float = 10.0):
+                 heartbeat_rate_hz: float = 10.0, hv_driver_node: str = "hv_driver"):
         self._server_timeout, self._state_timeout = server_timeout, state_timeout
         self._control = HvControl(node, node.get_name(), heartbeat_rate_hz, callback_group, server_timeout)
         self._ramp = ActionClient(node, RampChannel, "hv/ramp", callback_group=callback_group)
         self._pulse = ActionClient(node, PulseChannels, "hv/pulse", callback_group=callback_group)
         self._move = ActionClient(node, MoveArm, "arm/move", callback_group=callback_group)
         self._estop = node.create_client(Trigger, "hv/estop", callback_group=callback_group)
+        self._lifecycle = {kind: node.create_client(kind, f"{hv_driver_node}/{name}", callback_group=callback_group)
+                           for kind, name in ((GetState, "get_state"), (ChangeState, "change_state"))}
         self._operator = OperatorDesk(node, callback_group)
         self._lock = threading.Lock()
         self._state: HvState | None = None
@@ -181,6 +186,25 @@ class RosRobot:
             readings[channel.name] = ChannelReading(channel.measured_voltage, faults, text, channel.output_enabled,
                                                     stale=silent)
         return readings
+
+    def hv_outputs(self, on: bool) -> Outcome:
+        """The HV driver active (outputs on at 0 V) or inactive (every output ramped to 0 V and off, ramps refused);
+        a driver already there is left as it is."""
+        wanted, transition = ((State.PRIMARY_STATE_ACTIVE, Transition.TRANSITION_ACTIVATE) if on else
+                              (State.PRIMARY_STATE_INACTIVE, Transition.TRANSITION_DEACTIVATE))
+        get_state, change_state = self._lifecycle[GetState], self._lifecycle[ChangeState]
+        try:
+            current = call_service(get_state, GetState.Request(), self._server_timeout).current_state
+            if current.id == wanted:
+                return Outcome(True, f"the HV driver is already {current.label}")
+            reply = call_service(change_state, ChangeState.Request(transition=Transition(id=transition)),
+                                 self._server_timeout)
+        except ClientError as error:
+            return Outcome(False, str(error))
+        if not reply.success:
+            return Outcome(False, f"{change_state.srv_name}: the HV driver refused to "
+                                  f"{'activate' if on else 'deactivate'} (it was {current.label})")
+        return Outcome(True, "HV driver active: outputs on at 0 V" if on else "HV driver inactive: every output off")
 
     def request_operator(self, prompt: str) -> OperatorRequest:
         return self._operator.request(prompt)

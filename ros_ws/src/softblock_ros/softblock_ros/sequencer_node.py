@@ -54,6 +54,8 @@ PARAMETERS = (
     # is resent only at the writer's next periodic heartbeat (3 s, docs/two_machines.md).
     Param("server_timeout_s", 10.0, "wait for the arm/move, hv/ramp, hv/estop servers", "s", 0.1, 60.0),
     Param("state_timeout_s", 2.0, "hv/state older than this counts as a link fault", "s", 0.05, 10.0),
+    Param("hv_driver_node", "hv_driver", "the HV driver's lifecycle node, deactivated (every output off) while an "
+          "operator swaps blocks", kind=str),
 )
 
 
@@ -69,7 +71,7 @@ class SequencerNode(Node):
                                    value["off_voltage_v"])
         group = ReentrantCallbackGroup()
         self._robot = RosRobot(self, group, value["server_timeout_s"], value["state_timeout_s"],
-                               value["heartbeat_rate_hz"])
+                               value["heartbeat_rate_hz"], value["hv_driver_node"])
         self._events = self.create_publisher(SequenceEvent, "sequencer/events", 10)
         self._busy = threading.Lock()
         self._cancel = threading.Event()
