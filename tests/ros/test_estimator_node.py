@@ -160,6 +160,8 @@ def test_a_bad_image_is_refused_with_its_reason_and_the_next_good_one_is_estimat
     status = camera.show(bad(image))
     assert status.level == DiagnosticStatus.ERROR
     assert status.message.startswith("image refused:") and reason in status.message, status.message
+    # a verdict on the assembly: an operator_swap step fails on it at once (not verified) instead of waiting
+    assert {v.key: v.value for v in status.values}["assembly"] == "rig"
     assert camera.show(image).message == "as built"
 
 

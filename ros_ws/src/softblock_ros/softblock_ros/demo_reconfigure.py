@@ -66,6 +66,7 @@ SHELF_COUNT = 2  # blocks of every design on the shelf
 CLOSE_VOLTAGE = 2400.0  # [V] the new front fingers closed once verified
 DE_ENERGISED = 50.0  # [V] below this a channel counts as never energised during a swap
 SWAP_TIMEOUT = 120.0  # [s] the operator_swap step's own timeout
+SEPARABLE_RAD = math.radians(8.0)  # the wrong block's angle differs this much at least
 
 
 class ReconfigureClient(DemoClient):
@@ -143,7 +144,8 @@ def plan_front_pair(client: ReconfigureClient, max_swaps: int, time_budget: floa
 def look_alike(swap: Swap, stock: dict[int, int]) -> int:
     """The block an operator may take for the one ``swap`` inserts: on the shelf, with rods of the same length
     and a film of the same prestretch, but rods of another diameter (tenths of a millimetre apart, hard to tell
-    by eye); of those, the one whose angle differs most from the planned block's."""
+    by eye); of those, the nearest in angle to the planned block that still differs by SEPARABLE_RAD (a bigger
+    mistake can bend the finger out of the camera's view, a smaller one the camera may not tell)."""
     table = load_table()
     index = {int(i): k for k, i in enumerate(table.ids.tolist())}
     planned = index[swap.insert]
@@ -154,10 +156,14 @@ def look_alike(swap: Swap, stock: dict[int, int]) -> int:
                 and table.prestretch_axial[k] == table.prestretch_axial[planned]
                 and table.rod_diameter[k] != table.rod_diameter[planned])
 
-    candidates = [d for d, n in stock.items() if n > 0 and d != swap.remove and looks_alike(d)]
+    def difference(design_id: int) -> float:
+        return abs(table.theta0[index[design_id]] - table.theta0[planned])
+
+    candidates = sorted((d for d, n in stock.items() if n > 0 and d != swap.remove and looks_alike(d)),
+                        key=difference)
     if not candidates:
         raise ClientError(f"no look-alike of design {swap.insert} on the shelf")
-    return max(candidates, key=lambda d: abs(table.theta0[index[d]] - table.theta0[planned]))
+    return next((d for d in candidates if difference(d) >= SEPARABLE_RAD), candidates[-1])
 
 
 def with_block(assembly, chain_name: str, position: int, design_id: int):
@@ -284,6 +290,7 @@ def caught_before_hv(report: dict) -> bool:
     position = wrong["position"]
     return (not run_1["success"] and run_1["failed_step"] == "swap" and run_1["peak_voltage_v"] < DE_ENERGISED
             and f"chain {WATCHED_CHAIN}: block {position + 1}:" in run_1["message"])
+
 
 
 def print_summary(report: dict, out: Path) -> bool:

@@ -8,7 +8,8 @@ channel voltage; the result is published as an AssemblyState on ``assembly/estim
 and centerline of the chain that explains the image, in the assembly frame; not the prediction's
 ``assembly/state``) and as a DiagnosticStatus on ``/diagnostics``: OK "as built", WARN with the mistakes
 found, ERROR for an image the chain does not explain or a refused image (the reason named; the node stays up);
-a verdict's values name the ``assembly`` it was compared with (the sequencer's ``operator_swap`` step needs it).
+a verdict's values name the ``assembly`` it was compared with (the sequencer's ``operator_swap`` step needs it;
+a refused image of a known assembly names it too, so a swap step fails on it at once instead of waiting).
 With each estimate, the estimated chain's frames, its mount included, go on ``/tf`` under the prefix
 ``estimated/`` (``softblock_ros.tf_frames``), beside the predicted ones. (Only assembly_state publishes on the latched
 ``/tf_static``: two latched samples published moments apart could reach a replay's reader as one.)
@@ -138,8 +139,9 @@ class EstimatorNode(Node):
             voltage = self._voltages.get(chain.hv_channel, 0.0)
             result = estimate_chain(image, chain, self._pixel_size, self._pose, voltage=voltage, table=self._table,
                                     threshold=self._threshold)
-        except ValueError as error:
-            self._report(DiagnosticStatus.ERROR, f"image refused: {error}", stamp=message.header.stamp)
+        except ValueError as error:  # on a known assembly a verdict too: what cannot be seen is not verified
+            known = [] if self._assembly is None else [KeyValue(key="assembly", value=self._assembly.name)]
+            self._report(DiagnosticStatus.ERROR, f"image refused: {error}", known, stamp=message.header.stamp)
             return
         if result.as_built:
             self._recent.append((chain, image, voltage))

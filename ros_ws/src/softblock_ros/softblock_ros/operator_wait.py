@@ -26,7 +26,7 @@ def verdict_from_status(status: DiagnosticStatus) -> AssemblyVerdict | None:
     if not status.name.startswith(ESTIMATOR_PREFIX):
         return None
     values = {item.key: item.value for item in status.values}
-    if "assembly" not in values:  # a refused image: no verdict on any assembly
+    if "assembly" not in values:  # refused before any assembly arrived: no verdict on any
         return None
     return AssemblyVerdict(values["assembly"], status.name[len(ESTIMATOR_PREFIX):],
                            status.level == DiagnosticStatus.OK, status.message,
