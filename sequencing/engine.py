@@ -39,7 +39,7 @@ class StepEvent:
     count: int
     name: str
     description: str
-    phase: str        # "precondition", "running", "succeeded", "failed", "canceled"
+    phase: str        # "precondition", "running", "awaiting_operator", "succeeded", "failed", "canceled"
     message: str = ""
 
 
@@ -76,6 +76,7 @@ class _Context:
     halt: threading.Event  # set when a parallel sibling failed
     deadline: float
     timeout: float
+    emit: Callable[..., None]  # emit(phase, message=""): a StepEvent of the top-level step
 
 
 class SequenceEngine:
@@ -95,7 +96,7 @@ class SequenceEngine:
             started = self.clock()
             names.append(step.name)
             try:
-                ctx = _Context(sequence, cancel, threading.Event(), started + step.timeout, step.timeout)
+                ctx = _Context(sequence, cancel, threading.Event(), started + step.timeout, step.timeout, emit)
                 emit("precondition")
                 self._check_precondition(step, ctx)
                 emit("running")
@@ -263,7 +264,7 @@ class SequenceEngine:
 
         def branch(child: Step) -> str:
             child_ctx = _Context(ctx.sequence, ctx.cancel, halt, min(ctx.deadline, self.clock() + child.timeout),
-                                 child.timeout)
+                                 child.timeout, ctx.emit)
             try:
                 self._check_precondition(child, child_ctx)
                 return self._execute(child, child_ctx)
@@ -304,6 +305,7 @@ class SequenceEngine:
         the outputs on again: after a mistake they stay off."""
         self._outputs_off(ctx)
         request = self.robot.request_operator(step.prompt())
+        ctx.emit("awaiting_operator", step.prompt())  # only now can a confirmation be taken
         waiting_for, verdict = "the operator's confirmation", None
         try:
             while True:

@@ -58,8 +58,8 @@ def swap_and_see(stack, status: DiagnosticStatus):
     wait_for(future.done, what="the goal response")
     handle = future.result()
     assert handle.accepted
-    stack["events"].wait(lambda msg: (msg.step_name, msg.phase) == ("swap", "started"))
-    stack["was_inactive"] = wait_for(lambda: not stack["hv"].active, what="the HV driver deactivated")
+    stack["events"].wait(lambda msg: (msg.step_name, msg.phase) == ("swap", "awaiting_operator"))
+    stack["was_inactive"] = not stack["hv"].active  # switched off before the operator is asked
     reply = call(stack["done"], Trigger.Request())
     assert reply.success and "confirmed: build assembly 'asymmetric_gripper'" in reply.message, reply.message
     result = handle.get_result_async()

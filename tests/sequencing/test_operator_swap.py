@@ -96,6 +96,22 @@ def test_a_match_after_the_confirmation_lets_the_sequence_energise_again():
     assert [call[1:3] for call in robot.ramps()] == [("front", 2000.0)]
 
 
+def test_the_operator_is_told_once_the_request_is_open_and_the_outputs_are_off():
+    """A program acting as the operator confirms on `awaiting_operator`: by then the request must take it."""
+    robot = FakeRobot(["front", "back"])
+    robot.operator = FakeOperator(confirm_at=1, verdicts=(MATCH,))
+    seen = []
+
+    def on_event(event):
+        if event.phase == "awaiting_operator":
+            seen.append((event.name, event.message, list(robot.calls), robot.operator.polls))
+
+    engine = SequenceEngine(robot, FAST, on_event=on_event, clock=TickingClock(1e-3))
+    assert engine.run(parse_sequence(document())).success
+    prompt = parse_sequence(document()).steps[0].prompt()
+    assert seen == [("swap", prompt, [("hv_outputs", False), ("request_operator", prompt)], 0)]
+
+
 def test_a_verdict_on_the_old_assembly_is_waited_past():
     robot = FakeRobot(["front", "back"])
     robot.operator = FakeOperator(confirm_at=1, verdicts=(None, OLD, OLD, MATCH))

@@ -196,8 +196,8 @@ def run_with_operator(client: ReconfigureClient, sequence: str, built, believed)
         f = message.feedback
         if f.phase == "running":
             say(f"  step {f.step_index + 1}/{f.step_count} {f.step_name}: {f.description}")
-            if f.step_name == "swap":
-                asked.set()
+        elif f.phase == "awaiting_operator":
+            asked.set()
 
     def operator():
         if not asked.wait(SERVICE_TIMEOUT):

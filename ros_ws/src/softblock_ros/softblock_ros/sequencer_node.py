@@ -29,9 +29,10 @@ from .paths import resolve_path
 from .ros_robot import RosRobot
 from .runner import run_node
 
-FEEDBACK_PHASES = {"precondition", "running", "succeeded"}
+FEEDBACK_PHASES = {"precondition", "running", "awaiting_operator", "succeeded"}
 RESULT_GRACE_S = 1.0  # [s] after a goal stopped by a signal ended, for its result to reach the caller
-EVENT_PHASES = {"running": "started", "succeeded": "succeeded", "failed": "failed", "canceled": "canceled"}
+EVENT_PHASES = {"running": "started", "awaiting_operator": "awaiting_operator", "succeeded": "succeeded",
+                "failed": "failed", "canceled": "canceled"}
 
 PARAMETERS = (
     Param("sequences_dir", "sequences", "directory of <name>.yaml files, the only ones a goal can name (relative "
