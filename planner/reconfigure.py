@@ -237,14 +237,21 @@ def plan_reconfiguration(assembly: Assembly, shelf: dict[int, int], objects, *, 
         budget = None
         if time_budget is not None:
             budget = max((time_budget - (time.perf_counter() - started)) / (count - index), 1e-3)
-        earlier = candidates[finger.slot.chain]
+        earlier, front_start = candidates[finger.slot.chain], 0.0
         if not earlier:  # each object's own optimum (the compiled single-object search) to start from; when
-            own = [solve_finger(t, finger.space, time_budget=budget) for t in finger.targets]  # all certified,
-            seeds[finger.slot.chain] = [r.shapes for r in own]  # their weighted sum bounds every finger
+            own = []     # all are certified, their weighted sum bounds every finger
+            for j, target in enumerate(finger.targets):  # the first half of this search's share of the progress
+                own.append(solve_finger(target, finger.space, time_budget=budget, callback=_cancel if canceled else
+                                        _share(callback, index + 0.5 * j / len(finger.targets), count,
+                                               0.5 / len(finger.targets))))
+                canceled |= own[-1].status == Status.CANCELED
+            seeds[finger.slot.chain] = [r.shapes for r in own]
             floors[finger.slot.chain] = float(finger.weights @ [r.lower_bound for r in own])
+            front_start = 0.5
         front = solve_finger_front(finger.targets, finger.weights, finger.space, current=finger.current,
                                    stock=limits[0], stiff_stock=limits[1], time_budget=budget,
-                                   callback=_cancel if canceled else _share(callback, index, count),
+                                   callback=_cancel if canceled else
+                                   _share(callback, index + front_start, count, 1.0 - front_start),
                                    starts=seeds[finger.slot.chain] + [s for f in earlier for s in f.shapes
                                                                       if s[0] >= 0],
                                    floor=floors[finger.slot.chain])
@@ -277,11 +284,12 @@ def _cancel(progress):
     raise StopIteration
 
 
-def _share(callback, index: int, count: int):
-    """Progress of one finger as a fraction of the whole plan."""
+def _share(callback, start: float, count: int, width: float = 1.0):
+    """Progress of one search as a fraction of the whole plan of ``count`` searches: it spans ``width`` of
+    them from ``start``."""
     if callback is None:
         return None
-    return lambda p: callback(Progress((index + p.fraction) / count, p.best_cost, p.nfev, p.elapsed))
+    return lambda p: callback(Progress((start + width * p.fraction) / count, p.best_cost, p.nfev, p.elapsed))
 
 
 def _combine(assembly, shelf, fingers, fronts, candidates) -> tuple[ParetoPoint, ...]:

@@ -143,6 +143,33 @@ def test_a_canceled_plan_keeps_proven_bounds():
         assert point.lower_bound <= point.objective and not (point.optimal and point.max_swaps > 0)
 
 
+def test_a_cancel_stops_the_single_object_searches_that_seed_the_front(monkeypatch):
+    """The seeds (each object's own optimum) are long work too: a cancel must reach them, not wait for them."""
+    from planner import reconfigure
+    statuses = []
+
+    def recording_solve_finger(*args, **kwargs):
+        result = solve_finger(*args, **kwargs)
+        statuses.append(result.status)
+        return result
+
+    solve_finger = reconfigure.solve_finger
+    monkeypatch.setattr(reconfigure, "solve_finger", recording_solve_finger)
+    def cancel(progress):
+        raise StopIteration
+
+    _, _, result = pair_plan(callback=cancel)
+    assert result.status == Status.CANCELED
+    assert statuses and all(status == Status.CANCELED for status in statuses), statuses
+
+
+def test_a_plans_progress_rises_from_0_to_1():
+    fractions = []
+    _, _, result = pair_plan(callback=lambda progress: fractions.append(progress.fraction))
+    assert result.success and fractions
+    assert all(0.0 <= f <= 1.0 for f in fractions) and fractions == sorted(fractions), fractions
+
+
 @pytest.mark.parametrize("change, match", [
     (dict(shelf={999: 1}), "999 is not a design ID"),
     (dict(shelf={2: -1}), "counts are integers >= 0"),
