@@ -36,6 +36,16 @@ def normal_priority() -> None:
     os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
 
 
+def fifo(priority: int) -> str:
+    """SCHED_FIFO ``priority`` for the calling thread and the threads it starts from now on: '' when granted,
+    else why not."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except OSError as error:
+        return f"{error.strerror or error}; RLIMIT_RTPRIO {resource.getrlimit(resource.RLIMIT_RTPRIO)[0]}"
+    return ""
+
+
 def make_realtime(priority: int = DEFAULT_PRIORITY) -> bool:
     """Run the calling thread, and every thread it starts from now on, at SCHED_FIFO ``priority`` with memory
     locked; True when real-time. Otherwise one warning says what was refused; priority 0 asks for normal
@@ -45,13 +55,10 @@ def make_realtime(priority: int = DEFAULT_PRIORITY) -> bool:
         normal_priority()  # also when started by a real-time process, whose policy children inherit
         log.warning("real-time priority switched off (realtime_priority=0): the supervisor runs at normal priority")
         return False
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-    except OSError as error:
-        rtprio = resource.getrlimit(resource.RLIMIT_RTPRIO)[0]
-        log.warning("running at normal priority: SCHED_FIFO %d refused (%s; RLIMIT_RTPRIO %d); grant it with a "
-                    "realtime group and rtprio in /etc/security/limits.conf (docs/hv_driver.md)",
-                    priority, error.strerror or error, rtprio)
+    refused = fifo(priority)
+    if refused:
+        log.warning("running at normal priority: SCHED_FIFO %d refused (%s); grant it with a realtime group and "
+                    "rtprio in /etc/security/limits.conf (docs/hv_driver.md)", priority, refused)
         return False
     refused = _lock_memory()
     if refused:

@@ -35,6 +35,10 @@ class SimulatedSupplyProcess:
         self._lock = threading.Lock()
 
     @property
+    def pid(self) -> int | None:
+        return self._process.pid if self._process is not None else None
+
+    @property
     def port(self) -> str | None:
         return self.ports[0] if self.ports else None
 

@@ -10,11 +10,17 @@ from stdin (one line in, one line out).
 import argparse
 import sys
 
+from hv_driver.realtime import DEFAULT_PRIORITY, fifo
+
 from .hv_plant import ChannelDefaults
 from .hv_supply import SimulatedSupply
 from .keithley_supply import SimulatedKeithley2290
 from .ppv_supply import SimulatedPpv
 from .pty_device import PtyDevice
+
+# A real supply has a processor of its own, so load on the host never makes it answer late. The simulation takes
+# real-time priority where the host grants it (below the supervisor's), else runs as it is.
+SIMULATED_DEVICE_PRIORITY = DEFAULT_PRIORITY - 1
 
 SIMULATORS: dict[str, type[PtyDevice]] = {cls.dialect.name: cls
                                           for cls in (SimulatedSupply, SimulatedKeithley2290, SimulatedPpv)}
@@ -71,6 +77,7 @@ def main(argv=None) -> int:
     parser.add_argument("--voltage-limit", type=float, default=None, help="[V] hardware limit")
     parser.add_argument("--watchdog", type=float, default=0.0, help="host keep-alive [s]; 0 (default) = none")
     args = parser.parse_args(argv)
+    fifo(SIMULATED_DEVICE_PRIORITY)  # before the devices' threads start, which inherit it
     cls = simulator(args.dialect)
     defaults = cls.default_defaults
     if args.voltage_limit is not None:

@@ -12,7 +12,7 @@ from .hv_supply_process import SimulatedSupplyProcess
 def serve_simulated(spec: dict, path: str) -> int:
     try:
         simulated = spec["simulated"]
-        # Started before the supervisor turns real-time, so the rig runs at normal priority, as a device would.
+        # Started before the supervisor turns real-time; the rig takes its own priority (sim_fallback.rig).
         rig = SimulatedSupplyProcess(channels=simulated["channels"], dialect=spec["dialect"],
                                      devices=simulated["devices"]).start()
     except (ValueError, KeyError, TypeError, RuntimeError, OSError) as error:

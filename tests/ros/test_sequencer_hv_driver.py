@@ -1,7 +1,9 @@
 """Sequencer against the real HV driver node (simulated supply on a pty) and the simulated arm:
 the scaled finger grasp succeeds while the sequencer holds control and its heartbeat keeps the driver's
-watchdog quiet, even across a stall of the process, and an over-current injected through `hv/inject_fault`
-mid-sequence ends in the safe state."""
+watchdog quiet, and an over-current injected through `hv/inject_fault` mid-sequence ends in the safe state.
+How long a gap the watchdog bears is the supervisor's, tested on an injected clock (tests/hv_driver/test_control.py):
+a stall of this process, which holds the driver node too, lasts as long as the host makes it and past the node's
+keep-alive bound rightly ends in NODE_LOST."""
 import pytest
 import rclpy
 from action_msgs.msg import GoalStatus
@@ -13,7 +15,6 @@ from sequence_files import scaled
 from softblock_interfaces.action import RunSequence
 from softblock_interfaces.msg import HvState, SequenceEvent
 from softblock_interfaces.srv import InjectFault
-from stalls import stall_this_process
 from std_srvs.srv import Trigger
 
 from softblock_ros.client import ActionClient
@@ -24,12 +25,7 @@ from softblock_ros.sim_arm_node import SimArmNode
 pytestmark = pytest.mark.integration
 
 RUN_TIMEOUT = 40.0
-# Every node here shares the test's process, so a stall of that process (a garbage collection, a loaded host)
-# silences the sequencer's heartbeat and hv/state and pauses the driver's watchdog alike: one in a fresh-clone
-# run lapsed a 0.5 s heartbeat timeout. The driver's heartbeat timeout and the sequencer's hv/state timeout
-# are the driver's default (2 s), as for nodes in processes of their own.
-TIMEOUT_S = DEFAULT_HEARTBEAT_TIMEOUT_S
-STALL_S = 0.7  # [s] longer than the 0.5 s heartbeat timeout that lapsed, well inside TIMEOUT_S
+TIMEOUT_S = DEFAULT_HEARTBEAT_TIMEOUT_S  # the driver's heartbeat and the sequencer's hv/state timeouts: the defaults
 
 
 @pytest.fixture(scope="module")
@@ -81,8 +77,6 @@ def all_channels_at_zero(stack) -> HvState:
 
 def test_finger_grasp_with_the_real_driver(stack):
     handle = start(stack, scaled("finger_grasp", stack["dir"], speed=2.0, slew_rate=15_000.0))
-    stack["events"].wait(lambda msg: msg.step_name == "surround_object" and msg.phase == "started")
-    print(f"the process stalled for {stall_this_process(STALL_S):.2f} s while the fingers held high voltage")
     status, result = result_of(handle)
     assert status == GoalStatus.STATUS_SUCCEEDED and result.success, result.message
     assert len(result.step_names) == 12
