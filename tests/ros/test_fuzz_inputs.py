@@ -326,6 +326,15 @@ def small_recording(tmp_path_factory):
     return path.read_bytes()
 
 
+# rclpy prints this from a finalizer of a failed future that earlier ROS tests of this worker left behind, in
+# whatever code runs when the collector frees it; the recording commands make no futures.
+UNRETRIEVED_FUTURE = "The following exception was never retrieved: "
+
+
+def lines_of_the_command(stderr: str) -> list[str]:
+    return [line for line in stderr.splitlines() if not line.startswith(UNRETRIEVED_FUTURE)]
+
+
 @settings(FUZZ, max_examples=150)
 @given(data=st.data())
 def test_any_damage_to_an_mcap_file_is_read_or_refused_in_one_line(small_recording, tmp_path_factory, data):
@@ -346,4 +355,4 @@ def test_any_damage_to_an_mcap_file_is_read_or_refused_in_one_line(small_recordi
         with contextlib.redirect_stderr(errors), contextlib.redirect_stdout(io.StringIO()):
             status = recording_main(command)
         event(f"{command[0]} -> {status}")
-        assert status in (0, 1) and errors.getvalue().count("\n") <= 1, (command, errors.getvalue())
+        assert status in (0, 1) and len(lines_of_the_command(errors.getvalue())) <= 1, (command, errors.getvalue())
