@@ -35,3 +35,13 @@ _STATE = re.compile(r"(^|/)(" + "|".join(map(re.escape, STATE_TOPICS)) + r")$")
 def is_state_topic(topic: str) -> bool:
     """A topic live clients watch for the stack's state (in any namespace)."""
     return bool(_STATE.search(topic))
+
+
+# A namespace as rcl takes it (``-r __ns:=/robot1``): absolute, each part letters, digits and '_' from a letter on,
+# without '__' (rcl's mark of its own names); "a b", "robot1" and "/a//b" end a node's start in rcl.
+_NAMESPACE = re.compile(r"(/[A-Za-z][A-Za-z0-9_]*)+")
+
+
+def is_namespace(text: str) -> bool:
+    """Whether ``text`` is a namespace every ROS node takes, e.g. /robot1 or /lab/robot1."""
+    return bool(_NAMESPACE.fullmatch(text)) and "__" not in text

@@ -30,7 +30,7 @@ from typing import TextIO
 
 from .network import NetworkSettings, describe, parse_discovery_range, parse_domain_id, parse_static_peers
 from .parameter_files import check_parameter_file
-from .stack import StackDescription, load_stack
+from .stack import StackDescription, check_namespace, load_stack
 
 DEFAULT_STOP_TIMEOUT = 10.0  # [s] per node, before SIGKILL
 PUMP_DRAIN_TIMEOUT = 10.0  # [s] to copy a stopped node's last output (bounded: a grandchild may hold the pipe)
@@ -75,7 +75,7 @@ class Stack:
             check_parameter_file(params)
         self.params = params
         # e.g. "/robot1": every node's relative names move under it
-        self.namespace = self.description.namespace if namespace is None else namespace
+        self.namespace = self.description.namespace if namespace is None else check_namespace(namespace, "namespace")
         # DDS discovery: the options' network settings over the stack file's over the environment's
         self.network = network.over(self.description.network)
         self.env = self.network.environment({**os.environ, **(env or {}), "PYTHONUNBUFFERED": "1"})
