@@ -186,7 +186,7 @@ def recover(source: str, target: str) -> RecoveryResult:
         raise ValueError(f"target {target} is the recording {source} itself; choose another output")
     counts: dict[str, int] = {}
     with BoundedFile(source) as records:
-        records.size, problem = scan(records)  # reads end where the sound records do (recording.bounded_mcap)
+        records.size, problem, _ = scan(records)  # reads end where the sound records do (recording.bounded_mcap)
         try:
             with atomic_write(target, "wb") as stream:
                 _copy_readable(records, stream, counts)

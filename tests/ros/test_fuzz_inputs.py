@@ -31,6 +31,7 @@ from softblock_interfaces.srv import DesignFingers, DesignPath, SetAssembly
 from std_msgs.msg import Float64, Header
 
 from crafted_images import png_header
+from crafted_mcap import TERABYTE, chunk, chunk_index_into_attachment, file_with, inflating_frame
 from crafted_yaml import BILLION_LAUGHS, SELF_REFERENCE
 from planner.assembly import load_assembly
 from planner.contours import load_mask
@@ -367,6 +368,51 @@ def lines_of_the_command(stderr: str) -> list[str]:
     return [line for line in stderr.splitlines() if not line.startswith(UNRETRIEVED_FUTURE)]
 
 
+def run_file_commands(path, folder) -> list[tuple[int, str]]:
+    """(status, the command's own stderr lines) of info, recover, analyze and export of ``path``."""
+    outcomes = []
+    for command in (["info", str(path)], ["recover", str(path), "-o", str(folder / "fixed.mcap")],
+                    ["analyze", str(path), "--out-dir", str(folder)], ["export", str(path), "--csv", str(folder)]):
+        errors = io.StringIO()
+        with contextlib.redirect_stderr(errors), contextlib.redirect_stdout(io.StringIO()):
+            status = recording_main(command)
+        event(f"{command[0]} -> {status}")
+        outcomes.append((status, "\n".join(lines_of_the_command(errors.getvalue()))))
+        assert status in (0, 1) and len(lines_of_the_command(errors.getvalue())) <= 1, (command, errors.getvalue())
+    return outcomes
+
+
+@settings(FUZZ, max_examples=40)
+@given(compression=st.sampled_from(["lz4", "zstd"]), inflated=st.sampled_from([0, 9, 1000, 1 << 20]),
+       claimed=st.sampled_from([0, 9, 1000, 1 << 20, TERABYTE]))
+def test_any_chunk_that_inflates_beyond_its_claim_is_refused_in_one_line(tmp_path_factory, compression, inflated,
+                                                                         claimed):
+    """Chunks whose frames declare no size and inflate to more, as much or less than they claim."""
+    folder = tmp_path_factory.mktemp("inflating")
+    path = folder / "inflating.mcap"
+    path.write_bytes(file_with(chunk(compression, inflating_frame(compression, inflated), claimed)))
+    (_, info), (recovered, _), *_ = run_file_commands(path, folder)
+    if claimed < inflated:
+        assert "inflates beyond the" in info and recovered == 0
+
+
+@settings(FUZZ, max_examples=40)
+@given(offset=st.none() | st.integers(0, 6000))
+def test_any_chunk_index_is_followed_only_to_a_checked_chunk(tmp_path_factory, offset):
+    """The summary's chunk index pointed at any byte, by default at a chunk inside an attachment (claiming 2^40)."""
+    from rclpy.serialization import serialize_message
+    from softblock_interfaces.msg import HvChannelState, HvState
+
+    from recording.message_definitions import full_definition
+    folder = tmp_path_factory.mktemp("index")
+    path = folder / "index.mcap"
+    name = "softblock_interfaces/msg/HvState"
+    path.write_bytes(chunk_index_into_attachment("/hv/state", name, full_definition(name), [
+        serialize_message(HvState(channels=[HvChannelState(name="front", setpoint=1.0)]))], offset))
+    outcomes = run_file_commands(path, folder)
+    assert all("the summary's chunk index names" in errors for status, errors in outcomes if status)
+
+
 @settings(FUZZ, max_examples=150)
 @given(data=st.data())
 def test_any_damage_to_an_mcap_file_is_read_or_refused_in_one_line(small_recording, tmp_path_factory, data):
@@ -381,10 +427,4 @@ def test_any_damage_to_an_mcap_file_is_read_or_refused_in_one_line(small_recordi
     folder = tmp_path_factory.mktemp("damaged")
     path = folder / "damaged.mcap"
     path.write_bytes(bytes(damaged))
-    for command in (["info", str(path)], ["recover", str(path), "-o", str(folder / "fixed.mcap")],
-                    ["analyze", str(path), "--out-dir", str(folder)], ["export", str(path), "--csv", str(folder)]):
-        errors = io.StringIO()
-        with contextlib.redirect_stderr(errors), contextlib.redirect_stdout(io.StringIO()):
-            status = recording_main(command)
-        event(f"{command[0]} -> {status}")
-        assert status in (0, 1) and len(lines_of_the_command(errors.getvalue())) <= 1, (command, errors.getvalue())
+    run_file_commands(path, folder)
