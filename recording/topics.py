@@ -26,9 +26,11 @@ def is_command_topic(topic: str) -> bool:
 
 # Topics live clients watch to know the state of the stack: the sequencer and the estimator take hv/state
 # (a stale one is how a dead driver is noticed), the camera and the estimator the assembly and the image, the
-# console /diagnostics, log viewers /rosout. Replayed under their own names into a live domain, a recorded
-# hv/state hid a dead driver for 28 s; the player moves them to a namespace unless asked.
-STATE_TOPICS = ("hv/state", "assembly/current", "camera/silhouette", "diagnostics", "rosout")
+# simulated camera also what the simulated world has built (sim/assembly_built, latched), TF viewers /tf and
+# /tf_static, the console /diagnostics, log viewers /rosout. Replayed under their own names into a live domain, a
+# recorded hv/state hid a dead driver for 28 s; the player moves them to a namespace unless asked.
+STATE_TOPICS = ("hv/state", "assembly/current", "camera/silhouette", "sim/assembly_built", "tf", "tf_static",
+                "diagnostics", "rosout")
 _STATE = re.compile(r"(^|/)(" + "|".join(map(re.escape, STATE_TOPICS)) + r")$")
 
 
