@@ -21,6 +21,7 @@ from .control import pulse_command
 from .device import ConfigurationError, Device
 from .dialects import CurrentSensing, Dialect, IsegEdcp, ProtocolError
 from .errors import SettingError, StateError
+from .events import SupervisorEvent
 from .faults import Fault
 from .link import LinkError
 from .pulse import PulseTally, PulseTrain, plan_pulse_train
@@ -498,6 +499,11 @@ class HvSupply:
                 raise StateError("reset_device: switch every output off first (disable)")
             self._device_reset = self._reconfigure = True
         self._wake.set()
+
+    def drain_events(self) -> list[SupervisorEvent]:
+        """The supervisor's events since the last drain, oldest first (hv_driver.events)."""
+        with self._lock:
+            return self._supervisor.events.drain()
 
     def snapshot(self) -> SupplySnapshot:
         with self._lock:

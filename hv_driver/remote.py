@@ -22,6 +22,7 @@ from collections.abc import Callable
 from . import ipc
 from .driver import ChannelSnapshot, SupplySnapshot
 from .errors import HvError
+from .events import SupervisorEvent
 from .faults import Fault, fault_names
 from .ipc import KEEPALIVE_PERIOD_S, MAX_WAIT_S, spec_digest
 
@@ -348,6 +349,13 @@ class RemoteSupply:
         if self._last_snapshot is None:
             raise SupervisorLostError(supervisor_lost_text(self._lost or "never answered"))
         return _with_supervisor_lost(self._last_snapshot, self._lost or "no answer")
+
+    def drain_events(self) -> list[SupervisorEvent]:
+        """The supervisor's events since the last drain; none once it is lost (``on_lost`` reports that)."""
+        try:
+            return [SupervisorEvent(*fields) for fields in self._request("drain_events", [])]
+        except SupervisorLostError:
+            return []
 
     def wait_outputs_off(self, timeout: float | None = None) -> bool:
         return self._wait(lambda step: self._request("wait_outputs_off", [], {"timeout": step},

@@ -44,7 +44,7 @@ THREAD_STACK_BYTES = 512 * 1024  # memory may be locked: keep each thread's stac
 # The supply's methods a client may call, and the attributes of a ramp or pulse handle it may read or call.
 SUPPLY_METHODS = frozenset({"enable", "disable", "ramp_to", "pulse", "claim_control", "release_control",
                             "heartbeat", "set_safe_voltage", "estop", "reset_faults", "reset_device", "snapshot",
-                            "wait_outputs_off", "wait_cycles"})
+                            "wait_outputs_off", "wait_cycles", "drain_events"})
 HANDLE_ATTRIBUTES = frozenset({"done", "message", "succeeded", "wait", "cancel", "cycles_done", "frequency",
                                "short_pulses"})
 ENDING_METHODS = frozenset({"close", "abort"})

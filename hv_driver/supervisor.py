@@ -23,8 +23,11 @@ Rules enforced here:
   output to 0 V at once, one more square edge of the kind it was making);
 - faults latch until `reset`; every fault but HEARTBEAT and NODE_LOST puts the output to 0 V and off at once
   (emergency off), a lost heartbeat or node ramps to 0 V at the slew limit and then switches off;
-- after a reset the outputs stay off until enabled again (never resume by themselves).
+- after a reset the outputs stay off until enabled again (never resume by themselves);
+- faults latching and clearing and control ending other than by a release are queued in `events`
+  (hv_driver.events), for the node to log every one.
 """
+import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -32,6 +35,7 @@ from dataclasses import dataclass
 from .config import ChannelConfig
 from .control import HEARTBEAT, ControlClaim, ramp_command
 from .errors import HvError, SettingError, StateError
+from .events import EventLog
 from .faults import Fault, fault_names
 from .pulse import PulseTally, PulseTrain
 from .ramp import MinimumJerkRamp, check_slew_rate
@@ -101,8 +105,10 @@ def _finite(value) -> bool:
 class ChannelSupervisor:
     """Limits, ramp and latched faults of one output channel."""
 
-    def __init__(self, config: ChannelConfig, now: float = 0.0, nominal_period_s: float = DEFAULT_PERIOD_S):
+    def __init__(self, config: ChannelConfig, now: float = 0.0, nominal_period_s: float = DEFAULT_PERIOD_S,
+                 events: EventLog | None = None):
         self.config = config
+        self.events = EventLog() if events is None else events  # the supervisor's, shared by its channels
         self._clock = float(now) if _finite(now) else 0.0
         self.nominal_period_s = nominal_period_s
         self.setpoint = 0.0
@@ -271,6 +277,8 @@ class ChannelSupervisor:
         if fault not in self.faults:
             self.faults |= fault
             self._reasons[fault] = reason
+            self.events.add(self._clock, logging.ERROR, f"channel {self.config.name!r}: fault latched: "
+                                                        f"{fault_names(fault)}: {reason}")
         if fault & IMMEDIATE_FAULTS:
             self.setpoint = self.target = 0.0
             self.output_enabled = False
@@ -342,6 +350,9 @@ class ChannelSupervisor:
 
     def reset(self) -> None:
         """Clear the latched faults; the output stays off until enabled again."""
+        if self.faults:
+            self.events.add(self._clock, logging.INFO, f"channel {self.config.name!r}: faults "
+                                                       f"{fault_names(self.faults)} cleared")
         self.faults = Fault(0)
         self._reasons.clear()
         self.setpoint = self.target = 0.0
@@ -426,7 +437,8 @@ class Supervisor:
         self.link_timeout_s = float(link_timeout_s)
         self.heartbeat_timeout_s = float(heartbeat_timeout_s)
         self._clock = float(now) if _finite(now) else 0.0
-        self.channels = {c.name: ChannelSupervisor(c, self._clock, nominal_period_s) for c in configs}
+        self.events = EventLog()
+        self.channels = {c.name: ChannelSupervisor(c, self._clock, nominal_period_s, self.events) for c in configs}
         self.control = ControlClaim(self.heartbeat_timeout_s)
         # Per supply (device): start and count of the current run of failed exchanges (None while its link
         # answers). Timing the failures, not the gap since the last success, keeps a host that was merely
@@ -522,16 +534,21 @@ class Supervisor:
 
     def estop(self) -> None:
         """Every output off at once (ESTOP); open to everyone, and it ends the control session."""
-        self.control.end("control ended by an emergency stop")
+        self._end_control(self._clock, "control ended by an emergency stop")
         for channel in self.channels.values():
             channel.trip(Fault.ESTOP, "emergency stop")
 
     def node_lost(self, now: float, reason: str) -> None:
         """The node this supervisor serves is gone: its client's session ends and every channel latches NODE_LOST
         (energised outputs ramp to 0 V). Nothing is energised again until a client claims control and resets."""
-        self._now(now)
-        self.control.end(reason)
+        self._end_control(self._now(now), reason)
         self.trip_all(Fault.NODE_LOST, reason)
+
+    def _end_control(self, now: float, reason: str) -> None:
+        """End the session (if any) for ``reason``, other than by its release: an event."""
+        if self.control.owner is not None:
+            self.events.add(now, logging.WARNING, reason)
+        self.control.end(reason)
 
     def trip_all(self, fault: Fault, reason: str) -> None:
         for channel in self.channels.values():
@@ -561,7 +578,8 @@ class Supervisor:
     def _watch_control(self, now: float) -> None:
         """End a silent session; without a live client, trip every output held or raised above 0 V (one on its
         way to 0 V needs no client)."""
-        self.control.lapse_if_silent(now)
+        if self.control.lapse_if_silent(now):
+            self.events.add(now, logging.WARNING, self.control.ended)
         if not self.heartbeat_watchdog_off and self.control.owner is None:
             reason = self.control.ended or "no client holds control"
             for channel in self.channels.values():

@@ -4,6 +4,7 @@ supervisor is reported (SUPERVISOR_LOST) and refuses every call, a second node c
 its node still holds. Waits are for events, with generous deadlines; nothing here asserts a duration."""
 import dataclasses
 import json
+import logging
 import os
 import shutil
 import signal
@@ -83,6 +84,11 @@ def test_a_killed_node_leaves_no_output_energised_and_nothing_comes_back_by_itse
         assert Fault.NODE_LOST in lost.faults and "channel to the supervisor closed" in lost.fault_text
         assert Fault.NODE_LOST in supply.snapshot().channel("back").faults  # every channel latches it
         assert supply.snapshot().controller == ""  # the dead node's client lost control
+        # what happened while no node drained the supervisor's events waits for the next one (a restarted node)
+        drained = [(event.level, event.text[:60]) for event in supply.drain_events()]
+        assert (logging.WARNING, "HV driver node lost: its channel to the supervisor closed (t") in drained
+        for name in ("front", "back"):
+            assert (logging.ERROR, f"channel {name!r}: fault latched: node_lost: HV driver node lost: "[:60]) in drained
         token = supply.claim_control("operator")
         with pytest.raises(FaultLatchedError):  # latched until reset on purpose
             supply.enable("front")

@@ -36,7 +36,6 @@ from std_srvs.srv import Trigger
 
 from hv_driver import HvError, RemoteSupply
 from hv_driver.control import session_id, signed
-from hv_driver.events import snapshot_events
 
 from . import PUBLICATION_MODE, PUBLICATION_MODE_VARIABLE
 from .hv_conversions import diagnostics_msg, hv_state_msg
@@ -98,7 +97,7 @@ class HvDriverNode(LifecycleNode):
             return FAILURE
         ports = [port for port in self._supply.snapshot().port.split(", ") if port]
         self._index = {c.name: (c.index, c.device) for c in channels}
-        self._published, self._diag_time, self._logged = None, 0, None
+        self._published, self._diag_time = None, 0
         self._state_pub = self.create_publisher(HvState, "hv/state", stream_qos(self._param("publish_rate_hz")))
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         g = self._group
@@ -214,10 +213,10 @@ class HvDriverNode(LifecycleNode):
 
     # --- topics, services, action ----------------------------------------------------------------
     def _publish(self) -> None:
+        events = self._supply.drain_events()  # faults latched or cleared, control lapsed, even between snapshots
         snapshot, stamp = self._supply.snapshot(), self.get_clock().now().to_msg()
-        for level, line in snapshot_events(self._logged, snapshot):  # faults latched, control lapsed
-            self._log(level, line)
-        self._logged = snapshot
+        for event in events:
+            self._log(event.level, f"{event.text} ({max(snapshot.stamp - event.time, 0.0):.3f} s ago)")
         self._state_pub.publish(hv_state_msg(snapshot, self._param("backend"), stamp))
         shown = (snapshot.controller, tuple(int(c.faults) for c in snapshot.channels))
         now = self.get_clock().now().nanoseconds
