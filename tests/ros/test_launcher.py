@@ -17,7 +17,9 @@ from ros_testing import Inbox, wait_for
 from softblock_interfaces.msg import Assembly
 
 from softblock_ros.launcher import NodeDied, Stack, main
+from softblock_ros.parameters import node_schema
 from softblock_ros.qos import LATCHED
+from softblock_ros.stack import load_stack
 
 pytestmark = pytest.mark.integration
 
@@ -268,14 +270,13 @@ def test_the_launcher_refuses_a_namespace_rcl_refuses(capsys):
 
 
 @pytest.mark.parametrize("flag", ["--help", "-h"])
-@pytest.mark.parametrize("module, node, parameter", [
-    ("softblock_ros.assembly_state_node", "assembly_state", "publish_rate_hz"),
-    ("softblock_ros.hv_driver_node", "hv_driver", "heartbeat_timeout_s"),
-    ("softblock_ros.planner_node", "planner", "max_blocks")])
-def test_help_prints_the_nodes_parameters_and_starts_nothing(module, node, parameter, flag):
-    """Old: the nodes ignored --help and started (an HV driver among them)."""
-    result = subprocess.run([sys.executable, "-m", module, flag], capture_output=True, text=True, timeout=120)
+@pytest.mark.parametrize("node", load_stack().nodes, ids=lambda node: node.name)
+def test_help_prints_the_nodes_parameters_and_starts_nothing(node, flag):
+    """Old: the nodes ignored --help and started (an HV driver among them); every node of the stack is asked."""
+    result = subprocess.run([sys.executable, "-m", node.module, *node.arguments, flag], capture_output=True, text=True,
+                            timeout=120)
     assert result.returncode == 0, result.stderr[-2000:]
-    assert result.stdout.startswith("usage: ") and f"parameters of node {node}:" in result.stdout
-    assert re.search(rf"^  {parameter} \(default ", result.stdout, re.MULTILINE), result.stdout
+    assert result.stdout.startswith("usage: ") and f"\nparameters of node {node.name}:\n" in result.stdout
+    first = node_schema(node.name)[0].name
+    assert re.search(rf"^  {first} \(default ", result.stdout, re.MULTILINE), result.stdout
     assert result.stderr == ""  # nothing started, nothing logged

@@ -71,14 +71,19 @@ def init(args=None) -> None:
         raise ValueError(f"rcl refused the arguments: {rcl_problem(error)}") from None
 
 
+def parameter_list(name: str) -> str:
+    """The node's parameters, from its schema (softblock_ros.parameters), one a line."""
+    return "\n".join([f"parameters of node {name}:", *(
+        f"  {param.name} (default {param.default!r}; {param._range_text()}): {param.text()}"
+        for param in node_schema(name))])
+
+
 def usage(name: str) -> str:
-    """The node's command line and its parameters, from its schema (softblock_ros.parameters)."""
+    """The node's command line and its parameters."""
     lines = [f"usage: {os.path.basename(sys.argv[0]) or name} [--ros-args [-p NAME:=VALUE]... "
              "[--params-file FILE]... [-r __ns:=/NAMESPACE]]", ""]
     if name in NODE_SCHEMAS:
-        lines.append(f"parameters of node {name}:")
-        for param in node_schema(name):
-            lines.append(f"  {param.name} (default {param.default!r}; {param._range_text()}): {param.text()}")
+        lines.append(parameter_list(name))
     return "\n".join(lines)
 
 
