@@ -88,12 +88,14 @@ def nodes(ros_context, spin, tmp_path_factory):
         Parameter("max_angular_acceleration_rad_per_s2", value=50.0)])
     client = rclpy.create_node("fuzz_client", context=ros_context)
     spin(planner, assembly_state, sequencer, arm, client)
+    run_sequence = ActionClient(client, RunSequence, "sequencer/run")
+    assert run_sequence.wait_for_server(timeout_sec=30.0)  # a sequencer serves after looking for another one
     return SimpleNamespace(
         bomb=str(bomb),
         design_fingers=client.create_client(DesignFingers, "planner/design_fingers"),
         design_path=client.create_client(DesignPath, "planner/design_path"),
         set_assembly=client.create_client(SetAssembly, "assembly/set"),
-        run_sequence=ActionClient(client, RunSequence, "sequencer/run"),
+        run_sequence=run_sequence,
         move_arm=ActionClient(client, MoveArm, "arm/move"),
         safe_voltage=Inbox(client, Float64, "assembly/safe_voltage", LATCHED),
         assembly_state=Inbox(client, AssemblyState, "assembly/state"),

@@ -213,23 +213,50 @@ def test_second_goal_is_rejected_while_one_runs(stack, hv):
     assert status == GoalStatus.STATUS_CANCELED
 
 
-def test_while_two_sequencers_serve_sequencer_run_both_reject_the_goal_and_nothing_runs(stack, hv):
+def servers(node, name: str = "/sequencer/run") -> int:
+    return node.count_publishers(f"{name}/_action/status")
+
+
+def test_a_second_sequencer_stands_by_while_one_serves_so_a_goal_has_one_answer(stack, hv):
     """Two sequencers used to accept one finger_grasp goal: one ran it to 2.4 kV, the caller got ABORTED from
-    the other. Now the caller gets one clear answer, rejected, until one of them is gone."""
+    the other. A sequencer that finds another serving stands by instead of serving: the goal has one answer, the
+    first sequencer's, and runs once."""
     spinner = Spinner(stack["client"].context, num_threads=4)
     try:
-        spinner.add(make_sequencer(stack["dir"], context=stack["client"].context))
-        wait_for(lambda: stack["client"].count_publishers("/sequencer/run/_action/status") == 2,
-                 what="the second sequencer's action server")
-        run = Run(stack["action"], scaled("finger_grasp", stack["dir"], speed=2.0))
-        assert not run.handle.accepted
+        second = make_sequencer(stack["dir"], context=stack["client"].context)
+        spinner.add(second)
+        run = Run(stack["action"], scaled("finger_grasp", stack["dir"], speed=2.0))  # while the second one looks
+        wait_for(second.standing_by.is_set, what="the second sequencer standing by")
+        assert servers(stack["client"]) == 1 and not second.serving.is_set()
+        status, result = run.result()
+        assert status == GoalStatus.STATUS_SUCCEEDED, result.message
+        started = [msg for msg in stack["events"].messages if msg.phase == "started" and msg.step_index == 0]
+        assert len(started) == 1 and not second.serving.is_set()  # one sequencer ran it
     finally:
         spinner.close()
-    wait_for(lambda: stack["client"].count_publishers("/sequencer/run/_action/status") == 1,
-             what="the second sequencer gone")
-    assert hv.ramps == [] and hv.control.owner is None
-    status, result = Run(stack["action"], scaled("trunk_flower", stack["dir"], speed=2.0)).result()
-    assert status == GoalStatus.STATUS_SUCCEEDED, result.message
+    assert hv.control.owner is None
+
+
+def test_of_two_sequencers_started_together_neither_serves_until_one_is_stopped(ros_context, tmp_path):
+    """Started at once, neither has a server for the other to see; each sees a node of its own name and stands
+    by. Once one is stopped the other serves, and a goal is answered by it alone."""
+    first, second = (make_sequencer(tmp_path, context=ros_context, namespace="/twins") for _ in range(2))
+    client = rclpy.create_node("twins_client", context=ros_context)
+    action = ActionClient(client, RunSequence, "/twins/sequencer/run")
+    spinner, stopped = Spinner(ros_context, num_threads=4), Spinner(ros_context, num_threads=2)
+    spinner.add(first, client)
+    stopped.add(second)
+    try:
+        wait_for(lambda: first.standing_by.is_set() and second.standing_by.is_set(), what="both standing by")
+        assert servers(client, "/twins/sequencer/run") == 0
+        stopped.close()  # the second sequencer ends
+        wait_for(first.serving.is_set, what="the remaining sequencer serving")
+        assert action.wait_for_server(timeout_sec=10.0)
+        status, result = Run(action, "missing").result()  # accepted by the one server, refused in its result
+        assert status == GoalStatus.STATUS_ABORTED and result.message.startswith("rejected: "), result.message
+    finally:
+        stopped.close()
+        spinner.close()
 
 
 def test_legged_gait_pulses_the_legs(stack, hv):
