@@ -23,6 +23,7 @@ benchmarks=(
     ros_nodes.py
     sequencer_gait.py
     publish_hold.py
+    mcap_open.py
 )
 for i in "${!benchmarks[@]}"; do
     printf '\n=== [%d/%d] benchmarks/%s ===\n' "$((i + 1))" "${#benchmarks[@]}" "${benchmarks[$i]}"
