@@ -50,7 +50,9 @@ _NAMESPACE_REMAP = re.compile(r"(?:[^:]*:)?__ns:=(.*)")  # -r [node:]__ns:=/robo
 
 def check_arguments(args: Sequence[str]) -> None:
     """ValueError (one line) for a ``--params-file`` (softblock_ros.parameter_files) or a namespace remap that rcl
-    would refuse from inside rclpy.init."""
+    would refuse from inside rclpy.init (rcl reads them after --ros-args)."""
+    args = list(args)
+    args = args[args.index("--ros-args") + 1:] if "--ros-args" in args else []
     for flag, value in zip(args, args[1:]):
         if flag == "--params-file":
             check_parameter_file(value)
