@@ -17,6 +17,7 @@ import os
 import socket
 import subprocess
 import threading
+import time
 from collections.abc import Callable
 
 from . import ipc
@@ -32,13 +33,17 @@ CALL_TIMEOUT_S = 10.0    # for the answer to a request that does not wait by its
 HELLO_TIMEOUT_S = 5.0
 
 
-class SupervisorLostError(HvError, ConnectionError):
-    """The supervisor process ended or its channel broke; the message says what still holds."""
-
-
 def supervisor_lost_text(reason: str) -> str:
     return (f"HV supervisor process lost ({reason}): only the supplies' own means still hold (device current trip "
             f"and limits, a device watchdog where the supply has one, the interlock)")
+
+
+class SupervisorLostError(HvError, ConnectionError):
+    """The supervisor process ended or its channel broke (``reason``); the message names the fault, as hv/state
+    shows it, and says what still holds."""
+
+    def __init__(self, reason: str):
+        super().__init__(f"{fault_names(Fault.SUPERVISOR_LOST)}: {supervisor_lost_text(reason)}")
 
 
 class RemoteRampHandle:
@@ -258,11 +263,13 @@ class RemoteSupply:
                 return  # the reader sees it too and reports it
 
     def _send(self, message: dict) -> None:
+        """Send ``message`` stamped with its sending time (CLOCK_MONOTONIC, comparable with the supervisor's on one
+        host; stamped under the lock, so the stamps rise in the channel's order)."""
         with self._send_lock:
             sock = self._sock
             if sock is None:
                 raise ipc.ChannelClosed("closed")
-            ipc.send(sock, message)
+            ipc.send(sock, {**message, ipc.SENT: time.monotonic()})
 
     def _receive(self) -> None:
         sock = self._sock
@@ -299,7 +306,7 @@ class RemoteSupply:
 
     def _request(self, method: str, args: list, kwargs: dict | None = None, timeout: float = CALL_TIMEOUT_S):
         if self._lost is not None:
-            raise SupervisorLostError(supervisor_lost_text(self._lost))
+            raise SupervisorLostError(self._lost)
         request_id = next(self._ids)
         waiter = [threading.Event(), None]
         with self._lock:
@@ -311,9 +318,9 @@ class RemoteSupply:
         if not waiter[0].wait(timeout):
             with self._lock:
                 self._pending.pop(request_id, None)
-            raise SupervisorLostError(supervisor_lost_text(f"no answer to {method!r} within {timeout:g} s"))
+            raise SupervisorLostError(f"no answer to {method!r} within {timeout:g} s")
         if waiter[1] is None:
-            raise SupervisorLostError(supervisor_lost_text(self._lost or "channel closed"))
+            raise SupervisorLostError(self._lost or "channel closed")
         if "error" in waiter[1]:
             ipc.raise_remote_error(waiter[1]["error"])
         return waiter[1]["result"]
@@ -346,7 +353,7 @@ class RemoteSupply:
             except SupervisorLostError:
                 pass
         if self._last_snapshot is None:
-            raise SupervisorLostError(supervisor_lost_text(self._lost or "never answered"))
+            raise SupervisorLostError(self._lost or "never answered")
         return _with_supervisor_lost(self._last_snapshot, self._lost or "no answer")
 
     def wait_outputs_off(self, timeout: float | None = None) -> bool:

@@ -12,8 +12,8 @@ Rules enforced here:
   at most two nominal periods' worth per cycle), except that it drops at once when the ceiling drops
   below it or a fault latches;
 - only the client holding control (commands signed with its session token) may ramp or feed the heartbeat watchdog; the
-  watchdog is on unless switched off on purpose (heartbeat_timeout_s=math.inf), and a stall of the driver's
-  own loop is not counted as the client's silence (`ControlClaim.cycle`);
+  watchdog is on unless switched off on purpose (heartbeat_timeout_s=math.inf); a heartbeat counts from when it was
+  sent (`ControlClaim.confirm`);
 - the readback must follow the commands at the device's own ramp (`ReadbackCheck`);
 - on a supply without current readback (breakdown guard on), a measured voltage far below a setpoint held for a
   moment, or a pulse train none of whose pulses reaches half its amplitude for two periods, is a film breakdown
@@ -124,6 +124,7 @@ class ChannelSupervisor:
         self._last_observed: float | None = None
         self.pulse_tally: PulseTally | None = None  # the last streamed train's short pulses (kept after it ends)
         self._counted_out: PulseTrain | None = None  # the device-switched train the device reported counted out
+        self.ended_by_host: PulseTrain | None = None  # ... or the one the host ended by its fallback instead
         self.ramp_id = 0  # counts accepted ramp requests, so a waiting caller sees being superseded
 
     # --- state -------------------------------------------------------------------------------
@@ -380,8 +381,11 @@ class ChannelSupervisor:
         train = self.pulse_train
         device_switched = train is not None and train.on_device
         if device_switched and now >= train.start:  # on until the device's count ends it (or the fallback)
-            finished = self._counted_out is train or now >= train.stop + DEVICE_COUNT_MARGIN_S + (
+            counted_out = self._counted_out is train
+            finished = counted_out or now >= train.stop + DEVICE_COUNT_MARGIN_S + (
                 DEVICE_CLOCK_TOLERANCE * (train.stop - train.start))
+            if finished and not counted_out:
+                self.ended_by_host = train
             desired = train.end if finished else train.amplitude
         if not device_switched:  # the device's own square edges are not the host's to slew
             allowance = self.config.slew_rate_v_per_s * dt
@@ -481,10 +485,10 @@ class Supervisor:
                 channel.ramp_to(now, 0.0)
         return owner
 
-    def heartbeat(self, now: float, token: str) -> None:
+    def heartbeat(self, now: float, token: str, sent: float | None = None) -> None:
         """Sign of life of the controlling client (``token``: its session token or a signed HEARTBEAT; ControlError
-        for anything else)."""
-        self.control.confirm(token, self._now(now), HEARTBEAT)
+        for anything else), sent at ``sent`` (default: ``now``)."""
+        self.control.confirm(token, self._now(now), HEARTBEAT, sent)
 
     # --- requests ----------------------------------------------------------------------------
     def enable(self, name: str, now: float) -> None:
@@ -554,7 +558,6 @@ class Supervisor:
                     if channel.config.device == device:
                         channel.trip(Fault.LINK, f"no valid reply from the supply for more than "
                                                  f"{self.link_timeout_s:g} s")
-        self.control.cycle(now)
         self._watch_control(now)
         return {name: channel.step(now) for name, channel in self.channels.items()}
 

@@ -13,7 +13,7 @@ from hv_driver import Fault
 from hv_driver.clock import SimulatedClock
 from hv_driver.dialects import DIALECTS
 from hv_driver.ramp import MIN_JERK_PEAK_RATE
-from hv_driver.supervisor import COLLAPSE_READBACKS, DEFAULT_PERIOD_S
+from hv_driver.supervisor import COLLAPSE_READBACKS, DEFAULT_PERIOD_S, IMMEDIATE_FAULTS
 
 pytestmark = pytest.mark.fast
 
@@ -83,6 +83,28 @@ def test_a_breakdown_on_the_ppv_is_caught_within_its_readbacks():
         assert made.clock() - arced <= COLLAPSE_READBACKS * PERIOD + EPSILON
         made.supply.step()
         assert not made.plant("a").output_on
+    finally:
+        made.close()
+
+
+@pytest.mark.parametrize("name", [n for n, d in DIALECTS.items() if d.capabilities.channels_per_device == 1])
+def test_a_fault_read_back_from_one_supply_is_cut_before_the_next_supplys_exchanges(name):
+    """Two single-channel supplies on two ports, each line 1 ms on the wire: the arc one readback shows is cut in the
+    same cycle, before the loop serves the other supply (not in the next cycle, after it)."""
+    made = rig_for(name, exchange_s=0.001)
+    try:
+        made.ramp(1000.0)
+        made.supply.run_for(0.1)  # held
+        first, second = made.sims
+        arced = made.clock()
+        made.inject("over_current", "a")
+        while not made.supply.snapshot().channel("a").faults & IMMEDIATE_FAULTS:
+            made.supply.step()
+        made.supply.run_for(0.05)
+        cut_line = DIALECTS[name].commands["output_off"].template
+        cut = next(t for t, line in first.command_log if t > arced and line == cut_line)
+        shown = max(t for t, line in first.command_log if t < cut)  # the last readback before the cut showed it
+        assert not [line for t, line in second.command_log if shown < t < cut]
     finally:
         made.close()
 
