@@ -109,6 +109,21 @@ def test_a_fault_read_back_from_one_supply_is_cut_before_the_next_supplys_exchan
         made.close()
 
 
+def test_a_heartbeat_changes_no_command_and_costs_the_loop_no_extra_cycle():
+    made = rig_for("iseg-edcp")
+    try:
+        made.ramp(1000.0)
+        sim, _ = made.where["a"]
+        start = made.clock()
+        for _ in range(10):  # ten heartbeats in one second
+            made.supply.heartbeat(made.token)
+            made.supply.run_for(0.1)
+        cycles = [t for t, line in sim.command_log if t >= start and line.startswith(":MEAS:VOLT?")]
+        assert abs(len(cycles) - round(1.0 / PERIOD)) <= 1, len(cycles)
+    finally:
+        made.close()
+
+
 def test_smooth_pulse_edges_cross_half_the_amplitude_on_their_grid_at_half_the_edge_time():
     made = rig_for("iseg-edcp")
     try:
