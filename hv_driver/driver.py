@@ -24,7 +24,7 @@ from .errors import SettingError, StateError
 from .faults import Fault
 from .link import LinkError
 from .pulse import PulseTally, PulseTrain, plan_pulse_train
-from .supervisor import DEFAULT_HEARTBEAT_TIMEOUT_S, IMMEDIATE_FAULTS, Supervisor
+from .supervisor import DEFAULT_HEARTBEAT_TIMEOUT_S, DEFAULT_LOOP_RATE_HZ, IMMEDIATE_FAULTS, Supervisor
 
 log = logging.getLogger(__name__)
 
@@ -254,7 +254,7 @@ class HvSupply:
     """
 
     def __init__(self, port: str | Sequence[str], baudrate: int | None = None, channels: list[ChannelConfig] = (),
-                 loop_rate_hz: float = 100.0, link_timeout_s: float = 0.5,
+                 loop_rate_hz: float = DEFAULT_LOOP_RATE_HZ, link_timeout_s: float = 0.5,
                  heartbeat_timeout_s: float = DEFAULT_HEARTBEAT_TIMEOUT_S, reply_timeout_s: float | None = None,
                  dialect: Dialect | None = None, handle_signals: bool = True, clock=None,
                  expected_identity: str = ""):

@@ -59,9 +59,12 @@ PULSE_GUARD_PERIODS = 2.0
 DEVICE_COUNT_MARGIN_S = 0.25
 DEVICE_CLOCK_TOLERANCE = 1e-3
 
-# The control loop's nominal period [s] unless told otherwise (the time step unit of the slew credit, the readback
-# check and the pulse guard).
-DEFAULT_PERIOD_S = 0.01
+# The control loop's rate unless told otherwise [Hz]: a fault shows in the readback of the next cycle, so the period is
+# most of the time from a fault to the cut (docs/hv_driver.md, "Thresholds chosen for safety"). A link whose exchanges
+# take longer than a period needs a lower rate. Its period is the time step unit of the slew credit, the readback
+# check and the pulse guard.
+DEFAULT_LOOP_RATE_HZ = 200.0
+DEFAULT_PERIOD_S = 1.0 / DEFAULT_LOOP_RATE_HZ
 # A cycle credits the slew allowance with its elapsed time up to this many nominal periods. The driver's loop keeps its
 # schedule while a cycle ends within one period of its slot (`HvSupply._run`), so a loop that runs late but on its
 # schedule keeps the timing of its ramps (a heartbeat ramp-down ends on time); one resuming from a stall moves by at

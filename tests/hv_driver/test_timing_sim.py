@@ -115,9 +115,9 @@ def test_a_heartbeat_changes_no_command_and_costs_the_loop_no_extra_cycle():
         made.ramp(1000.0)
         sim, _ = made.where["a"]
         start = made.clock()
-        for _ in range(10):  # ten heartbeats in one second
-            made.supply.heartbeat(made.token)
-            made.supply.run_for(0.1)
+        for k in range(10):  # ten heartbeats in one second, each between two cycles
+            made.clock.call_at(start + (k + 0.5) * 0.1 + PERIOD / 2, lambda: made.supply.heartbeat(made.token))
+        made.supply.run_for(1.0)
         cycles = [t for t, line in sim.command_log if t >= start and line.startswith(":MEAS:VOLT?")]
         assert abs(len(cycles) - round(1.0 / PERIOD)) <= 1, len(cycles)
     finally:
