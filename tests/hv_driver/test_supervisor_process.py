@@ -111,6 +111,27 @@ def test_a_node_whose_keep_alive_stops_is_lost_and_its_outputs_ramp_down(socket_
         supply.close()
 
 
+def test_a_supervisor_stalled_past_the_keep_alive_timeout_keeps_its_node(socket_path):
+    """The supervisor process is stopped for 2.5 s, past the 1 s keep-alive timeout, while the node beats on: its
+    keep-alives wait in the channel and are read, with their sending stamps, before any silence is judged."""
+    supply = RemoteSupply(SUPERVISED, spec(heartbeat_timeout_s=30.0), socket_path).open()
+    try:
+        token = supply.claim_control("sequencer")
+        supply.enable("front")
+        assert supply.ramp_to("front", 1000.0, token=token).wait(DEADLINE)
+        os.kill(supply.pid, signal.SIGSTOP)
+        try:
+            time.sleep(2.5)  # the stall itself (the node's keep-alive thread beats meanwhile), not a wait for an event
+        finally:
+            os.kill(supply.pid, signal.SIGCONT)
+        assert supply.wait_cycles(10, DEADLINE)
+        snapshot = supply.snapshot()
+        assert not any(c.faults for c in snapshot.channels), snapshot.channel("front").fault_text
+        assert snapshot.controller == "sequencer" and snapshot.channel("front").output_enabled
+    finally:
+        supply.close()
+
+
 def test_a_lost_supervisor_is_reported_on_every_channel_and_refuses_every_call(socket_path):
     reasons = []
     supply = RemoteSupply(SUPERVISED, spec(), socket_path, on_lost=reasons.append).open()
