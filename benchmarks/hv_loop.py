@@ -69,21 +69,21 @@ HEARTBEAT_RATE_HZ = 10.0  # its client's heartbeats (softblock_ros.hv_control), 
 # client's heartbeats while it holds control, and runs one command per stdin line, answering one stdout line.
 NODE = f"""
 import json, sys, threading, time
-from hv_driver import RemoteSupply
+from hv_driver import HvError, RemoteSupply
 supply = RemoteSupply(json.loads(sys.argv[1]), json.loads(sys.argv[2]), sys.argv[3]).open()
 held = {{"token": None}}
 def state():
     while True:
         supply.snapshot()
         time.sleep(1 / {STATE_RATE_HZ})
-def beats():
+def beats():  # forwarded as the node forwards its client's: at once, the answer not awaited
     while True:
         token = held["token"]
         if token is not None:
             try:
-                supply.heartbeat(token)
-            except Exception:
-                pass
+                supply.forward_heartbeat(token, lambda error: None)  # a beat of a session just ended is refused
+            except HvError:  # the supply closed
+                return
         time.sleep(1 / {HEARTBEAT_RATE_HZ})
 threading.Thread(target=state, daemon=True).start()
 threading.Thread(target=beats, daemon=True).start()

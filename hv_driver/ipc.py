@@ -98,5 +98,10 @@ def error_reply(request_id, error: Exception) -> dict:
     return {"id": request_id, "error": {"type": name if name in REMOTE_ERRORS else "HvError", "message": str(error)}}
 
 
+def remote_error(error: dict) -> Exception:
+    """The exception an error reply describes, of its own class where it is one of REMOTE_ERRORS."""
+    return REMOTE_ERRORS.get(error.get("type"), HvError)(error.get("message", "unknown error"))
+
+
 def raise_remote_error(error: dict) -> None:
-    raise REMOTE_ERRORS.get(error.get("type"), HvError)(error.get("message", "unknown error"))
+    raise remote_error(error)

@@ -121,6 +121,7 @@ class RemoteSupply:
         self._sock: socket.socket | None = None
         self._ids = itertools.count(1)
         self._pending: dict[int, list] = {}   # id -> [event, reply]
+        self._forwarded: dict[int, Callable[[Exception], None]] = {}  # id -> what to call if it is refused
         self._lock = threading.Lock()
         self._send_lock = threading.Lock()
         self._lost: str | None = None
@@ -281,6 +282,9 @@ class RemoteSupply:
                 return
             with self._lock:
                 waiter = self._pending.pop(reply.get("id"), None)
+                refused = self._forwarded.pop(reply.get("id"), None)
+            if refused is not None and "error" in reply:
+                refused(ipc.remote_error(reply["error"]))
             if waiter is not None:
                 waiter[1] = reply
                 waiter[0].set()
@@ -291,7 +295,7 @@ class RemoteSupply:
                 return
             status = self._process.poll() if self._process is not None else None
             self._lost = reason if status is None else f"exited with status {status}"
-            waiters, self._pending = list(self._pending.values()), {}
+            waiters, self._pending, self._forwarded = list(self._pending.values()), {}, {}
         for waiter in waiters:
             waiter[0].set()
         if not self._closing:
@@ -324,6 +328,24 @@ class RemoteSupply:
         if "error" in waiter[1]:
             ipc.raise_remote_error(waiter[1]["error"])
         return waiter[1]["result"]
+
+    def forward_heartbeat(self, token: str, on_refused: Callable[[Exception], None]) -> None:
+        """Send a heartbeat without waiting for its answer: the node forwards its client's beats the moment they
+        arrive, stamped then, also while the supervisor stalls (a stalled supervisor holds none of the node's
+        threads). ``on_refused(error)`` is called from the reply thread if the supervisor refuses it (ControlError:
+        another client's, a copied one); SupervisorLostError at once once the supervisor is lost."""
+        if self._lost is not None:
+            raise SupervisorLostError(self._lost)
+        request_id = next(self._ids)
+        with self._lock:
+            self._forwarded[request_id] = on_refused
+        try:
+            self._send({"id": request_id, "method": "heartbeat", "args": [token], "kwargs": {}})
+        except ipc.ChannelClosed as error:
+            with self._lock:
+                self._forwarded.pop(request_id, None)
+            self._lose(str(error))
+            raise SupervisorLostError(self._lost or str(error)) from None
 
     def _wait(self, ask: Callable[[float], bool], timeout: float | None) -> bool:
         """A wait of any length as waits of at most MAX_WAIT_S each."""

@@ -280,10 +280,16 @@ class HvDriverNode(LifecycleNode):
         return response
 
     def _on_heartbeat(self, msg: HvHeartbeat) -> None:
+        """Forwarded at once, without waiting for the supervisor's answer: it counts from now even while the
+        supervisor stalls."""
         try:
-            self._supply.heartbeat(signed(msg.session, msg.counter, msg.mac))
-        except HvError as error:  # another client, an ended session, a copied heartbeat, a replayed recording
-            self.get_logger().warning(f"hv/heartbeat ignored: {error}", throttle_duration_sec=REFUSAL_LOG_PERIOD)
+            self._supply.forward_heartbeat(signed(msg.session, msg.counter, msg.mac), self._heartbeat_refused)
+        except HvError as error:  # the supervisor process lost
+            self._heartbeat_refused(error)
+
+    def _heartbeat_refused(self, error: Exception) -> None:
+        """Another client, an ended session, a copied heartbeat, a replayed recording, a lost supervisor."""
+        self.get_logger().warning(f"hv/heartbeat ignored: {error}", throttle_duration_sec=REFUSAL_LOG_PERIOD)
 
     def _on_inject(self, request, response):
         try:
