@@ -18,7 +18,6 @@ benchmarks=(
     hv_loop.py
     hv_ramp.py
     hv_fault_bounds.py
-    hv_supervisor_process.py
     recorder_load.py
     ros_nodes.py
     sequencer_gait.py

@@ -12,8 +12,8 @@ Rules enforced here:
   at most two nominal periods' worth per cycle), except that it drops at once when the ceiling drops
   below it or a fault latches;
 - only the client holding control (commands signed with its session token) may ramp or feed the heartbeat watchdog; the
-  watchdog is on unless switched off on purpose (heartbeat_timeout_s=math.inf), and a stall of the driver's
-  own loop is not counted as the client's silence (`ControlClaim.cycle`);
+  watchdog is on unless switched off on purpose (heartbeat_timeout_s=math.inf); a heartbeat counts from when it was
+  sent (`ControlClaim.confirm`);
 - the readback must follow the commands at the device's own ramp (`ReadbackCheck`);
 - on a supply without current readback (breakdown guard on), a measured voltage far below a setpoint held for a
   moment, or a pulse train none of whose pulses reaches half its amplitude for two periods, is a film breakdown
@@ -63,9 +63,12 @@ PULSE_GUARD_PERIODS = 2.0
 DEVICE_COUNT_MARGIN_S = 0.25
 DEVICE_CLOCK_TOLERANCE = 1e-3
 
-# The control loop's nominal period [s] unless told otherwise (the time step unit of the slew credit, the readback
-# check and the pulse guard).
-DEFAULT_PERIOD_S = 0.01
+# The control loop's rate unless told otherwise [Hz]: a fault shows in the readback of the next cycle, so the period is
+# most of the time from a fault to the cut (docs/hv_driver.md, "Thresholds chosen for safety"). A link whose exchanges
+# take longer than a period needs a lower rate. Its period is the time step unit of the slew credit, the readback
+# check and the pulse guard.
+DEFAULT_LOOP_RATE_HZ = 200.0
+DEFAULT_PERIOD_S = 1.0 / DEFAULT_LOOP_RATE_HZ
 # A cycle credits the slew allowance with its elapsed time up to this many nominal periods. The driver's loop keeps its
 # schedule while a cycle ends within one period of its slot (`HvSupply._run`), so a loop that runs late but on its
 # schedule keeps the timing of its ramps (a heartbeat ramp-down ends on time); one resuming from a stall moves by at
@@ -130,6 +133,7 @@ class ChannelSupervisor:
         self._last_observed: float | None = None
         self.pulse_tally: PulseTally | None = None  # the last streamed train's short pulses (kept after it ends)
         self._counted_out: PulseTrain | None = None  # the device-switched train the device reported counted out
+        self.ended_by_host: PulseTrain | None = None  # ... or the one the host ended by its fallback instead
         self.ramp_id = 0  # counts accepted ramp requests, so a waiting caller sees being superseded
 
     # --- state -------------------------------------------------------------------------------
@@ -391,8 +395,11 @@ class ChannelSupervisor:
         train = self.pulse_train
         device_switched = train is not None and train.on_device
         if device_switched and now >= train.start:  # on until the device's count ends it (or the fallback)
-            finished = self._counted_out is train or now >= train.stop + DEVICE_COUNT_MARGIN_S + (
+            counted_out = self._counted_out is train
+            finished = counted_out or now >= train.stop + DEVICE_COUNT_MARGIN_S + (
                 DEVICE_CLOCK_TOLERANCE * (train.stop - train.start))
+            if finished and not counted_out:
+                self.ended_by_host = train
             desired = train.end if finished else train.amplitude
         if not device_switched:  # the device's own square edges are not the host's to slew
             allowance = self.config.slew_rate_v_per_s * dt
@@ -493,10 +500,10 @@ class Supervisor:
                 channel.ramp_to(now, 0.0)
         return owner
 
-    def heartbeat(self, now: float, token: str) -> None:
+    def heartbeat(self, now: float, token: str, sent: float | None = None) -> None:
         """Sign of life of the controlling client (``token``: its session token or a signed HEARTBEAT; ControlError
-        for anything else)."""
-        self.control.confirm(token, self._now(now), HEARTBEAT)
+        for anything else), sent at ``sent`` (default: ``now``)."""
+        self.control.confirm(token, self._now(now), HEARTBEAT, sent)
 
     # --- requests ----------------------------------------------------------------------------
     def enable(self, name: str, now: float) -> None:
@@ -571,7 +578,6 @@ class Supervisor:
                     if channel.config.device == device:
                         channel.trip(Fault.LINK, f"no valid reply from the supply for more than "
                                                  f"{self.link_timeout_s:g} s")
-        self.control.cycle(now)
         self._watch_control(now)
         return {name: channel.step(now) for name, channel in self.channels.items()}
 

@@ -90,7 +90,7 @@ def keithley_charging_peak(late_cycle: int, trip: float) -> tuple[float, bool]:
     plant = PlantChannel(defaults=dataclasses.replace(SimulatedKeithley2290.default_defaults, current_limit=trip))
     plant.switch_on()
     arrivals, now = [], 0.0
-    for cycle in range(80):
+    for cycle in range(round(0.8 / DEFAULT_PERIOD_S)):  # the whole 0.56 s ramp
         arrivals.append((now + (stall if cycle == late_cycle else exchange), host.step(now).setpoint))
         now += stall + exchange if cycle == late_cycle else DEFAULT_PERIOD_S
     t, dt, peak = 0.0, 1e-4, 0.0
@@ -105,9 +105,10 @@ def keithley_charging_peak(late_cycle: int, trip: float) -> tuple[float, bool]:
 
 def test_the_keithley_trip_holds_two_setpoint_steps_bunched_by_a_late_exchange():
     """The rig's trip leaves room for the worst bunching the loop's schedule allows, wherever in the ramp it falls
-    (cycles 20-39 span its fastest part)."""
+    (the cycles from 0.2 s to 0.4 s span its fastest part)."""
     trip = Keithley2290.capabilities.device_current_margin * FAST["current_trip_a"]
-    peaks = {cycle: keithley_charging_peak(cycle, trip) for cycle in range(20, 40)}
+    peaks = {cycle: keithley_charging_peak(cycle, trip)
+             for cycle in range(round(0.2 / DEFAULT_PERIOD_S), round(0.4 / DEFAULT_PERIOD_S))}
     tripped = {cycle: f"{peak * 1e6:.1f} uA" for cycle, (peak, trip_latched) in peaks.items() if trip_latched}
     assert not tripped, f"unit trip {trip * 1e6:.1f} uA exceeded with the late exchange in cycles {tripped}"
 
@@ -135,6 +136,7 @@ def test_fault_matrix(rig, fault):
         return all(expected in snap.channel(c).faults for c in tripped) and all(
             not (reachable and made.plant(c).output_on) for c in tripped)
     assert made.supply.wait_for(tripped_and_off, 5.0), made.supply.snapshot()
+    made.supply.wait_cycles(1)  # the readback that confirms the cut (sent in the cycle that read the fault)
     snap = made.supply.snapshot()
     for c in tripped:  # claimed off only once a reading confirmed the cut (none over a failing link)
         assert (snap.channel(c).setpoint, snap.channel(c).output_enabled) == (0.0, expected is Fault.LINK)

@@ -128,6 +128,7 @@ def test_every_injected_fault_ends_with_outputs_off_and_the_named_fault(fault, s
     # time after the drift (500 V/s) leaves the 150 V tolerance; else a cycle or two.
     bound = {Fault.LINK: 0.5 + 3 * 0.125, Fault.READBACK_MISMATCH: 150.0 / 500.0 + 0.2}.get(expected, 0.0)
     assert clock() - injected <= bound + 2 * DEFAULT_PERIOD_S + 1e-9
+    supply.wait_cycles(1)  # the readback that confirms the cut (sent in the cycle that read the fault)
     snap = supply.snapshot()
     for name in tripped:
         c = snap.channel(name)
@@ -216,9 +217,10 @@ def test_lost_heartbeat_ramps_outputs_down_at_the_slew_limit(sim, clock):
 
 
 @pytest.mark.parametrize("first", ["the control loop's cycle", "the client's next beat"])
-def test_a_stall_of_the_whole_process_longer_than_the_timeout_keeps_control(sim, clock, first):
-    """Driver and client in one stalled process (a garbage collection, a loaded host): after the stall the
-    client beats again at once, or only after the driver's loop has run a cycle; either way it keeps control."""
+def test_a_stall_of_the_whole_process_longer_than_the_timeout_ends_control(sim, clock, first):
+    """Driver and client in one stalled process: the client sent nothing for three timeouts, so its control lapses,
+    whether the loop's next cycle or the client's next beat comes first, and the output ramps down. (The supervisor
+    process hears its node through a channel and reads it before it judges: test_supervisor_process.py.)"""
     configs = [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=8000.0)]
     with simulated(sim, clock, configs, heartbeat_timeout_s=0.5, link_timeout_s=2.0) as hv:
         token = hv.claim_control("test")
@@ -228,12 +230,11 @@ def test_a_stall_of_the_whole_process_longer_than_the_timeout_keeps_control(sim,
         clock.advance(1.5)  # three timeouts without a cycle or a beat
         if first == "the control loop's cycle":
             hv.step()
-        for _ in range(20):
+        with pytest.raises(ControlError, match="lapsed: no heartbeat for more than 0.5 s"):
             hv.heartbeat(token)
-            hv.run_for(0.05)
+        assert hv.wait_for(lambda: sim.plant[0].voltage < 50.0, 5.0)
         snap = hv.snapshot()
-        assert snap.controller == "test" and not snap.channel("front").faults, snap.channel("front").fault_text
-        assert sim.plant[0].output_on and sim.plant[0].voltage_set == 1000.0
+        assert snap.controller == "" and snap.channel("front").faults == Fault.HEARTBEAT
 
 
 def test_close_ramps_down_and_switches_off(sim, clock):
@@ -307,7 +308,8 @@ def test_the_heartbeat_watchdog_is_on_by_default(sim, clock):
         requested = clock()
         assert ramp.wait(5.0)
         assert hv.wait_for(lambda: Fault.HEARTBEAT in hv.snapshot().channel("front").faults, 10.0)
-        assert 2.0 < clock() - requested <= 2.0 + DEFAULT_PERIOD_S + 1e-9  # the 2 s timeout ran from the ramp request
+        # The 2 s timeout ran from the ramp request: judged in the first cycle after it, seen after the next step.
+        assert 2.0 < clock() - requested <= 2.0 + 2 * DEFAULT_PERIOD_S + 1e-9
         assert hv.wait_for(lambda: not sim.plant[0].output_on and sim.plant[0].voltage < 1.0, 5.0)
         assert hv.snapshot().controller == ""
 

@@ -11,6 +11,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 
 import pytest
@@ -113,7 +114,45 @@ def test_a_node_whose_keep_alive_stops_is_lost_and_its_outputs_ramp_down(socket_
         wait_until(lambda: front(supply).measured_voltage < 50.0, "the output ramped down")
         with pytest.raises(ControlError):  # the session ended with the node
             supply.heartbeat(token)
+        refused = []
+        supply.forward_heartbeat(token, refused.append)  # as the node forwards its client's: refused by reply
+        wait_until(lambda: refused, "the forwarded heartbeat's refusal")
+        assert isinstance(refused[0], ControlError) and "no client holds control" in str(refused[0])
     finally:
+        supply.close()
+
+
+def test_a_supervisor_stalled_past_both_timeouts_keeps_its_node_and_the_client_whose_beats_were_forwarded(
+        socket_path):
+    """The supervisor process is stopped for 3 s, past the 1 s keep-alive and the 2 s heartbeat timeouts, while the
+    node lives on: it beats its keep-alive and forwards its client's heartbeats (without waiting for answers). They
+    wait in the channel and are read, with their sending stamps, before any silence is judged."""
+    supply = RemoteSupply(SUPERVISED, spec(), socket_path).open()
+    refused, stop = [], threading.Event()
+
+    def client(token: str):
+        while not stop.wait(0.1):
+            supply.forward_heartbeat(token, refused.append)
+    beating = None
+    try:
+        token = supply.claim_control("sequencer")
+        supply.enable("front")
+        assert supply.ramp_to("front", 1000.0, token=token).wait(DEADLINE)
+        beating = threading.Thread(target=client, args=(token,))
+        beating.start()
+        os.kill(supply.pid, signal.SIGSTOP)
+        try:
+            time.sleep(3.0)  # the stall itself, not a wait for an event
+        finally:
+            os.kill(supply.pid, signal.SIGCONT)
+        assert supply.wait_cycles(10, DEADLINE)
+        snapshot = supply.snapshot()
+        assert not any(c.faults for c in snapshot.channels), snapshot.channel("front").fault_text
+        assert snapshot.controller == "sequencer" and snapshot.channel("front").output_enabled and not refused
+    finally:
+        stop.set()
+        if beating is not None:
+            beating.join()
         supply.close()
 
 
@@ -130,6 +169,8 @@ def test_a_lost_supervisor_is_reported_on_every_channel_and_refuses_every_call(s
         supply.claim_control("sequencer")
     with pytest.raises(SupervisorLostError):
         supply.ramp_to("front", 100.0, token="x")
+    with pytest.raises(SupervisorLostError, match="supervisor_lost"):
+        supply.forward_heartbeat("x", reasons.append)
     assert len(reasons) == 1
     supply.close()  # nothing left to close: no error, no wait
 
