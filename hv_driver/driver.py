@@ -10,8 +10,10 @@ import atexit
 import logging
 import math
 import signal
+import statistics
 import threading
 import weakref
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -34,6 +36,9 @@ MAX_SIMULATED_WAIT_S = 600.0
 # The longest the loop waits for the reader of its client's channel to take in one more message before it judges the
 # client silent anyway [s] (`listen`): a stuck reader must not hold the loop; it waits so once per lapse at most.
 TAKE_IN_PATIENCE_S = 0.05
+# How many recent cycles tell the period the loop sustains (their median): a line slower than the loop rate sets it in
+# that many cycles, while one stall among them does not (the supervisor discounts a stall in this unit).
+SUSTAINED_PERIOD_CYCLES = 15
 
 
 @dataclass(frozen=True)
@@ -295,6 +300,7 @@ class HvSupply:
         self._applied = {c.name: _Applied() for c in self.configs}
         self._reconfigure = self._device_reset = False
         self._cycles = 0
+        self._cycle_durations: deque[float] = deque(maxlen=SUSTAINED_PERIOD_CYCLES)
         self._stamp = clock()
         self._next_start: float | None = None  # start of the next train a supply switches, if one is armed
         self._take_in: Callable[[float], None] | None = None  # see `listen`
@@ -665,7 +671,7 @@ class HvSupply:
     def _cycle(self) -> bool:
         """One control cycle; True when a new fault latched (the next cycle then runs at once). A fault read back
         from a supply is cut at once, before the next supply's exchanges."""
-        now = self._clock()
+        now = started = self._clock()
         if self._take_in is not None:
             with self._lock:
                 lapsing = self._supervisor.control.silent(now)
@@ -725,7 +731,7 @@ class HvSupply:
                     channel = self._supervisor.channel(config.name)
                     if device.count_ended(config):
                         channel.device_count_ended(sent.pulse)
-                    channel.observe(now, reading.voltage, reading.current, fault, over_current)
+                    channel.observe(reading.measured_at, reading.voltage, reading.current, fault, over_current)
                     current = math.nan if reading.current is None else reading.current
                     self._measured[config.name] = (reading.voltage, current)
                     ramp_id, ramping, setpoint = stepped[config.name]
@@ -734,7 +740,9 @@ class HvSupply:
                 tripped = [c for c in device.configs if self._supervisor.channel(c.name).faults & IMMEDIATE_FAULTS
                            and not device.sent[c.name].emergency]
             self._cut_at_once(k, device, tripped)
+        self._cycle_durations.append(self._clock() - started)
         with self._cycle_done:
+            self._supervisor.set_cycle_period(max(self._period, statistics.median(self._cycle_durations)))
             self._cycles += 1
             self._cycle_done.notify_all()
             return any(c.faults != faults_before[n] for n, c in self._supervisor.channels.items())

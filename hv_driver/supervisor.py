@@ -9,7 +9,7 @@ Rules enforced here:
 - ceiling = min(hard maximum, assembly safe voltage, supply limit); a request above it is refused
   with `LimitError` naming the limit, and the streamed setpoint is still clamped to it;
 - the setpoint rises and falls no faster than the channel's slew limit (a stalled loop catches up by
-  at most two nominal periods' worth per cycle), except that it drops at once when the ceiling drops
+  at most two sustained periods' worth per cycle), except that it drops at once when the ceiling drops
   below it or a fault latches;
 - only the client holding control (commands signed with its session token) may ramp or feed the heartbeat watchdog; the
   watchdog is on unless switched off on purpose (heartbeat_timeout_s=math.inf); a heartbeat counts from when it was
@@ -64,12 +64,12 @@ DEVICE_COUNT_MARGIN_S = 0.25
 DEVICE_CLOCK_TOLERANCE = 1e-3
 
 # The control loop's rate unless told otherwise [Hz]: a fault shows in the readback of the next cycle, so the period is
-# most of the time from a fault to the cut (docs/hv_driver.md, "Thresholds chosen for safety"). A link whose exchanges
-# take longer than a period needs a lower rate. Its period is the time step unit of the slew credit, the readback
-# check and the pulse guard.
+# most of the time from a fault to the cut (docs/hv_driver.md, "Thresholds chosen for safety"). Over a link whose
+# exchanges take longer the loop runs as fast as the line allows; the period it sustains (`Supervisor.set_cycle_period`)
+# is the time step unit of the slew credit, the readback check and the pulse guard.
 DEFAULT_LOOP_RATE_HZ = 200.0
 DEFAULT_PERIOD_S = 1.0 / DEFAULT_LOOP_RATE_HZ
-# A cycle credits the slew allowance with its elapsed time up to this many nominal periods. The driver's loop keeps its
+# A cycle credits the slew allowance with its elapsed time up to this many periods (the loop's sustained period). The driver's loop keeps its
 # schedule while a cycle ends within one period of its slot (`HvSupply._run`), so a loop that runs late but on its
 # schedule keeps the timing of its ramps (a heartbeat ramp-down ends on time); one resuming from a stall moves by at
 # most this many periods' worth instead of jumping by the whole stall's.
@@ -135,6 +135,10 @@ class ChannelSupervisor:
         self._counted_out: PulseTrain | None = None  # the device-switched train the device reported counted out
         self.ended_by_host: PulseTrain | None = None  # ... or the one the host ended by its fallback instead
         self.ramp_id = 0  # counts accepted ramp requests, so a waiting caller sees being superseded
+
+    def set_cycle_period(self, period_s: float) -> None:
+        """The period the loop sustains (see `Supervisor.set_cycle_period`)."""
+        self.nominal_period_s = self._readback.max_interval_s = period_s
 
     # --- state -------------------------------------------------------------------------------
     def limits(self) -> dict[str, float]:
@@ -339,7 +343,7 @@ class ChannelSupervisor:
 
     def _check_pulses(self, now: float, voltage: float, train: PulseTrain) -> None:
         """Every pulse must reach COLLAPSE_FRACTION of the amplitude; time counted as observed (a stalled loop adds
-        at most one nominal period per readback), where the on-phase is long enough for the loop to see it."""
+        at most one sustained period per readback), where the on-phase is long enough for the loop to see it."""
         if now < train.start or train.duty * train.period < PULSE_GUARD_MIN_CYCLES * self.nominal_period_s:
             return
         if voltage >= COLLAPSE_FRACTION * train.amplitude:
@@ -422,7 +426,8 @@ class Supervisor:
     heartbeat_timeout_s: the controlling client must show a sign of life (a heartbeat or a ramp request
         with its token) this often, or its control lapses and every output it energised ramps to 0 V
         (HEARTBEAT). math.inf switches the watchdog off; that takes this deliberate value, None is refused.
-    nominal_period_s: the control loop's period (the unit of the slew credit's cap, the readback check's).
+    nominal_period_s: the control loop's period (the unit of the slew credit's cap, the readback check's), until
+        the loop reports the period it sustains (`set_cycle_period`).
     """
 
     def __init__(self, configs: list[ChannelConfig], *, link_timeout_s: float,
@@ -451,6 +456,16 @@ class Supervisor:
         # answers). Timing the failures, not the gap since the last success, keeps a host that was merely
         # descheduled (a loaded machine) from tripping while a supply that stops answering still trips on time.
         self._link_failing: dict[int, tuple[float, int] | None] = {c.device: None for c in configs}
+
+    def set_cycle_period(self, period_s: float) -> None:
+        """The period the control loop sustains: its nominal one, or longer on a line whose exchanges take longer.
+        The slew credit, the readback check and the pulse guard count time in this unit, so that a stall (a gap
+        of many periods) is discounted while a loop that is merely slow, every cycle, keeps its ramps' times and
+        trips on time."""
+        if not (_finite(period_s) and period_s > 0):
+            raise SettingError(f"period_s={period_s!r}: finite number > 0")
+        for channel in self.channels.values():
+            channel.set_cycle_period(period_s)
 
     @property
     def heartbeat_watchdog_off(self) -> bool:

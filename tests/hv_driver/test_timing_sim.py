@@ -196,3 +196,38 @@ def test_whatever_a_supplys_deafness_lasts_its_output_is_never_claimed_off_and_t
         assert not made.plant("a").output_on and not made.supply.snapshot().channel("a").output_enabled
     finally:
         made.close()
+
+
+# An iseg at its factory 9600 baud echoes each line: a query and its answer take about 40 ms on the wire, so a cycle
+# of readbacks takes far longer than the loop's nominal period. The loop's timing must follow the line it has.
+SLOW_LINE_EXCHANGE_S = 0.04
+
+
+@pytest.mark.parametrize("name", list(DIALECTS))
+def test_on_a_line_slower_than_the_loop_rate_a_ramp_keeps_its_time_and_a_drift_trips_on_time(name):
+    limits = {**LIMITS, "slew_rate_v_per_s": 1000.0}  # the shipped slew limit: steps of a slow cycle stay gentle
+    made = Rig(name, limits, link_timeout_s=LINK_TIMEOUT_S, clock=SimulatedClock(), exchange_s=SLOW_LINE_EXCHANGE_S)
+    made.supply.enable("a")
+    try:
+        start = made.clock()
+        handle = made.supply.ramp_to("a", 2400.0, token=made.token)
+        cycles = [start]
+        while not handle.done:
+            made.supply.step()
+            cycles.append(made.clock())
+        assert handle.succeeded, handle.message
+        cycle = float(np.median(np.diff(cycles)))
+        assert cycle > 4 * PERIOD  # the line, not the loop rate, sets the pace here
+        duration = MIN_JERK_PEAK_RATE * 2400.0 / limits["slew_rate_v_per_s"]
+        assert made.clock() - start <= duration + 3 * cycle + EPSILON
+
+        made.inject("readback_drift", "a")
+        drifting = made.clock()
+        while Fault.READBACK_MISMATCH not in made.supply.snapshot().channel("a").faults:
+            made.supply.step()
+            assert made.clock() - drifting < 60.0
+        # Out of the band once the drift passes the tolerance, then the mismatch time, found by the next readback.
+        bound = LIMITS["mismatch_tolerance_v"] / 500.0 + LIMITS["mismatch_time_s"] + 2 * cycle
+        assert made.clock() - drifting <= bound + EPSILON
+    finally:
+        made.close()
