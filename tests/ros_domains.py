@@ -6,7 +6,7 @@ a stack started by hand never reaches a running suite.
 """
 
 DEFAULT_TEST_DOMAINS = "10-99"
-WRAPPER_DOMAINS = range(1, 10)  # scripts/with_env.sh: $$ % 9 + 1
+WRAPPER_DOMAINS = range(1, 10)  # scripts/with_env.sh: uid % 9 + 1
 
 
 def domain_for(first: int, last: int, offset: int, worker: int, workers: int, module_index: int) -> int:
