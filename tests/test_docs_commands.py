@@ -477,6 +477,26 @@ def test_an_estimate_takes_the_base_its_render_printed(block, render, estimate, 
         f"{block.id}: render prints {printed and printed.group(0)!r}, the estimate line gives --base {' '.join(given)}")
 
 
+def files_given_as(options: tuple[str, ...]) -> dict[str, set[str]]:
+    """File name -> the pages whose commands give it after one of ``options``."""
+    found: dict[str, set[str]] = {}
+    for block in SHELL:
+        for words in command_lines(block):
+            for option, value in zip(words, words[1:]):
+                if option in options:
+                    found.setdefault(Path(value).name, set()).add(block.page)
+    return found
+
+
+def test_no_file_name_is_a_parameter_file_on_one_page_and_an_assembly_on_another():
+    """A lab that follows two pages keeps one file of each name (the quick start's driver parameters and the
+    estimation's assembly were both rig.yaml)."""
+    parameters = files_given_as(("--params", "--params-file"))
+    assemblies = files_given_as(("--assembly",))
+    both = {name: sorted(parameters[name] | assemblies[name]) for name in set(parameters) & set(assemblies)}
+    assert not both, f"parameter file and assembly under one name: {both}"
+
+
 # ------------------------------------------------------------------------------------------------ YAML blocks
 @pytest.mark.parametrize("block", YAML, ids=[b.id for b in YAML])
 def test_each_yaml_block_is_valid_against_its_schema(block, tmp_path):
