@@ -204,6 +204,7 @@ def main(argv=None) -> int:
             except ClientError as error:
                 print(f"release of control failed: {error}", file=sys.stderr)
         executor.shutdown(timeout_sec=5.0)
+        spinner.join(timeout=5.0)  # a thread left inside rclpy at exit aborts the process (std::terminate)
         node.destroy_node()
         rclpy.try_shutdown()
     return 0
