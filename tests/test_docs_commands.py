@@ -54,6 +54,7 @@ EXTERNAL = {"source", "cd", "export", "pip", "colcon", "for", "do", "done", "mca
 EXTERNAL_ROS2 = {"bag", "security", "param", "topic", "node", "action", "service", "doctor"}
 # Files a page names that the reader makes (or that a command before makes); only their names are parsed.
 PLACEHOLDER_FILES = {"my_overrides.yaml"}
+VENV_PYTHON = ".venv/bin/python"  # the environment's interpreter, for the core without the colcon build
 # Words a page writes for a value the reader chooses, and a value of the right type to parse in their place.
 PLACEHOLDER_VALUES = {"X": "0.07", "Y": "0.005", "ANGLE": "1.5708", "S": "1.0", "M": "0.0", "CH=V": "front=0"}
 # Python blocks that run as written (key: the page and the block's first line); the others are checked
@@ -132,7 +133,7 @@ def typed_commands(block: Block) -> list[tuple[list[str], list[str]]]:
 
 
 def is_command(word: str) -> bool:
-    return (word in EXTERNAL or word in ("python", "python3", "ros2", "make")
+    return (word in EXTERNAL or word in ("python", "python3", "ros2", "make", VENV_PYTHON)
             or word.startswith(("ros_ws/", "benchmarks/", "scripts/")))
 
 
@@ -276,6 +277,7 @@ def check_command(words: list[str], block: Block) -> Parsed | None:
         if re.match(r"(config|docs|tests|benchmarks|scripts)/", word) and not word.startswith("docs/figures/"):
             assert (ROOT / word.split("::")[0]).exists(), f"{block.id}: {word} does not exist"
     head, rest = words[0], words[1:]
+    head = "python" if head == VENV_PYTHON else head
     if head in EXTERNAL or (head == "ros2" and rest[0] in EXTERNAL_ROS2):
         return None
     if head in ("python", "python3") and rest[:2] == ["-m", "venv"]:
@@ -632,3 +634,13 @@ def test_the_runnable_python_blocks_run_as_written(key, request, monkeypatch):
     monkeypatch.chdir(ROOT if RUN[key] == "root" else request.getfixturevalue("gripper_recording"))
     with contextlib.redirect_stdout(io.StringIO()):
         exec(compile(block.text, block.id, "exec"), {"__name__": "__doc_snippet__"})
+
+
+
+def test_a_python_command_runs_in_the_projects_environment():
+    """Typed into a fresh terminal, `python -m planner ...` finds no planner: a command runs through
+    scripts/with_env.sh, or (the core alone, without the colcon build) with the venv's own .venv/bin/python."""
+    outside = [f"{block.id}: {' '.join(words)}" for block in SHELL for prefix, words in typed_commands(block)
+               if words[0] in ("python", "python3") and words[1:3] != ["-m", "venv"]
+               and "scripts/with_env.sh" not in prefix]
+    assert not outside, "run outside the environment (prefix scripts/with_env.sh):\n" + "\n".join(outside)
