@@ -52,8 +52,6 @@ EXTERNAL = {"source", "cd", "export", "pip", "colcon", "for", "do", "done", "mca
             "udevadm", "ls", "id", "dmesg", "sudo", "echo", "cat", "groupadd", "printf", "tee", "ulimit", "systemctl",
             "apt"}
 EXTERNAL_ROS2 = {"bag", "security", "param", "topic", "node", "action", "service", "doctor"}
-# Files a page names that the reader makes (or that a command before makes); only their names are parsed.
-PLACEHOLDER_FILES = {"my_overrides.yaml"}
 VENV_PYTHON = ".venv/bin/python"  # the environment's interpreter, for the core without the colcon build
 # Words a page writes for a value the reader chooses, and a value of the right type to parse in their place.
 PLACEHOLDER_VALUES = {"X": "0.07", "Y": "0.005", "ANGLE": "1.5708", "S": "1.0", "M": "0.0", "CH=V": "front=0"}
@@ -197,13 +195,11 @@ def known_options(parser: argparse.ArgumentParser, words: list[str]) -> set[str]
     return options
 
 
-def params_file(path: str, block: Block) -> dict | None:
+def params_file(path: str, block: Block) -> dict:
     """The parameter file ``path`` as a page uses it: one of the repository's, or the page's own named block."""
     path = path.replace("/path/to/softblock/", "")
     if path in named_files(block.page):
         return yaml.safe_load(named_files(block.page)[path])
-    if path in PLACEHOLDER_FILES:
-        return None
     assert (ROOT / path).is_file(), f"{block.id}: parameter file {path} does not exist (nor a `# {path}` block)"
     return yaml.safe_load((ROOT / path).read_text())
 
@@ -231,9 +227,7 @@ def check_ros_arguments(node: str, arguments: list[str], block: Block) -> None:
             assert name in schema, f"{block.id}: -p {name}: not a parameter of {node} (known: {', '.join(schema)})"
             schema[name].check(yaml.safe_load(value))
         elif word == "--params-file":
-            document = params_file(next(words), block)
-            if document is not None:
-                check_sections(document, block.id, nodes=None)
+            check_sections(params_file(next(words), block), block.id, nodes=None)
         elif word in ("-r", "--remap", "--enclave", "--log-level"):
             next(words)
         else:
@@ -329,9 +323,7 @@ def check_launch(args, block: Block) -> None:
     unknown = sorted(set(nodes) - set(STACK.names))
     assert not unknown, f"{block.id}: --nodes {unknown} are not nodes of config/stack.yaml ({', '.join(STACK.names)})"
     if args.params:
-        document = params_file(args.params, block)
-        if document is not None:
-            check_sections(document, f"{block.id} --params {args.params}")
+        check_sections(params_file(args.params, block), f"{block.id} --params {args.params}")
 
 
 # ------------------------------------------------------------------------------ what commands hand each other
