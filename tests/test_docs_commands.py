@@ -31,6 +31,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from ros_domains import wrapper_domain
 from softblock_config import config_file
 
 from planner.assembly import load_assembly
@@ -372,7 +373,6 @@ def test_a_documented_sequence_runs_on_the_stack_documented_with_it(block, pair)
 # A comment line naming a terminal or a machine starts the commands typed into the next one.
 TERMINAL_MARK = re.compile(r"^#.*\b(?:terminal|machine|PC|workstation)\b.*$", re.M | re.I)
 MACHINE_MARK = re.compile(r"\b(?:machine|PC|workstation)\b", re.I)
-WRAPPER = ROOT / "scripts" / "with_env.sh"
 
 
 def terminals(block: Block) -> list[list[tuple[list[str], list[str]]]]:
@@ -406,11 +406,7 @@ def ros_domain(prefix: list[str], words: list[str], exported: str | None) -> tup
     chosen = given[-1] if given else exported
     if "scripts/with_env.sh" not in prefix:
         return chosen or "0", chosen is not None
-    environment = {name: value for name, value in os.environ.items() if name != "ROS_DOMAIN_ID"}
-    environment.update({"ROS_DOMAIN_ID": chosen} if chosen is not None else {})
-    reported = subprocess.run([str(WRAPPER), "sh", "-c", "echo $ROS_DOMAIN_ID"], env=environment,
-                              capture_output=True, text=True, check=True, timeout=60).stdout.strip()
-    return reported, chosen is not None
+    return str(wrapper_domain(chosen)), chosen is not None
 
 
 def graph_domains(block: Block) -> list[tuple[int, str, str, bool]]:
