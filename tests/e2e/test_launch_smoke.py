@@ -33,7 +33,9 @@ def client():
 @pytest.mark.parametrize("name", load_stack().names)
 def test_the_node_starts_alone_serves_its_parameters_and_stops_cleanly(client, tmp_path, name):
     params = tmp_path / "params.yaml"  # nothing written into the work tree
-    params.write_text(f"/**/recorder:\n  ros__parameters:\n    output: {tmp_path / 'recording.mcap'}\n")
+    # the live view on a free port: its default, 8765, may be another suite's or a user's on this machine
+    params.write_text(f"/**/recorder:\n  ros__parameters:\n    output: {tmp_path / 'recording.mcap'}\n"
+                      "/**/foxglove_bridge:\n  ros__parameters:\n    port: 0\n")
     node, executor = client
     output = io.StringIO()
     with Stack(nodes=[name], params=params, output=output, namespace=f"/smoke_{name}") as stack:

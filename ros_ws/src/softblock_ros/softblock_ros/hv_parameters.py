@@ -11,7 +11,7 @@ from hv_driver.server import ORPHAN_TIMEOUT_S
 from .parameters import Param, ParameterError
 
 PARAMETERS = (
-    Param("backend", "sim", "'sim' (simulated supply on a pty) or 'serial' (the port parameter); never swapped",
+    Param("backend", "sim", "'sim' (simulated supply on a pty) or 'serial' (the ports parameter); never swapped",
           kind=str, choices=("sim", "serial")),
     Param("dialect", IsegEdcp.name, "the supply's command set and capabilities", kind=str, choices=tuple(DIALECTS)),
     Param("ports", [], "serial devices or pyserial URLs, one per supply (backend 'serial'; 'sim' makes its own)",

@@ -57,6 +57,14 @@ class NodeDied(RuntimeError):
     """A node process exited while the stack was running."""
 
 
+class OutputWatch:
+    """The first line of one node's output that contains a text (``line``: None until it came)."""
+
+    def __init__(self, node: str, text: str):
+        self.node, self.text = node, text
+        self.line: str | None = None
+
+
 class Stack:
     """The node processes of one stack; a context manager that stops them in reverse order on exit."""
 
@@ -85,6 +93,13 @@ class Stack:
         self._stop_requested = False  # a plain flag: request_stop() runs in signal handlers
         self._output_lock = threading.Lock()
         self._pumps: list[threading.Thread] = []
+        self._watches: list[OutputWatch] = []
+
+    def watch(self, node: str, text: str) -> OutputWatch:
+        """Note the first line of ``node``'s output that contains ``text`` (call before start())."""
+        watch = OutputWatch(node, text)
+        self._watches.append(watch)
+        return watch
 
     def command(self, name: str) -> list[str]:
         spec = self.description.node(name)
@@ -111,6 +126,9 @@ class Stack:
 
     def _pump(self, name: str, process: subprocess.Popen) -> None:
         for line in process.stdout:
+            for watch in self._watches:
+                if watch.node == name and watch.line is None and watch.text in line:
+                    watch.line = line.rstrip("\n")
             with self._output_lock:
                 self.output.write(f"[{name}] {line}")
                 self.output.flush()
