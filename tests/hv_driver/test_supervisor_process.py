@@ -124,10 +124,11 @@ def test_a_node_whose_keep_alive_stops_is_lost_and_its_outputs_ramp_down(socket_
 
 def test_a_supervisor_stalled_past_both_timeouts_keeps_its_node_and_the_client_whose_beats_were_forwarded(
         socket_path):
-    """The supervisor process is stopped for 3 s, past the 1 s keep-alive and the 2 s heartbeat timeouts, while the
-    node lives on: it beats its keep-alive and forwards its client's heartbeats (without waiting for answers). They
-    wait in the channel and are read, with their sending stamps, before any silence is judged."""
-    supply = RemoteSupply(SUPERVISED, spec(), socket_path).open()
+    """The supervisor process is stopped for 6 s, past its keep-alive and heartbeat timeouts, while the node lives
+    on: it beats its keep-alive and forwards its client's heartbeats (without waiting for answers). They wait in the
+    channel and are read, with their sending stamps, before any silence is judged. (The timeouts are the stall's
+    subject: shorter than it, yet longer than this test's own process could stall on a loaded host.)"""
+    supply = RemoteSupply(SUPERVISED, spec(keepalive_timeout_s=3.0, heartbeat_timeout_s=4.0), socket_path).open()
     refused, stop = [], threading.Event()
 
     def client(token: str):
@@ -137,15 +138,15 @@ def test_a_supervisor_stalled_past_both_timeouts_keeps_its_node_and_the_client_w
     try:
         token = supply.claim_control("sequencer")
         supply.enable("front")
-        assert supply.ramp_to("front", 1000.0, token=token).wait(DEADLINE)
+        assert supply.ramp_to("front", 1000.0, token=token).wait(GENEROUS_S)
         beating = threading.Thread(target=client, args=(token,))
         beating.start()
         os.kill(supply.pid, signal.SIGSTOP)
         try:
-            time.sleep(3.0)  # the stall itself, not a wait for an event
+            time.sleep(6.0)  # the stall itself, not a wait for an event
         finally:
             os.kill(supply.pid, signal.SIGCONT)
-        assert supply.wait_cycles(10, DEADLINE)
+        assert supply.wait_cycles(10, GENEROUS_S)
         snapshot = supply.snapshot()
         assert not any(c.faults for c in snapshot.channels), snapshot.channel("front").fault_text
         assert snapshot.controller == "sequencer" and snapshot.channel("front").output_enabled and not refused
