@@ -111,7 +111,7 @@ def recorded_sequences(path) -> set[int]:
 def recorded_so_far(recording) -> set[int]:
     """The hv/state samples a recorder still writing ``recording`` has flushed to it (its readable prefix)."""
     so_far = recording.with_name(f"{recording.stem}.so_far.mcap")
-    return recorded_sequences(so_far) if recover(str(recording), str(so_far)).success else set()
+    return recorded_sequences(so_far) if recover(str(recording), str(so_far), overwrite=True).success else set()
 
 
 def stamp_near(states: list[dict], sequence: int, later: bool) -> float:
