@@ -74,3 +74,22 @@ def test_a_line_typed_while_no_swap_waits_confirms_nothing(ros_context, capsys):
     finally:
         node.destroy_node()
     assert capsys.readouterr().out == "operator: no swap is asked for now\n"
+
+
+def test_without_a_readable_terminal_the_operator_is_told_to_confirm_through_the_service(ros_context, capsys):
+    """Standard input that cannot be read (pytest's capture, a closed stdin) ends the listener quietly, and the
+    prompt then names the service instead of Enter (it raised out of the listener's thread)."""
+    class Unreadable:
+        def __iter__(self):
+            raise OSError("reading from stdin while output is captured")
+
+    node = rclpy.create_node("operator_probe", context=ros_context)
+    try:
+        operator = Operator(node, keyboard=Unreadable())
+        operator.listen()
+        feedback = RunSequence.Feedback(step_index=0, step_count=1, step_name="swap", description=PROMPT,
+                                        phase="awaiting_operator")
+        operator.print_feedback(RunSequence.Impl.FeedbackMessage(feedback=feedback))
+    finally:
+        node.destroy_node()
+    assert "call the service sequencer/operator_done to confirm" in capsys.readouterr().out

@@ -35,6 +35,7 @@ class Operator:
         self._done = node.create_client(Trigger, "sequencer/operator_done")
         self._keyboard = keyboard
         self._asked = threading.Event()
+        self._keyboard_lost = threading.Event()  # standard input cannot be read (closed, or not a terminal's)
 
     def print_feedback(self, message) -> None:
         feedback = message.feedback
@@ -42,12 +43,20 @@ class Operator:
               + (f"  ({feedback.description})" if feedback.phase == "running" and feedback.description else ""),
               flush=True)
         if feedback.phase == "awaiting_operator" and not self._asked.is_set():
-            print(f"operator: {feedback.description}\nevery channel is at 0 V; make the swaps, then press Enter "
-                  "here to confirm (Ctrl-C cancels the sequence)", flush=True)
-            self._asked.set()
+            self._asked.set()  # before the prompt: a line typed in answer to it confirms
+            confirm = ("call the service sequencer/operator_done to confirm" if self._keyboard_lost.is_set()
+                       else "press Enter here to confirm")
+            print(f"operator: {feedback.description}\nevery channel is at 0 V; make the swaps, then {confirm} "
+                  "(Ctrl-C cancels the sequence)", flush=True)
 
     def listen(self) -> None:
         """Confirm a swap for each line typed while one is asked for (run in a daemon thread)."""
+        try:
+            self._confirm_each_line()
+        except (OSError, ValueError):  # no readable standard input: confirmations come through the service
+            self._keyboard_lost.set()
+
+    def _confirm_each_line(self) -> None:
         for _ in self._keyboard:
             if not self._asked.is_set():
                 print("operator: no swap is asked for now", flush=True)
