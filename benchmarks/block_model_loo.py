@@ -206,10 +206,11 @@ def plot(results: dict, path: Path) -> None:
                     label=f"model: D {1e3 * ROD_DIAMETER_VALUES[d]:.3g} mm, L {1e3 * ROD_LENGTH_VALUES[l]:.3g} mm")
     ax.axhspan(3, 40, color="tab:green", alpha=0.08, label="paper: about 3-40 deg")
     for a, b in SIMILAR_PAIRS:
-        ax.plot([PRESTRETCH_AXIAL_VALUES[(a - 1) % 7]] * 2, [theta.flat[a - 1], theta.flat[b - 1]], color="tab:red", lw=3)
+        lam = PRESTRETCH_AXIAL_VALUES[(a - 1) % GRID[2]]
+        ax.plot([lam, lam], [theta.flat[a - 1], theta.flat[b - 1]], color="tab:red", lw=3)
     ax.set(xlabel="lambda_1", ylabel="theta_0 [deg]",
-           title="shipped table: theta_0 against lambda_1\n"
-                 "paper: rises with lambda_1; red: IDs 5-7 vs 40-42, similar")
+           title="shipped table: theta_0 against lambda_1\npaper: rises with lambda_1;\n"
+                 "red: IDs 5-7 vs 40-42, 'similar'")
     ax.legend(fontsize="xx-small", ncol=2)
 
     ax = axes[1, 0]
