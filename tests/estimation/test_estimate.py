@@ -85,7 +85,9 @@ def test_angles_at_a_coarse_pixel_are_the_images_not_the_tables(table, ids, draw
 @pytest.mark.parametrize("fault", ["pixel noise", "blur", "occluded tip", "occluder given"])
 def test_image_faults_keep_the_angles(table, fault):
     ids = CHAINS[5]
-    coverage, pose, theta = scene(table, ids, offsets_deg=offsets(5, 7), seed=7, binary=False)
+    # offsets within the paper's per-block calibration range (+-2.5 deg): further out a block can land on another
+    # design of the same shape (the table has such look-alikes, e.g. IDs 5-7 and 40-42), a verdict no image decides
+    coverage, pose, theta = scene(table, ids, offsets_deg=offsets(5, 7, limit=2.5), seed=7, binary=False)
     threshold, occlusion, blocks = None, None, None
     if fault == "pixel noise":
         image = with_pixel_noise(to_binary(coverage), 0.02, np.random.default_rng(0))
