@@ -95,23 +95,209 @@ def _leaf_exact(problem, poses, alphas, alive, s):
     return best, best_base
 
 
+@dataclass(frozen=True)
+class Candidate:
+    """One complete finger: its shapes, which positions change their block (``swapped``), each object's
+    cost and base index, the weighted ``cost`` [m] and the swaps it needs. ``as_built``: the finger exactly
+    as built, rotations included (not a point of the planar design space)."""
+
+    shapes: np.ndarray
+    swapped: np.ndarray
+    costs: np.ndarray
+    bases: np.ndarray
+    cost: float
+    as_built: bool = False
+
+    @property
+    def swaps(self) -> int:
+        return int(self.swapped.sum())
+
+
+@dataclass
+class Run:
+    """One depth-first search of a ``FingerFrontSearch``.
+
+    ``current``: the shape each position keeps without a swap (-1: none); ``keeps_stiff``: keeping the
+    position's block uses one of its shape's stiff blocks (a forced-stiff position, or a stiff block at a free
+    one); ``releasable``: the position may instead take another block of its shape, for one swap (a stiff
+    block at a free position whose shape also has free designs: it may be wanted at a stiff position).
+    ``stock`` / ``stiff_stock``: blocks per shape. A child is dropped when its bound reaches
+    ``limit[swaps after it]`` (read at every step: the caller may lower it); ``on_leaf(Candidate)`` receives
+    every complete finger below its limit. ``frames`` hold the children not yet visited (see ``frontier``).
+    """
+
+    current: np.ndarray
+    keeps_stiff: np.ndarray
+    releasable: np.ndarray
+    stock: np.ndarray
+    stiff_stock: np.ndarray
+    limit: np.ndarray
+    on_leaf: object
+    frames: list | None = None  # None: not started
+
+    def frontier(self) -> list[tuple[float, int]]:
+        """(bound, swaps) of every child not yet visited: a stopped search proves nothing below them."""
+        return [(entry[0], entry[2]) for frame in self.frames or () for entry in frame[1][frame[0]:]]
+
+
+class FingerFrontSearch:
+    """The compiled problems of one finger (its objects, weights and planar unlimited space), ready for
+    depth-first searches under any stock, current finger and limits (``run``)."""
+
+    def __init__(self, targets, weights, space: DesignSpace, options=None):
+        if not targets:
+            raise ValueError("targets: at least one object is needed")
+        if any(target.body is None for target in targets):
+            raise ValueError("targets must be finger targets (with a body); see planner.design.finger_problems")
+        weights = np.asarray(weights, dtype=float).reshape(-1)
+        if len(weights) != len(targets) or not np.all(np.isfinite(weights) & (weights > 0)):
+            raise ValueError(f"weights must be {len(targets)} finite numbers > 0, got {weights.tolist()}")
+        if space.rotations != 1 or space.stock is not None:
+            raise ValueError("space must be a planar space without inventory (limits go in stock / stiff_stock)")
+        settings = DEFAULT_OPTIONS | (options or {})
+        self.space, self.weights = space, weights
+        self.problems = [search_problem(target, space, settings) for target in targets]
+        self.choices = [np.asarray(c, np.int64) for c in space.choices]
+        self.scratch = np.zeros(max(len(c) for c in self.choices))
+        self.roots = _object_states(self.problems)
+        self.combos, self.combo_bounds = _base_combinations(self.problems, weights, self.roots, self.scratch,
+                                                            space.num_blocks)
+        self.placements = 0
+
+    def evaluate(self, shapes) -> tuple[np.ndarray, np.ndarray]:
+        """Each object's cost (inf: colliding at every base) and best base for one complete finger."""
+        return _evaluate(self.problems, self.roots, np.asarray(shapes, np.int64))
+
+    def _children(self, run: Run, depth, states, swaps, counts, stiff_counts):
+        """(bound, shape, swaps after, uses a stiff block) of the node's admissible children, lowest bound
+        first."""
+        leaf = depth + 1 == self.space.num_blocks
+        shape = self.choices[depth]
+        total = np.zeros(len(shape))
+        per_object = np.empty(len(shape))
+        for problem, weight, (poses, alphas, alive) in zip(self.problems, self.weights, states):
+            _node_bounds(problem, depth, poses, alphas, alive, leaf, self.scratch, per_object)
+            total += weight * per_object
+        self.placements += len(shape) * len(self.problems)
+        kept = shape == run.current[depth]
+        after = swaps + ~kept
+        stiff = np.full(len(shape), bool(self.space.stiff_positions[depth])) | (kept & run.keeps_stiff[depth])
+        usable = ((total < run.limit[after]) & (counts[shape] < run.stock[shape])
+                  & (~stiff | (stiff_counts[shape] < run.stiff_stock[shape])))
+        entries = [(float(total[k]), int(shape[k]), int(after[k]), bool(stiff[k])) for k in np.flatnonzero(usable)]
+        if run.releasable[depth]:
+            for k in np.flatnonzero(kept):
+                if total[k] < run.limit[swaps + 1] and counts[shape[k]] < run.stock[shape[k]]:
+                    entries.append((float(total[k]), int(shape[k]), swaps + 1, False))
+        entries.sort(key=lambda entry: entry[0])
+        return entries
+
+    def run(self, run: Run, control: RunControl, fraction=lambda done: done) -> int:
+        """Search every finger whose bound stays below ``run.limit``; returns the nodes expanded. ``control``
+        may raise Stop (the run's frames then hold what is left). ``fraction`` maps the share of base
+        combinations done to the progress reported."""
+        blocks, n_objects, weights = self.space.num_blocks, len(self.problems), self.weights
+        counts, stiff_counts = np.zeros(len(self.space.theta), np.int64), np.zeros(len(self.space.theta), np.int64)
+        path, swapped, stiff_used = np.full(blocks, -1, np.int64), np.zeros(blocks, bool), np.zeros(blocks, bool)
+        # frames[0]: the objects' base combinations; frames[1 + d]: the children of a node with d blocks
+        # placed. Each frame: next entry, entries (bound, choice, swaps after, stiff), object states, swaps.
+        run.frames = [[0, [(float(self.combo_bounds[j]), int(j), 0, False)
+                           for j in np.argsort(self.combo_bounds, kind="mergesort")], self.roots, 0]]
+        frames, nodes = run.frames, 0
+        control.report(fraction(0.0), float(run.limit[-1]), self.placements)
+        while frames:
+            depth = len(frames) - 2  # blocks placed at the node whose children this frame holds
+            frame = frames[-1]
+            if frame[0] >= len(frame[1]):
+                frames.pop()
+                if depth >= 1:
+                    s = path[depth - 1]
+                    counts[s] -= 1
+                    stiff_counts[s] -= stiff_used[depth - 1]
+                    path[depth - 1] = -1
+                continue
+            bound, s, after, stiff = frame[1][frame[0]]
+            frame[0] += 1
+            if bound >= run.limit[after]:
+                continue
+            if depth < 0:  # a base per object
+                states = [(poses, alphas, np.arange(len(alive)) == self.combos[s, i])
+                          for i, (poses, alphas, alive) in enumerate(self.roots)]
+                frames.append([0, self._children(run, 0, states, 0, counts, stiff_counts), states, 0])
+                continue
+            if depth + 1 == blocks:
+                costs, bases, partial = np.empty(n_objects), np.empty(n_objects, np.int64), 0.0
+                for i, (problem, (poses, alphas, alive)) in enumerate(zip(self.problems, frame[2])):
+                    costs[i], bases[i] = _leaf_exact(problem, poses, alphas, alive, s)
+                    partial += weights[i] * costs[i] if costs[i] < np.inf else np.inf  # inf: it collides
+                    if partial >= run.limit[after]:
+                        break
+                else:
+                    path[depth], swapped[depth] = s, after > frame[3]
+                    run.on_leaf(Candidate(path.copy(), swapped.copy(), costs, bases, float(weights @ costs)))
+                    path[depth] = -1
+                continue
+            states = []
+            for problem, (poses, alphas, alive) in zip(self.problems, frame[2]):
+                out = (np.empty_like(poses), np.empty_like(alphas), np.empty_like(alive))
+                if not _child(problem, poses, alphas, alive, s, *out):
+                    break
+                states.append(out)
+            else:
+                path[depth], swapped[depth], stiff_used[depth] = s, after > frame[3], stiff
+                counts[s] += 1
+                stiff_counts[s] += stiff
+                frames.append([0, self._children(run, depth + 1, states, after, counts, stiff_counts), states, after])
+                nodes += 1
+                if nodes % CHECK_EVERY == 0:
+                    control.report(fraction(frames[0][0] / len(frames[0][1])), float(run.limit[-1]), self.placements)
+        return nodes
+
+
+class Front:
+    """The best candidate per swap budget 0..N so far (``best``, ``chosen``), and the limit a search
+    prunes with: ``best`` itself, or lower where ``ceiling`` says a caller needs nothing above it."""
+
+    def __init__(self, blocks: int, ceiling=None):
+        self.best = np.full(blocks + 1, np.inf)
+        self.chosen: list[Candidate | None] = [None] * (blocks + 1)
+        self.ceiling = np.full(blocks + 1, np.inf) if ceiling is None else np.asarray(ceiling, float).copy()
+        self.limit = self.ceiling.copy()
+
+    def record(self, candidate: Candidate) -> None:
+        for s in range(candidate.swaps, len(self.best)):
+            if candidate.cost < self.best[s]:
+                self.best[s], self.chosen[s] = candidate.cost, candidate
+        np.minimum(self.limit, self.best, out=self.limit)
+
+
+def within(shapes, stiff_used, stock, stiff_stock) -> bool:
+    """Whether a finger's blocks (shapes, which of them use a stiff block) fit the stock."""
+    counts = np.bincount(shapes, minlength=len(stock))
+    stiff = np.bincount(shapes[stiff_used], minlength=len(stock))
+    return bool(np.all(counts <= stock) and np.all(stiff <= stiff_stock))
+
+
 @dataclass
 class FrontResult:
     """Outcome of ``solve_finger_front`` (scipy style), per swap budget s = 0..N (index s).
 
     ``fun[s]``: lowest weighted objective [m] found with at most s swaps (inf: none found);
     ``lower_bound[s]``: proven lower bound on it (= ``fun[s]`` when ``optimal[s]``); ``shapes[s]`` the
-    finger's shape indices (-1 when none); ``bases[s]`` each object's base index; ``object_costs[s]`` each
-    object's eq. (3) cost [m]; ``swaps[s]``: the swaps that finger actually needs.
+    finger's shape indices (-1 when none); ``swapped[s]`` the positions that change their block;
+    ``bases[s]`` each object's base index; ``object_costs[s]`` each object's eq. (3) cost [m];
+    ``swaps[s]``: the swaps that finger actually needs; ``candidates[s]`` the same as a ``Candidate``.
     """
 
     fun: np.ndarray
     lower_bound: np.ndarray
     optimal: np.ndarray
     shapes: np.ndarray
+    swapped: np.ndarray
     bases: np.ndarray
     object_costs: np.ndarray
     swaps: np.ndarray
+    candidates: list
     success: bool
     status: Status
     message: str
@@ -158,12 +344,6 @@ def _evaluate(problems, roots, shapes):
     return costs, bases
 
 
-def _within(shapes, space, stock, stiff_stock) -> bool:
-    counts = np.bincount(shapes, minlength=len(stock))
-    stiff = np.bincount(shapes[space.stiff_positions], minlength=len(stock))
-    return bool(np.all(counts <= stock) and np.all(stiff <= stiff_stock))
-
-
 def _base_combinations(problems, weights, roots, scratch, blocks):
     """Every combination of one base per object (rows of base indices) and its bound: the weighted sum of
     each object's bound at that base (the smallest over its first blocks)."""
@@ -181,16 +361,7 @@ def _base_combinations(problems, weights, roots, scratch, blocks):
     return combos, total
 
 
-def _check_inputs(targets, weights, space, current, stock, stiff_stock):
-    if not targets:
-        raise ValueError("targets: at least one object is needed")
-    if any(target.body is None for target in targets):
-        raise ValueError("targets must be finger targets (with a body); see planner.design.finger_problems")
-    weights = np.asarray(weights, dtype=float).reshape(-1)
-    if len(weights) != len(targets) or not np.all(np.isfinite(weights) & (weights > 0)):
-        raise ValueError(f"weights must be {len(targets)} finite numbers > 0, got {weights.tolist()}")
-    if space.rotations != 1 or space.stock is not None:
-        raise ValueError("space must be a planar space without inventory (limits go in stock / stiff_stock)")
+def _check_limits(space, current, stock, stiff_stock):
     blocks, shapes = space.num_blocks, len(space.theta)
     current = np.full(blocks, -1, np.int64) if current is None else np.asarray(current, dtype=np.int64)
     if current.shape != (blocks,) or np.any((current < -1) | (current >= shapes)):
@@ -201,11 +372,13 @@ def _check_inputs(targets, weights, space, current, stock, stiff_stock):
     stiff_stock = stock if stiff_stock is None else np.asarray(stiff_stock, dtype=np.int64)
     if stock.shape != (shapes,) or stiff_stock.shape != (shapes,) or np.any(stock < 0) or np.any(stiff_stock < 0):
         raise ValueError(f"stock and stiff_stock must be {shapes} counts >= 0 (one per shape)")
-    return weights, current, stock, stiff_stock
+    return current, stock, stiff_stock
 
 
 def solve_finger_front(targets, weights, space: DesignSpace, *, current=None, stock=None, stiff_stock=None,
-                       time_budget=None, callback=None, options=None, starts=(), floor: float = 0.0) -> FrontResult:
+                       time_budget=None, callback=None, options=None, starts=(), floor: float = 0.0,
+                       search: FingerFrontSearch | None = None, keeps_stiff=None, releasable=None,
+                       extra=()) -> FrontResult:
     """Minimise sum_i weights[i] * cost_i over the fingers of ``space`` (planar, unlimited: its lookahead
     fields are the prepared ones), for every swap budget 0..N from ``current`` (N shape indices; -1 or None:
     every position counts as a swap). ``stock`` / ``stiff_stock`` (one count per shape) limit how often a
@@ -213,125 +386,59 @@ def solve_finger_front(targets, weights, space: DesignSpace, *, current=None, st
     StopIteration; ``time_budget`` [s]. ``starts``: complete fingers (shape indices) to prune with from the
     start, e.g. each object's own optimum; each is also tried with every subset of its positions as now.
     ``floor``: a proven lower bound on every finger [m] (e.g. the weighted sum of the objects' own certified
-    optima), reported where the search's own bound is lower. Certified unless stopped (then every budget
-    carries a proven bound)."""
-    weights, current, stock, stiff_stock = _check_inputs(targets, weights, space, current, stock, stiff_stock)
-    settings = DEFAULT_OPTIONS | (options or {})
+    optima), reported where the search's own bound is lower. ``search``: the prepared ``FingerFrontSearch``
+    of the same targets (built here when None); ``keeps_stiff`` / ``releasable``: see ``Run`` (default: a
+    kept block at a forced-stiff position is stiff, nothing releasable); ``extra``: ``Candidate`` fingers
+    outside the design space to consider too (a finger as built with its rotations). Certified unless
+    stopped (then every budget carries a proven bound)."""
+    search = FingerFrontSearch(targets, weights, space, options) if search is None else search
+    current, stock, stiff_stock = _check_limits(space, current, stock, stiff_stock)
+    blocks = space.num_blocks
+    keeps_stiff = space.stiff_positions.copy() if keeps_stiff is None else np.asarray(keeps_stiff, bool)
+    releasable = np.zeros(blocks, bool) if releasable is None else np.asarray(releasable, bool)
     control = RunControl(time_budget, callback)
-    problems = [search_problem(target, space, settings) for target in targets]
-    blocks, n_objects = space.num_blocks, len(targets)
-    choices = [np.asarray(c, np.int64) for c in space.choices]
-    best = np.full(blocks + 1, np.inf)
-    best_shapes = np.full((blocks + 1, blocks), -1, np.int64)
-    best_bases = np.full((blocks + 1, n_objects), -1, np.int64)
-    best_costs = np.full((blocks + 1, n_objects), np.inf)
-    counts, stiff_counts = np.zeros(len(space.theta), np.int64), np.zeros(len(space.theta), np.int64)
-    scratch = np.zeros(max(len(c) for c in choices))
-    stats = {"nodes": 0, "placements": 0}
-
-    def record(path, costs, bases):
-        total = float(weights @ costs)
-        swaps = int(np.sum(np.asarray(path) != current))
-        for s in range(swaps, blocks + 1):
-            if total < best[s]:
-                best[s], best_shapes[s], best_bases[s], best_costs[s] = total, path, bases, costs
-
-    def children(depth, states, swaps):
-        """(bound, shape, swaps after) of the node's admissible children, lowest bound first."""
-        leaf = depth + 1 == blocks
-        total = np.zeros(len(choices[depth]))
-        per_object = np.empty(len(choices[depth]))
-        for problem, weight, (poses, alphas, alive) in zip(problems, weights, states):
-            _node_bounds(problem, depth, poses, alphas, alive, leaf, scratch, per_object)
-            total += weight * per_object
-        stats["placements"] += len(choices[depth]) * n_objects
-        shape = choices[depth]
-        after = swaps + (shape != current[depth])
-        usable = (total < best[np.minimum(after, blocks)]) & (counts[shape] < stock[shape])
-        if space.stiff_positions[depth]:
-            usable &= stiff_counts[shape] < stiff_stock[shape]
-        picked = np.flatnonzero(usable)
-        picked = picked[np.argsort(total[picked], kind="mergesort")]
-        return [(float(total[k]), int(shape[k]), int(after[k])) for k in picked]
-
-    def place(s, depth, sign):
-        counts[s] += sign
-        if space.stiff_positions[depth]:
-            stiff_counts[s] += sign
-
-    roots = _object_states(problems)
+    front = Front(blocks)
     for seed in _mixtures(current, starts):  # first fingers to prune with, for every budget
-        costs, bases = _evaluate(problems, roots, seed)
-        if np.all(seed >= 0) and np.all(np.isfinite(costs)) and _within(seed, space, stock, stiff_stock):
-            record(seed.copy(), costs, bases)
-    combos, combo_bounds = _base_combinations(problems, weights, roots, scratch, blocks)
-    # frames[0]: the objects' base combinations; frames[1 + d]: the children of a node with d blocks placed.
-    # Each frame: next entry, entries (bound, choice, swaps after), the node's object states.
-    frames = [[0, [(float(combo_bounds[j]), j, 0) for j in np.argsort(combo_bounds, kind="mergesort")], roots]]
-    path = np.full(blocks, -1, np.int64)
-    status, nit = Status.CERTIFIED, 0
+        if np.any(seed < 0):
+            continue
+        swapped = seed != current
+        if within(seed, space.stiff_positions | (~swapped & keeps_stiff), stock, stiff_stock):
+            costs, bases = search.evaluate(seed)
+            if np.all(np.isfinite(costs)):
+                front.record(Candidate(seed.copy(), swapped, costs, bases, float(search.weights @ costs)))
+    for candidate in extra:
+        front.record(candidate)
+    run = Run(current, keeps_stiff, releasable, stock, stiff_stock, front.limit, front.record)
+    status, placed, nodes = Status.CERTIFIED, search.placements, 0
     try:
-        control.report(0.0, best[blocks], 0)
-        while frames:
-            depth = len(frames) - 2  # blocks placed at the node whose children this frame holds
-            frame = frames[-1]
-            if frame[0] >= len(frame[1]):
-                frames.pop()
-                if depth >= 1:
-                    place(path[depth - 1], depth - 1, -1)
-                    path[depth - 1] = -1
-                continue
-            bound, s, after = frame[1][frame[0]]
-            frame[0] += 1
-            if bound >= best[after]:
-                continue
-            if depth < 0:  # a base per object
-                states = [(poses, alphas, np.arange(len(alive)) == combos[s, i])
-                          for i, (poses, alphas, alive) in enumerate(roots)]
-                frames.append([0, children(0, states, 0), states])
-                continue
-            if depth + 1 == blocks:
-                costs, bases, partial = np.empty(n_objects), np.empty(n_objects, np.int64), 0.0
-                for i, (problem, (poses, alphas, alive)) in enumerate(zip(problems, frame[2])):
-                    costs[i], bases[i] = _leaf_exact(problem, poses, alphas, alive, s)
-                    partial += weights[i] * costs[i] if costs[i] < np.inf else np.inf  # inf: it collides
-                    if partial >= best[after]:
-                        break
-                else:
-                    path[depth] = s
-                    record(path.copy(), costs, bases)
-                    path[depth] = -1
-                continue
-            states = []
-            for problem, (poses, alphas, alive) in zip(problems, frame[2]):
-                out = (np.empty_like(poses), np.empty_like(alphas), np.empty_like(alive))
-                if not _child(problem, poses, alphas, alive, s, *out):
-                    break
-                states.append(out)
-            else:
-                path[depth] = s
-                place(s, depth, +1)
-                frames.append([0, children(depth + 1, states, after), states])
-                stats["nodes"] += 1
-                if stats["nodes"] % CHECK_EVERY == 0:
-                    nit += 1
-                    control.report(frames[0][0] / len(frames[0][1]), best[blocks], stats["placements"])
+        nodes = search.run(run, control)
     except Stop as stop:
         status = stop.status
-    lower = best.copy()
-    for frame in frames:  # prefixes not yet visited
-        for bound, _, after in frame[1][frame[0]:]:
-            lower[after:] = np.minimum(lower[after:], bound)
-    swaps = np.array([int(np.sum(best_shapes[s] != current)) if best_shapes[s, 0] >= 0 else -1
-                      for s in range(blocks + 1)])
+    lower = front.best.copy()
+    for bound, after in run.frontier():  # prefixes not yet visited
+        lower[after:] = np.minimum(lower[after:], bound)
     lower = np.maximum(lower, floor)
+    return front_result(front, lower, status, nodes=nodes, nfev=search.placements - placed, elapsed=control.elapsed,
+                        objects=len(targets))
+
+
+def front_result(front: Front, lower, status: Status, *, nodes: int, nfev: int, elapsed: float,
+                 objects: int) -> FrontResult:
+    """The result of a finished or stopped front: ``lower`` the proven bound per budget."""
+    best, blocks = front.best, len(front.best) - 1
     optimal = np.full(blocks + 1, status == Status.CERTIFIED) | (best <= lower + 1e-12)
     found = np.isfinite(best)
     if status == Status.CERTIFIED and not found[-1]:
         status = Status.INFEASIBLE
     message = MESSAGES[status] if status != Status.CERTIFIED else "every swap budget certified"
     message += f" (best {best[-1]:.6g} m with up to {blocks} swaps)" if found[-1] else ""
+    chosen = front.chosen
+    none = np.full(blocks, -1, np.int64)
     return FrontResult(
-        fun=best, lower_bound=np.where(optimal, best, lower), optimal=optimal, shapes=best_shapes, bases=best_bases,
-        object_costs=best_costs, swaps=swaps, success=bool(found[-1]), status=status, message=message, nit=nit,
-        nfev=stats["placements"], solve_time=control.elapsed)
+        fun=best, lower_bound=np.where(optimal, best, lower), optimal=optimal,
+        shapes=np.array([none if c is None else c.shapes for c in chosen]),
+        swapped=np.array([np.zeros(blocks, bool) if c is None else c.swapped for c in chosen]),
+        bases=np.array([np.full(objects, -1) if c is None else c.bases for c in chosen], np.int64),
+        object_costs=np.array([np.full(objects, np.inf) if c is None else c.costs for c in chosen]),
+        swaps=np.array([-1 if c is None else c.swaps for c in chosen]), candidates=list(chosen),
+        success=bool(found[-1]), status=status, message=message, nit=nodes, nfev=nfev, solve_time=elapsed)
