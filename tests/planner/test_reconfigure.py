@@ -18,6 +18,7 @@ from planner.optimize import Status, design_costs, design_space
 from planner.optimize.front_search import solve_finger_front
 from planner.reconfigure import FingerSlot, TargetObject, plan_reconfiguration, swap_steps
 from planner.table import load_table
+from reconfigure_brute import generated_contours, plan_brute_force
 
 pytestmark = pytest.mark.fast
 
@@ -120,6 +121,111 @@ def test_pair_plan_equals_brute_force_and_its_steps_rebuild_it():
     assert len(steps) >= chosen.swaps and steps[-1].assembly == chosen.assembly
     assert Counter(d for c in chosen.assembly.chains for d in c.design_ids) <= pool
     assert "insert design" in steps[0].describe() or "remove design" in steps[0].describe()
+
+
+def replay(built, target, shelf, steps):
+    """Apply the steps one by one: each takes out the block the position holds and inserts one the shelf
+    holds at that moment; returns the layout at the end."""
+    layout = {c.name: [b.design_id for b in c.blocks] for c in built.chains}
+    stock = Counter({d: n for d, n in shelf.items() if n})
+    for step in steps:
+        assert layout[step.chain][step.position] == step.remove
+        if step.remove is not None:
+            stock[step.remove] += 1
+        if step.insert is not None:
+            assert stock[step.insert] > 0, f"over-drawn: {step.describe()}"
+            stock[step.insert] -= 1
+        layout[step.chain][step.position] = step.insert
+        assert {d: n for d, n in stock.items() if n} == step.shelf
+    assert layout == {c.name: list(c.design_ids) for c in target.chains}
+    return layout
+
+
+def assert_plan_is_brute_force(built, shelf, objects, slots, result):
+    """Every point against brute force: certified points equal to it, every bound at most it, "no gripper"
+    only where there is none; each point's steps rebuild its robot without over-drawing the shelf."""
+    expected = plan_brute_force(built, shelf, objects, slots)
+    assert len(result.points) == len(expected)
+    for point, best in zip(result.points, expected):
+        assert point.lower_bound <= best + 1e-9, (point.max_swaps, point.lower_bound, best)
+        assert point.objective >= best - 1e-9
+        if point.optimal:
+            assert point.objective == pytest.approx(best, abs=1e-9) or np.isinf(best) == np.isinf(point.objective)
+            assert np.isinf(best) == np.isinf(point.objective), (point.max_swaps, point.objective, best)
+        if point.assembly is None:
+            continue
+        steps = swap_steps(built, point.assembly, shelf)
+        replay(built, point.assembly, shelf, steps)
+        assert sum(s.insert is not None for s in steps) == point.swaps <= point.max_swaps
+        rotated = sum(a.rotation_steps != b.rotation_steps for slot in slots for a, b in
+                      zip(built.chain(slot.chain).blocks, point.assembly.chain(slot.chain).blocks))
+        assert rotated <= point.swaps
+    if result.status == Status.CERTIFIED:
+        assert all(p.optimal for p in result.points) and result.success
+    if not result.success:
+        assert result.status in (Status.INFEASIBLE, Status.TIME_BUDGET, Status.CANCELED)
+        assert result.status != Status.INFEASIBLE or np.isinf(expected).all()
+
+
+def test_fingers_that_want_the_same_shelf_blocks_still_get_the_best_gripper():
+    """Both fingers' own best fingers want the shelf's only 29 and 24: the gripper must share them out (it
+    was reported as "no gripper", certified)."""
+    slots = (FingerSlot("left", "left"), FingerSlot("right", "right"))
+    built, shelf = robot((18, 12), (17, 23)), {29: 1, 24: 1}
+    objects = [TargetObject("lumpy99", contours_of("generated", 99))]
+    result = plan_reconfiguration(built, shelf, objects, slots=slots)
+    assert result.success and result.status == Status.CERTIFIED
+    assert_plan_is_brute_force(built, shelf, objects, slots, result)
+
+
+CONTESTED = (3, 12, 18, 24, 29, 40, 45, 57, 64, 71)  # 45 and later stiff
+
+
+@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.data())
+def test_plans_equal_brute_force_on_scarce_shelves(data):
+    """Built robots (some blocks mirrored at snap-fit 6), scarce shelves the fingers compete for, and
+    objects the planner has not seen: every point as brute force finds it."""
+    blocks = data.draw(st.sampled_from((2, 2, 3)), label="blocks")
+    stiff_top = data.draw(st.integers(0, 1), label="stiff top")
+    slots = (FingerSlot("left", "left", stiff_top), FingerSlot("right", "right", stiff_top))
+
+    def finger():
+        return tuple(PlacedBlock(data.draw(st.sampled_from(CONTESTED[6:] if k < stiff_top else CONTESTED)),
+                                 data.draw(st.sampled_from((0, 0, 0, 6)))) for k in range(blocks))
+
+    built = Assembly("pair", (Chain("left", "main", finger()), Chain("right", "main", finger())))
+    shelf = {d: data.draw(st.integers(0, 1)) for d in data.draw(st.sets(st.sampled_from(CONTESTED), max_size=5))}
+    kinds = data.draw(st.lists(st.tuples(st.sampled_from(("ellipse", "polygon", "lumpy")), st.integers(0, 999)),
+                               min_size=1, max_size=2), label="objects")
+    objects = [TargetObject(f"{kind}{seed}", generated_contours(kind, seed), weight=1.0 / (1 + k))
+               for k, (kind, seed) in enumerate(kinds)]
+    result = plan_reconfiguration(built, shelf, objects, slots=slots)
+    assert_plan_is_brute_force(built, shelf, objects, slots, result)
+
+
+def test_a_mirrored_block_of_the_robot_counts_as_built():
+    """A block at snap-fit 6 bends to the other side, and every block after it too: the robot as built
+    (0 swaps) is that finger, kept with its rotation; re-seating the block upright is one swap. At any
+    other snap-fit the finger leaves the plane: no finger as built."""
+    slots = (FingerSlot("left", "left"), FingerSlot("right", "right"))
+    objects = [TargetObject("ellipse", generated_contours("ellipse", 5))]
+    upright = plan_reconfiguration(robot((64, 40), (64, 40)), {}, objects, slots=slots)
+    mirrored = Assembly("pair", (Chain("left", "main", (PlacedBlock(64), PlacedBlock(40, 6))),
+                                 Chain("right", "main", (PlacedBlock(64), PlacedBlock(40)))))
+    result = plan_reconfiguration(mirrored, {}, objects, slots=slots)
+    assert_plan_is_brute_force(mirrored, {}, objects, slots, result)
+    as_built = result.points[0]
+    assert as_built.optimal and as_built.swaps == 0
+    assert as_built.objective != pytest.approx(upright.points[0].objective, abs=1e-6)
+    assert [b.rotation_steps for b in as_built.assembly.chain("left").blocks] == [0, 6]
+    turned = Assembly("pair", (Chain("left", "main", (PlacedBlock(64), PlacedBlock(40, 3))),
+                               Chain("right", "main", (PlacedBlock(64), PlacedBlock(40)))))
+    out_of_plane = plan_reconfiguration(turned, {}, objects, slots=slots)
+    assert np.isinf(out_of_plane.points[0].objective) and out_of_plane.points[0].optimal
+    steps = swap_steps(turned, out_of_plane.points[1].assembly, {})
+    assert [s.describe() for s in steps] == ["finger left, position 1: remove design 40, insert design 40 at "
+                                             "rotation step 0"]
 
 
 def test_a_robot_that_already_fits_plans_zero_swaps():
