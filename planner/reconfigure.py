@@ -132,7 +132,7 @@ class ReconfigurationResult:
         return tuple(kept)
 
 
-def _check_shelf(shelf, table) -> dict[int, int]:
+def check_shelf(shelf, table) -> dict[int, int]:
     if not isinstance(shelf, dict):
         raise ValueError("shelf must map design IDs to block counts")
     known = set(int(i) for i in table.ids)
@@ -257,7 +257,7 @@ def plan_reconfiguration(assembly: Assembly, shelf: dict[int, int], objects, *, 
     ``time_budget`` [s] is shared by the searches; ``callback(Progress)`` may raise StopIteration to cancel
     (every point then carries its proven bound)."""
     table = load_table() if table is None else table
-    shelf = _check_shelf(shelf, table)
+    shelf = check_shelf(shelf, table)
     _check_slots(assembly, slots)
     _check_objects(objects)
     if time_budget is not None and not (np.isfinite(time_budget) and time_budget > 0):
@@ -278,21 +278,21 @@ def plan_reconfiguration(assembly: Assembly, shelf: dict[int, int], objects, *, 
         own = []  # each object's own optimum (the compiled single-object search) to start from; when all
         for j, target in enumerate(finger.targets):  # are certified, their weighted sum bounds every finger
             own.append(solve_finger(target, finger.space, time_budget=remaining(count - 2 * index - 1),
-                                    callback=_cancel if canceled else
-                                    _share(callback, 2 * index + j / len(finger.targets), count,
+                                    callback=cancel_now if canceled else
+                                    share_progress(callback, 2 * index + j / len(finger.targets), count,
                                            1.0 / len(finger.targets))))
             canceled |= own[-1].status == Status.CANCELED
         front = solve_finger_front(
             finger.targets, finger.weights, finger.space, current=finger.current, stock=finger.shared[0],
             stiff_stock=finger.shared[1], time_budget=remaining(count - 2 * index - 1),
-            callback=_cancel if canceled else _share(callback, 2 * index + 1, count),
+            callback=cancel_now if canceled else share_progress(callback, 2 * index + 1, count),
             starts=[r.shapes for r in own], floor=float(finger.weights @ [r.lower_bound for r in own]),
             search=finger.search, keeps_stiff=finger.keeps_stiff, releasable=finger.releasable, extra=finger.extra)
         canceled |= front.status == Status.CANCELED
         fronts[finger.slot.chain] = front
     pool_stock, pool_stiff = fingers[0].limits(pool)
     joint = solve_gripper_front([f.problem(fronts[f.slot.chain]) for f in fingers], pool_stock, pool_stiff,
-                                RunControl(remaining(1.0), _cancel if canceled else _share(callback, count - 1, count)))
+                                RunControl(remaining(1.0), cancel_now if canceled else share_progress(callback, count - 1, count)))
     points = _points(assembly, shelf, fingers, joint)
     status = joint.status
     if canceled:
@@ -314,11 +314,11 @@ def plan_reconfiguration(assembly: Assembly, shelf: dict[int, int], objects, *, 
                                  fronts=fronts, solve_time=time.perf_counter() - started)
 
 
-def _cancel(progress):
+def cancel_now(progress):
     raise StopIteration
 
 
-def _share(callback, start: float, count: int, width: float = 1.0):
+def share_progress(callback, start: float, count: int, width: float = 1.0):
     """Progress of one search as a fraction of the whole plan of ``count`` searches: it spans ``width`` of
     them from ``start``."""
     if callback is None:

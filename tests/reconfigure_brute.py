@@ -118,3 +118,27 @@ def plan_brute_force(robot, shelf, objects, slots):
         within = costs[swaps <= s]
         best[s] = within.min(initial=np.inf)
     return best
+
+
+def path_brute_force(chain, shelf, path):
+    """best[s] for a chain along ``path``: every chain of the shelf's and the chain's own blocks, at every
+    snap-fit rotation; a swap is a position whose block or rotation changes."""
+    from planner.objectives import path_target
+    pool = Counter({d: n for d, n in shelf.items() if n > 0}) + Counter(b.design_id for b in chain.blocks)
+    blocks = len(chain.blocks)
+    space = design_space(TABLE, blocks, allow_rotation=True)
+    shape_of = {d: s for s, m in enumerate(space.members) for d in m}
+    tuples = [t for t in itertools.product(sorted(pool), repeat=blocks)
+              if all(n <= pool[d] for d, n in Counter(t).items())]
+    rotations = np.array(list(itertools.product(range(12), repeat=blocks)))
+    target = path_target(path)
+    now_ids = np.array([b.design_id for b in chain.blocks])
+    now_rotations = np.array([b.rotation_steps for b in chain.blocks])
+    best = np.full(blocks + 1, np.inf)
+    for t in tuples:
+        shapes = np.repeat(np.array([[shape_of[d] for d in t]]), len(rotations), axis=0)
+        costs = design_costs(target, space, shapes, rotations, np.zeros(len(rotations), int))
+        swaps = ((np.array(t) != now_ids) | (rotations != now_rotations)).sum(axis=1)
+        for s in range(blocks + 1):
+            best[s] = min(best[s], costs[swaps <= s].min(initial=np.inf))
+    return best
