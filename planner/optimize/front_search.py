@@ -256,19 +256,33 @@ class FingerFrontSearch:
 
 class Front:
     """The best candidate per swap budget 0..N so far (``best``, ``chosen``), and the limit a search
-    prunes with: ``best`` itself, or lower where ``ceiling`` says a caller needs nothing above it."""
+    prunes with. A finger with v swaps matters only below min(best[v], ``ceiling[v]``) (a caller's need), and
+    not at all where ``floor[v]`` (a proven bound on every finger with at most v swaps) reaches that: a
+    prefix with u swaps is searched below the largest such cap over v >= u."""
 
-    def __init__(self, blocks: int, ceiling=None):
+    def __init__(self, blocks: int, ceiling=None, floor=None):
         self.best = np.full(blocks + 1, np.inf)
         self.chosen: list[Candidate | None] = [None] * (blocks + 1)
         self.ceiling = np.full(blocks + 1, np.inf) if ceiling is None else np.asarray(ceiling, float).copy()
-        self.limit = self.ceiling.copy()
+        self.floor = np.full(blocks + 1, -np.inf) if floor is None else np.asarray(floor, float)
+        self.limit = np.empty(blocks + 1)
+        self.tighten()
+
+    def tighten(self, ceiling=None) -> None:
+        """Lower the ceiling (when given) and recompute the limit in place (searches hold it)."""
+        if ceiling is not None:
+            np.minimum(self.ceiling, ceiling, out=self.ceiling)
+        cap = np.minimum(self.best, self.ceiling)
+        self.limit[:] = np.maximum.accumulate(np.where(self.floor < cap, cap, -np.inf)[::-1])[::-1]
 
     def record(self, candidate: Candidate) -> None:
+        improved = False
         for s in range(candidate.swaps, len(self.best)):
             if candidate.cost < self.best[s]:
                 self.best[s], self.chosen[s] = candidate.cost, candidate
-        np.minimum(self.limit, self.best, out=self.limit)
+                improved = True
+        if improved:
+            self.tighten()
 
 
 def within(shapes, stiff_used, stock, stiff_stock) -> bool:

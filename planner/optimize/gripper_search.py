@@ -96,19 +96,29 @@ def solve_gripper_front(fingers: list[FingerProblem], stock, stiff_stock, contro
     for finger in reversed(fingers):
         rest.insert(0, convolve(finger.relaxed.lower_bound, rest[0]))
     inc, chosen = np.full(total + 1, np.inf), [None] * (total + 1)
-    active, cache = [], {}
+    active, cache, done = [], {}, [0.0]
+
+    def top(share: float) -> float:  # the first finger's search tells how far the whole search is
+        done[0] = share
+        return fraction(share)
+
+    def inner(_share: float) -> float:
+        return fraction(done[0])
     stock, stiff_stock = np.asarray(stock, np.int64), np.asarray(stiff_stock, np.int64)
 
-    def margin(j, cost, swaps, blocks) -> np.ndarray:
-        """Per swap count u of finger j: the largest cost it may have and still improve some budget."""
-        after = rest[j + 1]
-        out = np.full(blocks + 1, -np.inf)
-        for u in range(blocks + 1):
+    def margin(j, cost, swaps) -> np.ndarray:
+        """Per swap count u of finger j's prefixes: the largest cost finger j may have and still improve some
+        budget s, given the cost and swaps of the fingers before it, its own bound for u' >= u swaps and the
+        bounds of the fingers after it (-inf: no budget left to improve)."""
+        floor, after = fingers[j].relaxed.lower_bound, rest[j + 1]
+        best_at = np.full(len(floor), -np.inf)
+        for u in range(len(floor)):
             budgets = np.arange(swaps + u, total + 1)
             later = after[np.minimum(budgets - swaps - u, len(after) - 1)]
-            values = np.where(np.isinf(later), -np.inf, inc[budgets] - cost - np.where(np.isinf(later), 0.0, later))
-            out[u] = values.max(initial=-np.inf)
-        return out
+            reachable = np.isfinite(later) & (cost + floor[u] + later < inc[budgets])
+            if reachable.any():
+                best_at[u] = np.max(inc[budgets][reachable] - cost - later[reachable])
+        return np.maximum.accumulate(best_at[::-1])[::-1]
 
     def offer(picked) -> None:
         cost, swaps = sum(c.cost for c in picked), sum(c.swaps for c in picked)
@@ -128,7 +138,7 @@ def solve_gripper_front(fingers: list[FingerProblem], stock, stiff_stock, contro
         key = (j, np.minimum(left, finger.blocks).tobytes(), np.minimum(left_stiff, finger.blocks).tobytes())
         front = cache.get(key)
         if front is None or np.any(ceiling > front.ceiling):
-            front = Front(finger.blocks, ceiling)
+            front = Front(finger.blocks, ceiling, finger.relaxed.lower_bound)
 
             def on_leaf(candidate):
                 front.record(candidate)
@@ -144,15 +154,13 @@ def solve_gripper_front(fingers: list[FingerProblem], stock, stiff_stock, contro
                 front.ceiling[:] = np.inf
             else:
                 def refresh():
-                    np.minimum(front.ceiling, inc[np.minimum(swaps + np.arange(finger.blocks + 1), total)] - cost,
-                               out=front.ceiling)
-                    np.minimum(front.limit, front.ceiling, out=front.limit)
+                    front.tighten(inc[np.minimum(swaps + np.arange(finger.blocks + 1), total)] - cost)
 
                 run = Run(finger.current, finger.keeps_stiff, finger.releasable, left, left_stiff, front.limit,
                           on_leaf)
                 entry = {"j": j, "cost": cost, "swaps": swaps, "run": run, "refresh": refresh}
                 active.append(entry)
-                finger.search.run(run, control, fraction if j == 0 else lambda done: 0.0)
+                finger.search.run(run, control, top if j == 0 else inner)
                 active.remove(entry)
             cache[key] = front
         for candidate in front.chosen:  # a kept front: its points for this choice of the earlier fingers
@@ -165,7 +173,7 @@ def solve_gripper_front(fingers: list[FingerProblem], stock, stiff_stock, contro
             return
         finger = fingers[j]
         left, left_stiff = stock - used, stiff_stock - used_stiff
-        limit = margin(j, cost, swaps, finger.blocks)
+        limit = margin(j, cost, swaps)
 
         def on_leaf(candidate):
             if candidate.cost >= limit[candidate.swaps]:
@@ -175,7 +183,7 @@ def solve_gripper_front(fingers: list[FingerProblem], stock, stiff_stock, contro
                     picked + [candidate])
 
         def refresh():
-            limit[:] = margin(j, cost, swaps, finger.blocks)
+            limit[:] = margin(j, cost, swaps)
 
         run = Run(finger.current, finger.keeps_stiff, finger.releasable, left, left_stiff, limit, on_leaf)
         entry = {"j": j, "cost": cost, "swaps": swaps, "run": run, "refresh": refresh}
@@ -183,18 +191,21 @@ def solve_gripper_front(fingers: list[FingerProblem], stock, stiff_stock, contro
         for candidate in finger.seeds():  # the likely answers first: good grippers to prune with
             if finger.fits(candidate, left, left_stiff):
                 on_leaf(candidate)
-        finger.search.run(run, control, fraction if j == 0 else lambda done: 0.0)
+        finger.search.run(run, control, top if j == 0 else inner)
         active.remove(entry)
 
-    status = Status.CERTIFIED
+    status, begun = Status.CERTIFIED, False
     bound = rest[0][:total + 1]
     try:
         control.report(fraction(0.0), inc[-1], 0)
+        begun = True
         descend(0, 0.0, 0, np.zeros_like(stock), np.zeros_like(stock), [])
     except Stop as stop:
         status = stop.status
     if status == Status.CERTIFIED:
         lower = inc.copy()
+    elif not begun:  # stopped before anything was searched: the relaxed fronts' bounds
+        lower = bound.copy()
     else:
         lower = inc.copy()
         for entry in active:

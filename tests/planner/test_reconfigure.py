@@ -178,6 +178,24 @@ def test_fingers_that_want_the_same_shelf_blocks_still_get_the_best_gripper():
     assert_plan_is_brute_force(built, shelf, objects, slots, result)
 
 
+@pytest.mark.parametrize("reports", [1, 4, 16, 32, 48])
+def test_a_plan_stopped_anywhere_keeps_bounds_below_the_optimum(reports):
+    """Canceled after a number of progress reports (in the fingers' own fronts, or while they are combined
+    over the contested shelf): every point's bound stays at or below brute force, every certified point is it."""
+    slots = (FingerSlot("left", "left"), FingerSlot("right", "right"))
+    built, shelf = robot((18, 12, 40), (17, 23, 40)), {29: 1, 24: 1, 3: 1}
+    objects = [TargetObject("lumpy99", contours_of("generated", 99))]
+    heard = []
+
+    def cancel_late(progress):
+        heard.append(progress)
+        if len(heard) >= reports:
+            raise StopIteration
+
+    result = plan_reconfiguration(built, shelf, objects, slots=slots, callback=cancel_late)
+    assert_plan_is_brute_force(built, shelf, objects, slots, result)
+
+
 CONTESTED = (3, 12, 18, 24, 29, 40, 45, 57, 64, 71)  # 45 and later stiff
 
 
@@ -274,6 +292,11 @@ def test_a_plans_progress_rises_from_0_to_1():
     _, _, result = pair_plan(callback=lambda progress: fractions.append(progress.fraction))
     assert result.success and fractions
     assert all(0.0 <= f <= 1.0 for f in fractions) and fractions == sorted(fractions), fractions
+    fractions.clear()  # fingers that compete for the shelf: their combined search reports too
+    built, shelf = robot((18, 12, 40), (17, 23, 40)), {29: 1, 24: 1, 3: 1}
+    result = plan_reconfiguration(built, shelf, [TargetObject("lumpy99", contours_of("generated", 99))], slots=SLOTS,
+                                  callback=lambda progress: fractions.append(progress.fraction))
+    assert result.success and fractions == sorted(fractions), fractions
 
 
 @pytest.mark.parametrize("change, match", [
