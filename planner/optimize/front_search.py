@@ -184,12 +184,15 @@ class FingerFrontSearch:
         stiff = np.full(len(shape), bool(self.space.stiff_positions[depth])) | (kept & run.keeps_stiff[depth])
         usable = ((total < run.limit[after]) & (counts[shape] < run.stock[shape])
                   & (~stiff | (stiff_counts[shape] < run.stiff_stock[shape])))
-        entries = [(float(total[k]), int(shape[k]), int(after[k]), bool(stiff[k])) for k in np.flatnonzero(usable)]
+        picked = np.flatnonzero(usable)
+        picked = picked[np.argsort(total[picked], kind="stable")]
+        entries = list(zip(total[picked].tolist(), shape[picked].tolist(), after[picked].tolist(),
+                           stiff[picked].tolist()))
         if run.releasable[depth]:
             for k in np.flatnonzero(kept):
                 if total[k] < run.limit[swaps + 1] and counts[shape[k]] < run.stock[shape[k]]:
                     entries.append((float(total[k]), int(shape[k]), swaps + 1, False))
-        entries.sort(key=lambda entry: entry[0])
+            entries.sort(key=lambda entry: entry[0])
         return entries
 
     def run(self, run: Run, control: RunControl, fraction=lambda done: done) -> int:
