@@ -95,6 +95,34 @@ def _leaf_exact(problem, poses, alphas, alive, s):
     return best, best_base
 
 
+@njit(cache=True, nogil=True)
+def _admissible(total, shape, current, keeps_stiff, stiff_position, releasable, swaps, limit, counts, stock,
+                stiff_counts, stiff_stock):
+    """The children of a node worth visiting, lowest bound first: (bound, shape, swaps after, whether it
+    takes a stiff block). A child is kept when its bound is below ``limit[swaps after]`` and its shape is
+    still in stock (a stiff block too, where one is needed); a releasable position also offers its own
+    shape with another block of it (one swap more, any block)."""
+    count = len(shape)
+    bounds, shapes = np.empty(count + 1), np.empty(count + 1, np.int64)
+    afters, stiff = np.empty(count + 1, np.int64), np.empty(count + 1, np.bool_)
+    m = 0
+    for k in range(count):
+        s = shape[k]
+        kept = s == current
+        after = swaps if kept else swaps + 1
+        needs_stiff = stiff_position or (kept and keeps_stiff)
+        if counts[s] >= stock[s]:
+            continue
+        if total[k] < limit[after] and (not needs_stiff or stiff_counts[s] < stiff_stock[s]):
+            bounds[m], shapes[m], afters[m], stiff[m] = total[k], s, after, needs_stiff
+            m += 1
+        if kept and releasable and total[k] < limit[swaps + 1]:
+            bounds[m], shapes[m], afters[m], stiff[m] = total[k], s, swaps + 1, False
+            m += 1
+    order = np.argsort(bounds[:m], kind="mergesort")
+    return bounds[order], shapes[order], afters[order], stiff[order]
+
+
 @dataclass(frozen=True)
 class Candidate:
     """One complete finger: its shapes, which positions change their block (``swapped``), each object's
@@ -179,21 +207,10 @@ class FingerFrontSearch:
             _node_bounds(problem, depth, poses, alphas, alive, leaf, self.scratch, per_object)
             total += weight * per_object
         self.placements += len(shape) * len(self.problems)
-        kept = shape == run.current[depth]
-        after = swaps + ~kept
-        stiff = np.full(len(shape), bool(self.space.stiff_positions[depth])) | (kept & run.keeps_stiff[depth])
-        usable = ((total < run.limit[after]) & (counts[shape] < run.stock[shape])
-                  & (~stiff | (stiff_counts[shape] < run.stiff_stock[shape])))
-        picked = np.flatnonzero(usable)
-        picked = picked[np.argsort(total[picked], kind="stable")]
-        entries = list(zip(total[picked].tolist(), shape[picked].tolist(), after[picked].tolist(),
-                           stiff[picked].tolist()))
-        if run.releasable[depth]:
-            for k in np.flatnonzero(kept):
-                if total[k] < run.limit[swaps + 1] and counts[shape[k]] < run.stock[shape[k]]:
-                    entries.append((float(total[k]), int(shape[k]), swaps + 1, False))
-            entries.sort(key=lambda entry: entry[0])
-        return entries
+        bounds, shapes, afters, stiff = _admissible(
+            total, shape, run.current[depth], bool(run.keeps_stiff[depth]), bool(self.space.stiff_positions[depth]),
+            bool(run.releasable[depth]), swaps, run.limit, counts, run.stock, stiff_counts, run.stiff_stock)
+        return list(zip(bounds.tolist(), shapes.tolist(), afters.tolist(), stiff.tolist()))
 
     def run(self, run: Run, control: RunControl, fraction=lambda done: done) -> int:
         """Search every finger whose bound stays below ``run.limit``; returns the nodes expanded. ``control``
