@@ -123,6 +123,115 @@ def _admissible(total, shape, current, keeps_stiff, stiff_position, releasable, 
     return bounds[order], shapes[order], afters[order], stiff[order]
 
 
+CHECKPOINT, LEAF, DONE = 0, 1, 2  # why the compiled search returned
+
+
+@njit(cache=True, nogil=True)
+def _expand(problems, weights, sizes, level, blocks, poses, alphas, alive, choices, n_choices, current, keeps_stiff,
+            stiff_positions, releasable, swaps, limit, counts, stock, stiff_counts, stiff_stock, scratch, per_object,
+            total, state_bounds, state_shapes, state_afters, state_stiff, count, placements):
+    """The admissible children of the node at ``level`` (its object states at index ``level``), lowest bound
+    first, into the level's rows of the child lists."""
+    leaf = level + 1 == blocks
+    n = n_choices[level]
+    total[:n] = 0.0
+    for i in range(len(problems)):
+        b, q = sizes[i, 0], sizes[i, 1]
+        _node_bounds(problems[i], level, poses[i, level, :b], alphas[i, level, :b, :q], alive[i, level, :b], leaf,
+                     scratch, per_object)
+        for k in range(n):
+            total[k] += weights[i] * per_object[k]
+    placements[0] += n * len(problems)
+    bounds, shapes, afters, stiff = _admissible(total[:n], choices[level, :n], current[level], keeps_stiff[level],
+                                                stiff_positions[level], releasable[level], swaps, limit, counts, stock,
+                                                stiff_counts, stiff_stock)
+    m = len(bounds)
+    state_bounds[level, :m], state_shapes[level, :m] = bounds, shapes
+    state_afters[level, :m], state_stiff[level, :m] = afters, stiff
+    count[level] = m
+
+
+@njit(cache=True, nogil=True)
+def _search_front(problems, weights, sizes, blocks, choices, n_choices, current, keeps_stiff, stiff_positions,
+                  releasable, limit, stock, stiff_stock, combos, combo_order, combo_bounds, root_poses, root_alphas,
+                  state, check_every):
+    """Resumable depth-first search (see ``FingerFrontSearch.run``): returns LEAF with a complete finger
+    below its limit in the state's leaf rows, CHECKPOINT every ``check_every`` nodes, DONE at the end."""
+    (top, combo_next, next_child, count, bounds, shapes, afters, stiff, node_swaps, path, swapped, stiff_used,
+     counts, stiff_counts, poses, alphas, alive, leaf_costs, leaf_bases, scratch, per_object, total, stats) = state
+    while True:
+        level = top[0]
+        if level < 0:  # the next base per object
+            if combo_next[0] >= len(combo_order):
+                return DONE
+            j = combo_order[combo_next[0]]
+            combo_next[0] += 1
+            if combo_bounds[j] >= limit[0]:
+                continue
+            for i in range(len(problems)):
+                b, q = sizes[i, 0], sizes[i, 1]
+                poses[i, 0, :b] = root_poses[i, :b]
+                alphas[i, 0, :b, :q] = root_alphas[i, :b, :q]
+                for base in range(b):
+                    alive[i, 0, base] = base == combos[j, i]
+            node_swaps[0] = 0
+            next_child[0] = 0
+            _expand(problems, weights, sizes, 0, blocks, poses, alphas, alive, choices, n_choices, current,
+                    keeps_stiff, stiff_positions, releasable, 0, limit, counts, stock, stiff_counts, stiff_stock,
+                    scratch, per_object, total, bounds, shapes, afters, stiff, count, stats[1:])
+            top[0] = 0
+            continue
+        if next_child[level] >= count[level]:  # every child done: back to the parent
+            top[0] = level - 1
+            if level >= 1:
+                s = path[level - 1]
+                counts[s] -= 1
+                if stiff_used[level - 1]:
+                    stiff_counts[s] -= 1
+            continue
+        k = next_child[level]
+        next_child[level] += 1
+        s, after = shapes[level, k], afters[level, k]
+        if bounds[level, k] >= limit[after]:
+            continue
+        if level + 1 == blocks:  # a complete finger: each object at its best collision-free base
+            partial = 0.0
+            for i in range(len(problems)):
+                b, q = sizes[i, 0], sizes[i, 1]
+                cost, base = _leaf_exact(problems[i], poses[i, level, :b], alphas[i, level, :b, :q],
+                                         alive[i, level, :b], s)
+                leaf_costs[i], leaf_bases[i] = cost, base
+                partial += weights[i] * cost
+                if partial >= limit[after]:
+                    break
+            else:
+                path[level], swapped[level] = s, after > node_swaps[level]
+                return LEAF
+            continue
+        clear = True
+        for i in range(len(problems)):
+            b, q = sizes[i, 0], sizes[i, 1]
+            if not _child(problems[i], poses[i, level, :b], alphas[i, level, :b, :q], alive[i, level, :b], s,
+                          poses[i, level + 1, :b], alphas[i, level + 1, :b, :q], alive[i, level + 1, :b]):
+                clear = False
+                break
+        if not clear:
+            continue
+        path[level], swapped[level], stiff_used[level] = s, after > node_swaps[level], stiff[level, k]
+        counts[s] += 1
+        if stiff[level, k]:
+            stiff_counts[s] += 1
+        node_swaps[level + 1] = after
+        next_child[level + 1] = 0
+        _expand(problems, weights, sizes, level + 1, blocks, poses, alphas, alive, choices, n_choices, current,
+                keeps_stiff, stiff_positions, releasable, after, limit, counts, stock, stiff_counts, stiff_stock,
+                scratch, per_object, total, bounds, shapes, afters, stiff, count, stats[1:])
+        top[0] = level + 1
+        stats[0] += 1
+        if stats[0] % check_every == 0:
+            return CHECKPOINT
+
+
 @dataclass(frozen=True)
 class Candidate:
     """One complete finger: its shapes, which positions change their block (``swapped``), each object's
@@ -161,11 +270,11 @@ class Run:
     stiff_stock: np.ndarray
     limit: np.ndarray
     on_leaf: object
-    frames: list | None = None  # None: not started
+    frames: object = None  # what the search has not visited yet; None: not started
 
     def frontier(self) -> list[tuple[float, int]]:
         """(bound, swaps) of every child not yet visited: a stopped search proves nothing below them."""
-        return [(entry[0], entry[2]) for frame in self.frames or () for entry in frame[1][frame[0]:]]
+        return [] if self.frames is None else self.frames.frontier()
 
 
 class FingerFrontSearch:
@@ -190,88 +299,76 @@ class FingerFrontSearch:
         self.roots = _object_states(self.problems)
         self.combos, self.combo_bounds = _base_combinations(self.problems, weights, self.roots, self.scratch,
                                                             space.num_blocks)
+        self.combo_order = np.argsort(self.combo_bounds, kind="mergesort")
         self.placements = 0
+        # the compiled search's view: one tuple of problems, per-position choices, per-object states padded
+        self.problems_tuple = tuple(self.problems)
+        self.n_choices = np.array([len(c) for c in self.choices], np.int64)
+        self.choices = np.full((len(self.choices), self.n_choices.max()), -1, np.int64)
+        for k, c in enumerate(space.choices):
+            self.choices[k, :len(c)] = c
+        self.sizes = np.array([[len(poses), alphas.shape[1]] for poses, alphas, _ in self.roots], np.int64)
+        b, q = self.sizes.max(axis=0)
+        self.root_poses, self.root_alphas = np.zeros((len(targets), b, 3)), np.zeros((len(targets), b, q))
+        for i, (poses, alphas, _) in enumerate(self.roots):
+            self.root_poses[i, :len(poses)], self.root_alphas[i, :len(poses), :alphas.shape[1]] = poses, alphas
 
     def evaluate(self, shapes) -> tuple[np.ndarray, np.ndarray]:
         """Each object's cost (inf: colliding at every base) and best base for one complete finger."""
         return _evaluate(self.problems, self.roots, np.asarray(shapes, np.int64))
 
-    def _children(self, run: Run, depth, states, swaps, counts, stiff_counts):
-        """(bound, shape, swaps after, uses a stiff block) of the node's admissible children, lowest bound
-        first."""
-        leaf = depth + 1 == self.space.num_blocks
-        shape = self.choices[depth]
-        total = np.zeros(len(shape))
-        per_object = np.empty(len(shape))
-        for problem, weight, (poses, alphas, alive) in zip(self.problems, self.weights, states):
-            _node_bounds(problem, depth, poses, alphas, alive, leaf, self.scratch, per_object)
-            total += weight * per_object
-        self.placements += len(shape) * len(self.problems)
-        bounds, shapes, afters, stiff = _admissible(
-            total, shape, run.current[depth], bool(run.keeps_stiff[depth]), bool(self.space.stiff_positions[depth]),
-            bool(run.releasable[depth]), swaps, run.limit, counts, run.stock, stiff_counts, run.stiff_stock)
-        return list(zip(bounds.tolist(), shapes.tolist(), afters.tolist(), stiff.tolist()))
+    def _new_state(self) -> tuple:
+        """The compiled search's working arrays (see ``_search_front`` for the order)."""
+        blocks, n_objects, width = self.space.num_blocks, len(self.problems), self.choices.shape[1] + 1
+        b, q = self.sizes.max(axis=0)
+        size = len(self.space.theta)
+        return (np.array([-1]), np.zeros(1, np.int64), np.zeros(blocks, np.int64), np.zeros(blocks, np.int64),
+                np.zeros((blocks, width)), np.zeros((blocks, width), np.int64), np.zeros((blocks, width), np.int64),
+                np.zeros((blocks, width), np.bool_), np.zeros(blocks, np.int64), np.full(blocks, -1, np.int64),
+                np.zeros(blocks, np.bool_), np.zeros(blocks, np.bool_), np.zeros(size, np.int64),
+                np.zeros(size, np.int64), np.zeros((n_objects, blocks, b, 3)), np.zeros((n_objects, blocks, b, q)),
+                np.zeros((n_objects, blocks, b), np.bool_), np.zeros(n_objects), np.zeros(n_objects, np.int64),
+                np.zeros(width), np.zeros(width), np.zeros(width), np.zeros(2, np.int64))
 
     def run(self, run: Run, control: RunControl, fraction=lambda done: done) -> int:
-        """Search every finger whose bound stays below ``run.limit``; returns the nodes expanded. ``control``
-        may raise Stop (the run's frames then hold what is left). ``fraction`` maps the share of base
-        combinations done to the progress reported."""
-        blocks, n_objects, weights = self.space.num_blocks, len(self.problems), self.weights
-        counts, stiff_counts = np.zeros(len(self.space.theta), np.int64), np.zeros(len(self.space.theta), np.int64)
-        path, swapped, stiff_used = np.full(blocks, -1, np.int64), np.zeros(blocks, bool), np.zeros(blocks, bool)
-        # frames[0]: the objects' base combinations; frames[1 + d]: the children of a node with d blocks
-        # placed. Each frame: next entry, entries (bound, choice, swaps after, stiff), object states, swaps.
-        run.frames = [[0, [(float(self.combo_bounds[j]), int(j), 0, False)
-                           for j in np.argsort(self.combo_bounds, kind="mergesort")], self.roots, 0]]
-        frames, nodes = run.frames, 0
-        control.report(fraction(0.0), float(run.limit[-1]), self.placements)
-        while frames:
-            depth = len(frames) - 2  # blocks placed at the node whose children this frame holds
-            frame = frames[-1]
-            if frame[0] >= len(frame[1]):
-                frames.pop()
-                if depth >= 1:
-                    s = path[depth - 1]
-                    counts[s] -= 1
-                    stiff_counts[s] -= stiff_used[depth - 1]
-                    path[depth - 1] = -1
-                continue
-            bound, s, after, stiff = frame[1][frame[0]]
-            frame[0] += 1
-            if bound >= run.limit[after]:
-                continue
-            if depth < 0:  # a base per object
-                states = [(poses, alphas, np.arange(len(alive)) == self.combos[s, i])
-                          for i, (poses, alphas, alive) in enumerate(self.roots)]
-                frames.append([0, self._children(run, 0, states, 0, counts, stiff_counts), states, 0])
-                continue
-            if depth + 1 == blocks:
-                costs, bases, partial = np.empty(n_objects), np.empty(n_objects, np.int64), 0.0
-                for i, (problem, (poses, alphas, alive)) in enumerate(zip(self.problems, frame[2])):
-                    costs[i], bases[i] = _leaf_exact(problem, poses, alphas, alive, s)
-                    partial += weights[i] * costs[i] if costs[i] < np.inf else np.inf  # inf: it collides
-                    if partial >= run.limit[after]:
-                        break
-                else:
-                    path[depth], swapped[depth] = s, after > frame[3]
-                    run.on_leaf(Candidate(path.copy(), swapped.copy(), costs, bases, float(weights @ costs)))
-                    path[depth] = -1
-                continue
-            states = []
-            for problem, (poses, alphas, alive) in zip(self.problems, frame[2]):
-                out = (np.empty_like(poses), np.empty_like(alphas), np.empty_like(alive))
-                if not _child(problem, poses, alphas, alive, s, *out):
-                    break
-                states.append(out)
+        """Search every finger whose bound stays below ``run.limit`` (read at every step: ``run.on_leaf``
+        may lower it); returns the nodes expanded. ``control`` may raise Stop (``run.frontier()`` then holds
+        what is left). ``fraction`` maps the share of base combinations done to the progress reported."""
+        state = self._new_state()
+        run.frames = _Pending(state, self.combo_order, self.combo_bounds)
+        placed = self.placements
+        control.report(fraction(0.0), float(run.limit[-1]), placed)
+        arguments = (self.problems_tuple, self.weights, self.sizes, self.space.num_blocks, self.choices,
+                     self.n_choices, np.asarray(run.current, np.int64), np.asarray(run.keeps_stiff, np.bool_),
+                     np.asarray(self.space.stiff_positions, np.bool_), np.asarray(run.releasable, np.bool_),
+                     run.limit, np.asarray(run.stock, np.int64), np.asarray(run.stiff_stock, np.int64), self.combos,
+                     self.combo_order, self.combo_bounds, self.root_poses, self.root_alphas, state, CHECK_EVERY)
+        path, swapped, leaf_costs, leaf_bases, stats = state[9], state[10], state[17], state[18], state[22]
+        while True:
+            code = _search_front(*arguments)
+            self.placements = placed + int(stats[1])
+            if code == LEAF:
+                run.on_leaf(Candidate(path.copy(), swapped.copy(), leaf_costs.copy(), leaf_bases.copy(),
+                                      float(self.weights @ leaf_costs)))
+            elif code == CHECKPOINT:
+                control.report(fraction(min(max(int(state[1][0]) - 1, 0) / len(self.combo_order), 1.0)),
+                               float(run.limit[-1]), self.placements)
             else:
-                path[depth], swapped[depth], stiff_used[depth] = s, after > frame[3], stiff
-                counts[s] += 1
-                stiff_counts[s] += stiff
-                frames.append([0, self._children(run, depth + 1, states, after, counts, stiff_counts), states, after])
-                nodes += 1
-                if nodes % CHECK_EVERY == 0:
-                    control.report(fraction(frames[0][0] / len(frames[0][1])), float(run.limit[-1]), self.placements)
-        return nodes
+                return int(stats[0])
+
+
+class _Pending:
+    """The children a compiled search has not visited yet, read from its state."""
+
+    def __init__(self, state, combo_order, combo_bounds):
+        self.state, self.combo_order, self.combo_bounds = state, combo_order, combo_bounds
+
+    def frontier(self) -> list[tuple[float, int]]:
+        top, combo_next, next_child, count, bounds, _, afters = self.state[:7]
+        out = [(float(self.combo_bounds[j]), 0) for j in self.combo_order[int(combo_next[0]):]]
+        for level in range(int(top[0]) + 1):
+            out += [(float(bounds[level, k]), int(afters[level, k])) for k in range(next_child[level], count[level])]
+        return out
 
 
 class Front:
