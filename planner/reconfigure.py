@@ -16,8 +16,10 @@ hold at that moment (when swaps form a cycle, one block is taken out first and i
 """
 from __future__ import annotations
 
+import threading
 import time
 from collections import Counter
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -36,6 +38,7 @@ from planner.table import load_table
 
 SIDES = ("left", "right")
 MAX_SHELF_BLOCKS = 10_000  # a shelf description larger than this is a mistake, not a shelf
+WORKERS = 2  # fingers searched side by side (the machine's cores)
 MIRROR_STEPS = SNAP_FITS // 2  # a block at this snap-fit bends to the other side, in the same plane
 
 
@@ -267,32 +270,32 @@ def plan_reconfiguration(assembly: Assembly, shelf: dict[int, int], objects, *, 
     pool = Counter(shelf) + in_robot
     fingers = [_Finger(slot, assembly.chain(slot.chain), objects, pool, table, min_stiff_rod_diameter)
                for slot in slots]
-    fronts, canceled, count = {}, False, 2 * len(fingers) + 1  # progress: seeds and a front per finger, the joint
+    meter = _Meter(callback, 2 * len(fingers) + 1)  # progress: seeds and a front per finger, then the joint
+    rounds = -(-len(fingers) // WORKERS)
+    stage = None if time_budget is None else time_budget * rounds / (rounds + 1) / rounds  # per finger
 
-    def remaining(parts: float):
-        if time_budget is None:
-            return None
-        return max((time_budget - (time.perf_counter() - started)) / parts, 1e-3)
-
-    for index, finger in enumerate(fingers):  # each finger over every block of the robot: bounds, first fingers
-        own = []  # each object's own optimum (the compiled single-object search) to start from; when all
-        for j, target in enumerate(finger.targets):  # are certified, their weighted sum bounds every finger
-            own.append(solve_finger(target, finger.space, time_budget=remaining(count - 2 * index - 1),
-                                    callback=cancel_now if canceled else
-                                    share_progress(callback, 2 * index + j / len(finger.targets), count,
-                                           1.0 / len(finger.targets))))
-            canceled |= own[-1].status == Status.CANCELED
-        front = solve_finger_front(
+    def relaxed(index: int, finger: _Finger) -> FrontResult:
+        """One finger over every block of the robot and the shelf: its bounds and first fingers. Each
+        object's own optimum (the compiled single-object search) starts it; when all are certified, their
+        weighted sum bounds every finger."""
+        begin = time.perf_counter()
+        own = [solve_finger(target, finger.space, time_budget=None if stage is None else stage / 2 / len(objects),
+                            callback=meter.part((index, 0), j / len(objects), 1.0 / len(objects)))
+               for j, target in enumerate(finger.targets)]
+        return solve_finger_front(
             finger.targets, finger.weights, finger.space, current=finger.current, stock=finger.shared[0],
-            stiff_stock=finger.shared[1], time_budget=remaining(count - 2 * index - 1),
-            callback=cancel_now if canceled else share_progress(callback, 2 * index + 1, count),
+            stiff_stock=finger.shared[1], callback=meter.part((index, 1)),
+            time_budget=None if stage is None else max(stage - (time.perf_counter() - begin), 1e-3),
             starts=[r.shapes for r in own], floor=float(finger.weights @ [r.lower_bound for r in own]),
             search=finger.search, keeps_stiff=finger.keeps_stiff, releasable=finger.releasable, extra=finger.extra)
-        canceled |= front.status == Status.CANCELED
-        fronts[finger.slot.chain] = front
+
+    with ThreadPoolExecutor(max_workers=WORKERS) as workers:  # the compiled searches release the GIL
+        fronts = dict(zip([f.slot.chain for f in fingers], workers.map(relaxed, range(len(fingers)), fingers)))
     pool_stock, pool_stiff = fingers[0].limits(pool)
+    budget = None if time_budget is None else max(time_budget - (time.perf_counter() - started), 1e-3)
     joint = solve_gripper_front([f.problem(fronts[f.slot.chain]) for f in fingers], pool_stock, pool_stiff,
-                                RunControl(remaining(1.0), cancel_now if canceled else share_progress(callback, count - 1, count)))
+                                RunControl(budget, meter.part("joint")))
+    canceled = meter.canceled or any(f.status == Status.CANCELED for f in fronts.values())
     points = _points(assembly, shelf, fingers, joint)
     status = joint.status
     if canceled:
@@ -319,11 +322,38 @@ def cancel_now(progress):
 
 
 def share_progress(callback, start: float, count: int, width: float = 1.0):
-    """Progress of one search as a fraction of the whole plan of ``count`` searches: it spans ``width`` of
-    them from ``start``."""
+    """Progress of one search as a fraction of a whole of ``count`` searches: it spans ``width`` of them
+    from ``start``."""
     if callback is None:
         return None
     return lambda p: callback(Progress((start + width * p.fraction) / count, p.best_cost, p.nfev, p.elapsed))
+
+
+class _Meter:
+    """The progress of searches that run side by side, as one: each part reports its own fraction, the
+    plan's is their sum over ``parts`` (never going back), one report at a time. Once the callback has
+    canceled, every later report cancels too."""
+
+    def __init__(self, callback, parts: int):
+        self.callback, self.parts, self.done = callback, parts, {}
+        self.lock, self.shown, self.canceled = threading.Lock(), 0.0, False
+
+    def part(self, key, start: float = 0.0, width: float = 1.0):
+        if self.callback is None:
+            return None
+
+        def report(progress):
+            with self.lock:
+                if self.canceled:
+                    raise StopIteration
+                self.done[key] = start + width * progress.fraction
+                self.shown = max(self.shown, sum(self.done.values()) / self.parts)
+                try:
+                    self.callback(Progress(self.shown, progress.best_cost, progress.nfev, progress.elapsed))
+                except StopIteration:
+                    self.canceled = True
+                    raise
+        return report
 
 
 def _points(assembly, shelf, fingers, joint: GripperFront) -> tuple[ParetoPoint, ...]:

@@ -21,7 +21,7 @@ from planner.objectives import path_target
 from planner.optimize import design_space, solve_exact
 from planner.optimize.path_front import solve_path_front
 from planner.optimize.result import Status
-from planner.reconfigure import ParetoPoint, ReconfigurationResult, cancel_now, share_progress, check_shelf
+from planner.reconfigure import ParetoPoint, ReconfigurationResult, cancel_now, check_shelf, share_progress
 from planner.table import load_table
 
 MAX_PATH_POINTS = 10_000
