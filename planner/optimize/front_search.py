@@ -21,6 +21,8 @@ smallest bound of the prefixes not yet visited with at most that many swaps.
 from __future__ import annotations
 
 import itertools
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -330,44 +332,70 @@ class FingerFrontSearch:
                 np.zeros((n_objects, blocks, b), np.bool_), np.zeros(n_objects), np.zeros(n_objects, np.int64),
                 np.zeros(width), np.zeros(width), np.zeros(width), np.zeros(2, np.int64))
 
-    def run(self, run: Run, control: RunControl, fraction=lambda done: done) -> int:
+    def run(self, run: Run, control: RunControl, fraction=lambda done: done, workers: int = 1) -> int:
         """Search every finger whose bound stays below ``run.limit`` (read at every step: ``run.on_leaf``
         may lower it); returns the nodes expanded. ``control`` may raise Stop (``run.frontier()`` then holds
-        what is left). ``fraction`` maps the share of base combinations done to the progress reported."""
-        state = self._new_state()
-        run.frames = _Pending(state, self.combo_order, self.combo_bounds)
+        what is left). ``fraction`` maps the share of base combinations done to the progress reported.
+        ``workers`` > 1: the base combinations are dealt out to that many threads (the compiled search
+        releases the GIL), which share the limit; ``on_leaf`` and reports are then made one at a time."""
+        workers = max(1, min(workers, len(self.combo_order)))
+        shares = [np.ascontiguousarray(self.combo_order[w::workers]) for w in range(workers)]
+        states = [self._new_state() for _ in shares]
+        run.frames = _Pending(list(zip(states, shares)), self.combo_bounds)
         placed = self.placements
         control.report(fraction(0.0), float(run.limit[-1]), placed)
-        arguments = (self.problems_tuple, self.weights, self.sizes, self.space.num_blocks, self.choices,
-                     self.n_choices, np.asarray(run.current, np.int64), np.asarray(run.keeps_stiff, np.bool_),
-                     np.asarray(self.space.stiff_positions, np.bool_), np.asarray(run.releasable, np.bool_),
-                     run.limit, np.asarray(run.stock, np.int64), np.asarray(run.stiff_stock, np.int64), self.combos,
-                     self.combo_order, self.combo_bounds, self.root_poses, self.root_alphas, state, CHECK_EVERY)
-        path, swapped, leaf_costs, leaf_bases, stats = state[9], state[10], state[17], state[18], state[22]
-        while True:
-            code = _search_front(*arguments)
-            self.placements = placed + int(stats[1])
-            if code == LEAF:
-                run.on_leaf(Candidate(path.copy(), swapped.copy(), leaf_costs.copy(), leaf_bases.copy(),
-                                      float(self.weights @ leaf_costs)))
-            elif code == CHECKPOINT:
-                control.report(fraction(min(max(int(state[1][0]) - 1, 0) / len(self.combo_order), 1.0)),
-                               float(run.limit[-1]), self.placements)
-            else:
-                return int(stats[0])
+        common = (self.problems_tuple, self.weights, self.sizes, self.space.num_blocks, self.choices, self.n_choices,
+                  np.asarray(run.current, np.int64), np.asarray(run.keeps_stiff, np.bool_),
+                  np.asarray(self.space.stiff_positions, np.bool_), np.asarray(run.releasable, np.bool_), run.limit,
+                  np.asarray(run.stock, np.int64), np.asarray(run.stiff_stock, np.int64), self.combos)
+        lock, stopped = threading.Lock(), []
+
+        def search(share, state) -> None:
+            arguments = common + (share, self.combo_bounds, self.root_poses, self.root_alphas, state, CHECK_EVERY)
+            path, swapped, leaf_costs, leaf_bases = state[9], state[10], state[17], state[18]
+            while not stopped:
+                code = _search_front(*arguments)
+                with lock:
+                    self.placements = placed + sum(int(st[22][1]) for st in states)
+                    try:
+                        if code == LEAF:
+                            run.on_leaf(Candidate(path.copy(), swapped.copy(), leaf_costs.copy(), leaf_bases.copy(),
+                                                  float(self.weights @ leaf_costs)))
+                        elif code == CHECKPOINT:
+                            done = sum(max(int(st[1][0]) - 1, 0) for st in states) / len(self.combo_order)
+                            control.report(fraction(min(done, 1.0)), float(run.limit[-1]), self.placements)
+                        else:
+                            return
+                    except Stop as stop:
+                        stopped.append(stop)
+                        return
+
+        if workers == 1:
+            search(shares[0], states[0])
+        else:
+            with ThreadPoolExecutor(max_workers=workers) as pool:
+                for future in [pool.submit(search, share, state) for share, state in zip(shares, states)]:
+                    future.result()
+        if stopped:
+            raise stopped[0]
+        return sum(int(state[22][0]) for state in states)
 
 
 class _Pending:
-    """The children a compiled search has not visited yet, read from its state."""
+    """The children the compiled searches (their states and shares of the base combinations) have not
+    visited yet."""
 
-    def __init__(self, state, combo_order, combo_bounds):
-        self.state, self.combo_order, self.combo_bounds = state, combo_order, combo_bounds
+    def __init__(self, searches, combo_bounds):
+        self.searches, self.combo_bounds = searches, combo_bounds
 
     def frontier(self) -> list[tuple[float, int]]:
-        top, combo_next, next_child, count, bounds, _, afters = self.state[:7]
-        out = [(float(self.combo_bounds[j]), 0) for j in self.combo_order[int(combo_next[0]):]]
-        for level in range(int(top[0]) + 1):
-            out += [(float(bounds[level, k]), int(afters[level, k])) for k in range(next_child[level], count[level])]
+        out = []
+        for state, share in self.searches:
+            top, combo_next, next_child, count, bounds, _, afters = state[:7]
+            out += [(float(self.combo_bounds[j]), 0) for j in share[int(combo_next[0]):]]
+            for level in range(int(top[0]) + 1):
+                out += [(float(bounds[level, k]), int(afters[level, k]))
+                        for k in range(next_child[level], count[level])]
         return out
 
 
@@ -509,7 +537,7 @@ def _check_limits(space, current, stock, stiff_stock):
 def solve_finger_front(targets, weights, space: DesignSpace, *, current=None, stock=None, stiff_stock=None,
                        time_budget=None, callback=None, options=None, starts=(), floor: float = 0.0,
                        search: FingerFrontSearch | None = None, keeps_stiff=None, releasable=None,
-                       extra=()) -> FrontResult:
+                       extra=(), workers: int = 2) -> FrontResult:
     """Minimise sum_i weights[i] * cost_i over the fingers of ``space`` (planar, unlimited: its lookahead
     fields are the prepared ones), for every swap budget 0..N from ``current`` (N shape indices; -1 or None:
     every position counts as a swap). ``stock`` / ``stiff_stock`` (one count per shape) limit how often a
@@ -520,8 +548,8 @@ def solve_finger_front(targets, weights, space: DesignSpace, *, current=None, st
     optima), reported where the search's own bound is lower. ``search``: the prepared ``FingerFrontSearch``
     of the same targets (built here when None); ``keeps_stiff`` / ``releasable``: see ``Run`` (default: a
     kept block at a forced-stiff position is stiff, nothing releasable); ``extra``: ``Candidate`` fingers
-    outside the design space to consider too (a finger as built with its rotations). Certified unless
-    stopped (then every budget carries a proven bound)."""
+    outside the design space to consider too (a finger as built with its rotations); ``workers``: threads
+    that share the search. Certified unless stopped (then every budget carries a proven bound)."""
     search = FingerFrontSearch(targets, weights, space, options) if search is None else search
     current, stock, stiff_stock = _check_limits(space, current, stock, stiff_stock)
     blocks = space.num_blocks
@@ -542,7 +570,7 @@ def solve_finger_front(targets, weights, space: DesignSpace, *, current=None, st
     run = Run(current, keeps_stiff, releasable, stock, stiff_stock, front.limit, front.record)
     status, placed, nodes = Status.CERTIFIED, search.placements, 0
     try:
-        nodes = search.run(run, control)
+        nodes = search.run(run, control, workers=workers)
     except Stop as stop:
         status = stop.status
     lower = front.best.copy()
