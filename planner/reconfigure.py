@@ -5,12 +5,16 @@ target: a weighted set of objects, each with its own contour sampling, base offs
 Every finger chain of the robot (a ``FingerSlot``: which side it grasps, how many top blocks must be stiff)
 is redesigned for the weighted sum of the objects' eq. (3) costs.
 
-One *swap* replaces the block at one position; a position whose shape does not change keeps its block.
-``plan_reconfiguration`` returns, for every swap budget from 0 up to a full rebuild, the best gripper it
-found and a proven lower bound: each finger's whole front comes from ``solve_finger_front`` (certified per
-budget), the fronts are combined over the fingers by min-plus convolution, and a combination is only
-taken when the blocks it needs are there (the shelf plus every block it removes; a removed block goes back
-to the shelf). A point is certified when its gripper reaches the convolution of the fingers' bounds.
+One *swap* is an operator action at one position: its block is replaced, or re-seated at another snap-fit;
+a position whose block stays keeps it. The designs are planar with every block at snap-fit 0; the finger
+as built, with blocks at step 6 (mirrored: they and the blocks after them bend the other way), is its own
+0-swap candidate, evaluated as it is; other steps leave the plane: such blocks are re-seated or replaced.
+``plan_reconfiguration`` returns, for every swap budget from 0 up to a full rebuild, the best gripper and a
+proven lower bound: each finger's front over every block of the robot and the shelf comes from
+``solve_finger_front`` (a relaxation that bounds the finger), and ``solve_gripper_front`` combines the
+fingers exactly under the one shelf they share (the shelf plus every block a gripper removes; a removed
+block goes back to the shelf). Complete, every point is certified and "no gripper" is proven; stopped, every
+point carries its bound.
 ``swap_steps`` turns a chosen point into ordered operator steps that never draw a block the shelf does not
 hold at that moment (when swaps form a cycle, one block is taken out first and its position filled last).
 """

@@ -7,10 +7,12 @@ object. The search reuses the compiled kernels of ``planner.optimize.finger_sear
 bound every object's cost below a prefix, per base; the minimum over an object's bases bounds that object,
 and the weighted sum of the objects' bounds bounds the finger.
 
-A *current* finger (the robot as built) turns the search into a Pareto search: a position whose shape
-changes is one block swap, and ``best[s]`` is the lowest objective over fingers with at most ``s`` swaps.
-``best`` does not increase with ``s``, so a prefix with ``u`` swaps so far can only improve some budget if
-its bound is below ``best[u]``; one depth-first search certifies every budget from 0 to N at once. Shape
+A *current* finger (the robot as built) turns the search into a Pareto search: a position that does not
+keep its block is one block swap (see ``Run`` for which blocks may stay), and ``best[s]`` is the lowest
+objective over fingers with at most ``s`` swaps. ``best`` does not increase with ``s``, so a prefix with
+``u`` swaps so far can only improve a budget ``v >= u``, below ``best[v]`` (and not where a proven bound
+already reaches that); one depth-first search certifies every budget from 0 to N at once. It runs compiled
+(``_search_front``) and returns to Python for each finger below its limit and for progress checks. Shape
 counts are limited by ``stock`` (and ``stiff_stock`` for stiff positions), checked as blocks are placed, so
 the lookahead fields stay those of the unlimited space (prepared once, on disk): a restricted set of
 continuations can only be farther away than the full one, so their bounds stay valid.
