@@ -83,6 +83,37 @@ def test_swap_front_equals_brute_force(objects, blocks):
             assert costs[chosen[0]] == pytest.approx(expected, abs=1e-9)
 
 
+def test_a_stiff_block_at_a_free_position_gives_way_when_its_kind_is_needed():
+    """A shape with one stiff and one free block in stock: the free position holds the stiff one, and the
+    forced-stiff position wants that shape too. Keeping it leaves no stiff block for the other position; the
+    free position may take the free block of the same shape instead (one swap). Against brute force over the
+    shapes and both ways of filling the free position."""
+    space = design_space(TABLE, 2, stiff_positions=[0])
+    shape_of, _ = shape_stock(space, {})
+    twin, free = shape_of[57], shape_of[14]
+    stock, stiff_stock = np.zeros(len(space.theta), np.int64), np.zeros(len(space.theta), np.int64)
+    stock[twin], stiff_stock[twin], stock[free] = 2, 1, 1
+    current = np.array([shape_of[64], twin])
+    targets = [design.finger_problems(contours_of("generated", 5), base_offsets=OFFSETS)["left"][0]]
+    front = solve_finger_front(targets, [1.0], space, current=current, stock=stock, stiff_stock=stiff_stock,
+                               keeps_stiff=np.array([True, True]), releasable=np.array([False, True]))
+    best = np.full(3, np.inf)
+    for first, second in itertools.product([twin], [twin, free]):
+        for release in ((False, True) if second == current[1] else (False,)):
+            stiff_use = 1 + (second == twin and not release)
+            if stiff_use > stiff_stock[twin] or [first, second].count(twin) > stock[twin]:
+                continue
+            swaps = int(first != current[0]) + int(second != current[1] or release)
+            cost = weighted_costs(targets, [1.0], space, np.array([[first, second]]))[0]
+            if cost < COLLISION_PENALTY:
+                best[swaps:] = np.minimum(best[swaps:], cost)
+    assert np.isfinite(best[2]), "the scenario needs a collision-free finger"
+    assert front.status == Status.CERTIFIED
+    assert front.fun == pytest.approx(best, abs=1e-9)
+    if front.shapes[2].tolist() == [twin, twin]:
+        assert front.swapped[2].tolist() == [True, True]  # the stiff block gave way: two swaps
+
+
 PAIR_SHELF = {2: 1, 14: 1, 40: 2, 64: 1, 71: 1}
 PAIR_OBJECTS = [("strawberry", None), ("generated", 5)]
 
