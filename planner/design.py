@@ -265,8 +265,9 @@ def prepare_finger_search(configurations=PREPARED_CONFIGURATIONS, table=None, pr
     ellipse = ((rows - 30) / 24.0) ** 2 + ((columns - 20) / 12.0) ** 2 < 1.0
     design_fingers(ellipse, 5e-4, 2, table=table)  # compiles every kernel on a small problem
     target = finger_problems(extract_contours(ellipse, 5e-4))["left"][0]
-    for objects in (1, 2):  # the swap-front search of reconfiguration plans, for one and two objects
-        solve_finger_front([target] * objects, [1.0] * objects, design_space(table, 2))
+    for objects in (1, 2):  # the swap-front search of reconfiguration plans, for one and two objects, from a finger
+        # as built (its evaluation compiles kernels of its own)
+        solve_finger_front([target] * objects, [1.0] * objects, design_space(table, 2), current=np.zeros(2, np.int64))
     report(f"[1/{steps}] kernels ready in {time.perf_counter() - started:.1f} s")
     for step, (blocks, stiff) in enumerate(configurations, start=2):
         started = time.perf_counter()

@@ -118,7 +118,8 @@ def solve_gripper_front(fingers: list[FingerProblem], stock, stiff_stock, contro
             reachable = np.isfinite(later) & (cost + floor[u] + later < inc[budgets])
             if reachable.any():
                 best_at[u] = np.max(inc[budgets][reachable] - cost - later[reachable])
-        return np.maximum.accumulate(best_at[::-1])[::-1]
+        # contiguous, as every other limit: a reversed view would compile the search kernels a second time
+        return np.ascontiguousarray(np.maximum.accumulate(best_at[::-1])[::-1])
 
     def offer(picked) -> None:
         cost, swaps = sum(c.cost for c in picked), sum(c.swaps for c in picked)
