@@ -50,4 +50,14 @@ if [[ "$(cat ros_ws/.build-stamp 2>/dev/null)" != "$ws_hash" || ! -f ros_ws/inst
 fi
 # 3. compiled finger search and its lookahead fields (kept on disk; a few minutes once, then a moment), step by step
 "$venv/bin/python" -m planner prepare-design
+# 4. the sources byte-compiled, and the test modules as pytest rewrites their asserts, once per change of a .py file:
+# where PYTHONDONTWRITEBYTECODE is set, every test worker and node process would compile them again (3 s a worker)
+py_hash="$({ find . \( -path ./.venv -o -path ./ros_ws/build -o -path ./ros_ws/log \) -prune -o -name '*.py' -print0; } \
+    | sort -z | xargs -0 sha256sum | sha256sum | cut -c1-16)"
+if [[ "$(cat .bytecode-stamp 2>/dev/null)" != "$py_hash" ]]; then
+    step "byte-compiling the sources and the test modules"
+    PYTHONDONTWRITEBYTECODE= "$venv/bin/python" -m compileall -q -j 0 ros_ws/install ros_ws/src >/dev/null
+    PYTHONDONTWRITEBYTECODE= scripts/with_env.sh python -m pytest --collect-only -q -p no:cacheprovider tests >/dev/null
+    echo "$py_hash" > .bytecode-stamp
+fi
 step "ready"
