@@ -154,7 +154,8 @@ class ControlClaim:
         if not (isinstance(nonce, str) and len(nonce) <= MAX_NONCE and nonce.isprintable()):
             raise SettingError(f"nonce={nonce!r}: printable, at most {MAX_NONCE} characters")
         self.lapse_if_silent(now)
-        if self.owner == client and not self._confirmed and nonce and hmac.compare_digest(nonce, self._nonce):
+        if (self.owner == client and not self._confirmed and nonce
+                and hmac.compare_digest(nonce.encode(), self._nonce.encode())):  # str: ASCII only
             self._heard(now)
             return self._token
         if self.owner is not None:

@@ -102,6 +102,18 @@ def test_only_the_same_claim_resent_gets_the_same_session():
     assert claim.claim("sequencer", 0.5, nonce="first") == token
 
 
+@given(first=st.text(st.characters(exclude_categories=("Cs",)), min_size=1, max_size=64).filter(str.isprintable),
+       other=st.text(st.characters(exclude_categories=("Cs",)), max_size=64).filter(str.isprintable))
+def test_any_printable_nonce_resent_gets_the_same_session_and_no_other_nonce_does(first, other):
+    """Non-ASCII nonces too (a claim with one was left unanswered: its comparison raised)."""
+    claim = ControlClaim(timeout_s=2.0)
+    token = claim.claim("sequencer", 0.0, nonce=first)
+    assert claim.claim("sequencer", 0.5, nonce=first) == token
+    if other != first:
+        with pytest.raises(ControlError, match="control is held by 'sequencer'"):
+            claim.claim("sequencer", 0.5, nonce=other)
+
+
 @pytest.mark.parametrize("nonce", [None, 7, "x" * 65, "bad\nnonce"])
 def test_a_malformed_nonce_is_refused_naming_the_rule(nonce):
     with pytest.raises(ValueError, match="nonce=.*printable, at most 64 characters"):
