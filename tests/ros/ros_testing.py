@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Callable
 
 import rclpy
@@ -10,15 +11,16 @@ from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 
-from softblock_ros.client import call_service, wait_until
+from softblock_ros.client import ClientError, call_service, wait_until
 from softblock_ros.runner import spin_logging_errors
 
 DEFAULT_TIMEOUT = 15.0  # [s] generous: the suite runs on two loaded cores
+POLL_S = 0.005  # [s] a test's many waits each end this soon after their event
 
 
 def wait_for(predicate: Callable[[], object], timeout: float = DEFAULT_TIMEOUT, what: str = "condition"):
     """Poll ``predicate`` until it returns something truthy and return that; ClientError on timeout."""
-    return wait_until(predicate, timeout, what)
+    return wait_until(predicate, timeout, what, POLL_S)
 
 
 def call(client, request, timeout: float = DEFAULT_TIMEOUT):
@@ -39,16 +41,26 @@ class Inbox:
     def __init__(self, node: Node, msg_type, topic: str, qos: QoSProfile | int = 10):
         self.topic = topic
         self.messages: list = []
+        self._arrived = threading.Condition()
         self._subscription = node.create_subscription(
-            msg_type, topic, self.messages.append, qos, callback_group=MutuallyExclusiveCallbackGroup())
+            msg_type, topic, self._receive, qos, callback_group=MutuallyExclusiveCallbackGroup())
+
+    def _receive(self, message) -> None:
+        with self._arrived:
+            self.messages.append(message)
+            self._arrived.notify_all()
 
     def wait(self, predicate: Callable[[object], bool] = lambda msg: True, timeout: float = DEFAULT_TIMEOUT):
-        """The first message (oldest first, incl. ones already received) that satisfies ``predicate``."""
-
-        def first_match():
-            return next((msg for msg in list(self.messages) if predicate(msg)), None)
-
-        return wait_for(first_match, timeout, what=f"a matching message on {self.topic}")
+        """The first message (oldest first, incl. ones already received) that satisfies ``predicate``; looked
+        for again as each message arrives."""
+        deadline = time.monotonic() + timeout
+        with self._arrived:
+            while (found := next((msg for msg in list(self.messages) if predicate(msg)), None)) is None:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0.0:
+                    raise ClientError(f"timed out after {timeout:g} s waiting for a matching message on {self.topic}")
+                self._arrived.wait(remaining)
+        return found
 
 
 class Spinner:

@@ -47,13 +47,14 @@ class ClientError(RuntimeError):
     """A service or action did not answer, refused, or did not finish in time."""
 
 
-def wait_until(predicate: Callable[[], object], timeout: float, what: str):
-    """Poll ``predicate`` until it returns something truthy and return it; ClientError on timeout."""
+def wait_until(predicate: Callable[[], object], timeout: float, what: str, poll_s: float = 0.02):
+    """Poll ``predicate`` every ``poll_s`` until it returns something truthy and return it; ClientError on
+    timeout."""
     deadline = time.monotonic() + timeout
     while not (value := predicate()):
         if time.monotonic() > deadline:
             raise ClientError(f"timed out after {timeout:g} s waiting for {what}")
-        time.sleep(0.02)
+        time.sleep(poll_s)
     return value
 
 
