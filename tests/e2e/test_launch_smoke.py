@@ -1,5 +1,6 @@
-"""Each node of the shipped stack, launched alone as the launcher starts it (its stack files, its niceness), comes
-up, serves its parameters and stops cleanly on Ctrl-C. What the nodes do is tested in-process (tests/ros)."""
+"""Each node of the shipped stack, launched alone as the launcher starts it (its stack files, its niceness, a
+namespace of its own), comes up, serves its parameters and stops cleanly on Ctrl-C. The nodes start at once, so
+that their start-ups overlap; each test stops its own. What the nodes do is tested in-process (tests/ros)."""
 import io
 import time
 
@@ -45,22 +46,36 @@ def ask_until_answered(executor, service, request):
     return None
 
 
-@pytest.mark.parametrize("name", load_stack().names)
-def test_the_node_starts_alone_serves_its_parameters_and_stops_cleanly(client, tmp_path, name):
-    params = tmp_path / "params.yaml"  # nothing written into the work tree
+@pytest.fixture(scope="module")
+def launched(tmp_path_factory):
+    """Every node of the stack, each launched alone in a namespace of its own, all at once (their start-ups
+    overlap): name -> (its Stack, its output)."""
+    params = tmp_path_factory.mktemp("smoke") / "params.yaml"  # nothing written into the work tree
     # the live view on a free port: its default, 8765, may be another suite's or a user's on this machine
-    params.write_text(f"/**/recorder:\n  ros__parameters:\n    output: {tmp_path / 'recording.mcap'}\n"
+    params.write_text(f"/**/recorder:\n  ros__parameters:\n    output: {params.parent / 'recording.mcap'}\n"
                       "/**/foxglove_bridge:\n  ros__parameters:\n    port: 0\n")
+    stacks = {}
+    try:
+        for name in load_stack().names:
+            output = io.StringIO()
+            stacks[name] = Stack(nodes=[name], params=params, output=output, namespace=f"/smoke_{name}").start(), output
+        yield stacks
+    finally:
+        for stack, _ in stacks.values():
+            stack.stop()
+
+
+@pytest.mark.parametrize("name", load_stack().names)
+def test_the_node_starts_alone_serves_its_parameters_and_stops_cleanly(client, launched, name):
     node, executor = client
-    output = io.StringIO()
-    with Stack(nodes=[name], params=params, output=output, namespace=f"/smoke_{name}") as stack:
-        parameters = node.create_client(GetParameters, f"/smoke_{name}/{name}/get_parameters")
-        wait_until(lambda: parameters.wait_for_service(timeout_sec=1.0) or stack.dead(), START_TIMEOUT,
-                   f"{name}'s parameter service")
-        assert stack.dead() == {}, output.getvalue()[-3000:]
-        # a node's services answer once it is built and spun: the node is up, not only its process
-        reply = ask_until_answered(executor, parameters, GetParameters.Request(names=["use_sim_time"]))
-        assert reply is not None, f"{name} did not answer get_parameters\n" + output.getvalue()[-3000:]
-        assert reply.values[0].bool_value is False
+    stack, output = launched[name]
+    parameters = node.create_client(GetParameters, f"/smoke_{name}/{name}/get_parameters")
+    wait_until(lambda: parameters.wait_for_service(timeout_sec=1.0) or stack.dead(), START_TIMEOUT,
+               f"{name}'s parameter service")
+    assert stack.dead() == {}, output.getvalue()[-3000:]
+    # a node's services answer once it is built and spun: the node is up, not only its process
+    reply = ask_until_answered(executor, parameters, GetParameters.Request(names=["use_sim_time"]))
+    assert reply is not None, f"{name} did not answer get_parameters\n" + output.getvalue()[-3000:]
+    assert reply.values[0].bool_value is False
     assert stack.stop() == {name: 0}, output.getvalue()[-3000:]
     assert "Traceback" not in output.getvalue(), output.getvalue()[-3000:]
