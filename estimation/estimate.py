@@ -232,8 +232,9 @@ class _Search:
     def penalised(self, candidate: Fit) -> float:
         return candidate.score.total + self.options.mistake_penalty * len(candidate.hypothesis.changes)
 
-    def fit(self, hypothesis: Hypothesis, start: np.ndarray | None = None, first: int = 0, bounded: bool = True) -> Fit:
-        result = fit(hypothesis, self.silhouette, self.pose, self.options, start, first, self.tables, bounded)
+    def fit(self, hypothesis: Hypothesis, start: np.ndarray | None = None, first: int = 0,
+            within_tolerance: bool = True) -> Fit:
+        result = fit(hypothesis, self.silhouette, self.pose, self.options, start, first, self.tables, within_tolerance)
         return self._counted(result)
 
     def _counted(self, result: Fit) -> Fit:
@@ -243,7 +244,7 @@ class _Search:
 
     def free(self, bounded: Fit) -> Fit:
         """The bounded fit's chain measured: its angles free (weak prior only)."""
-        return self._counted(refit(bounded, self.silhouette, self.pose, self.options, bounded=False))
+        return self._counted(refit(bounded, self.silhouette, self.pose, self.options, within_tolerance=False))
 
     def bounded(self, free: Fit) -> Fit:
         """The free fit's chain with every angle within the tolerance: the same fit if they all are; else its
@@ -255,7 +256,7 @@ class _Search:
         held = held_within_bounds(free, self.silhouette, self.pose, self.options)
         if self.first_misfit(held, free) is None:
             return held
-        return self._counted(refit(free, self.silhouette, self.pose, self.options, bounded=True))
+        return self._counted(refit(free, self.silhouette, self.pose, self.options, within_tolerance=True))
 
     def tracked(self, hypothesis: Hypothesis, parent: Fit) -> tuple[float, Hypothesis, np.ndarray]:
         """Quick look at a candidate: track its changed blocks, and the block before (the parent's angle there
@@ -294,9 +295,9 @@ class _Search:
     def improve(self, current: Fit, free: Fit) -> Fit | None:
         """The best chain with one mistake more than ``current`` if it scores better, else None.
 
-        Every candidate is tracked from its first changed block (within the tolerance; a block whose design
-        is open within its designs' angles +- the tolerance) and ranked by a coarse cost; the best few are
-        refined and scored. Rotations out of the image plane are tried only if no in-plane candidate
+        Every candidate is tracked from the block before its first change (within the tolerance; a block whose
+        design is open within its designs' angles +- the tolerance) and ranked by a coarse cost; the best few
+        are refined and scored. Rotations out of the image plane are tried only if no in-plane candidate
         explains the image.
         """
         misfit = self.first_misfit(current, free)
@@ -341,7 +342,7 @@ def estimate_chain(image, chain: Chain, pixel_size: float, pose: ImagePose, *, v
     silhouette = silhouette_from_image(image, pixel_size, threshold, occlusion=occlusion)
     check_base(silhouette, pose, BLOCK_RADIUS, CAP_LENGTH)
     search = _Search(silhouette, pose, book, chain, options)
-    free = search.fit(believed, bounded=False)
+    free = search.fit(believed, within_tolerance=False)
     _check_base_correction(free, options, silhouette.pixel_size)
     current = first = search.bounded(free)
     for _ in range(options.max_mistakes):

@@ -11,8 +11,8 @@ manufacturing tolerance (the chain as built, as its hypothesis says); a *free* f
    every block starts where the fitted ones end), on the silhouette's coarse distance map. This finds the
    basin even when many blocks deviate by several degrees.
 2. ``refine``: ``scipy.optimize.least_squares`` (trust region reflective, Cauchy loss so an occluded part
-   only loosely pulls, the tolerance as bounds for a bounded fit) from the tracked start; Jacobian = outline normal x d(sample)/d(parameter), the
-   sample derivatives from one batched call of the kinematics.
+   only loosely pulls, the tolerance as bounds for a bounded fit) from the tracked start; Jacobian = outline
+   normal x d(sample)/d(parameter), the sample derivatives from one batched outline call.
 3. ``score``: the robust cost both ways (model outline -> image outline and image outline -> model
    outline, each weighted by the outline length it stands for) plus the base prior; this is what hypotheses
    (bounded fits) are compared by.
@@ -83,7 +83,6 @@ class Score:
     block_residual: np.ndarray  # (N,) RMS distance of each block's outline from the image outline [m]
     block_misfit: np.ndarray  # (N,) outline farther than misfit_distance from the other outline, both ways, by block [m]
     block_unexplained: np.ndarray  # (N,) the same farther than unexplained_distance [m]
-    designs: tuple[int, ...]  # each block's design nearest in angle
 
 
 @dataclass(frozen=True)
@@ -93,7 +92,6 @@ class Fit:
     theta_std: np.ndarray  # (N,) [rad]
     score: Score
     nfev: int
-    bounded: bool  # angles kept within the tolerance (a verdict's fit) or free (a measurement)
 
     @property
     def theta(self) -> np.ndarray:
@@ -131,7 +129,7 @@ class ChainModel:
     """One hypothesis in one image: parameters -> outline samples (image frame), residuals and Jacobian."""
 
     def __init__(self, hypothesis: Hypothesis, silhouette: Silhouette, pose: ImagePose, options: FitOptions,
-                 bounded: bool = True, layout: OutlineLayout | None = None):
+                 within_tolerance: bool = True, layout: OutlineLayout | None = None):
         self.hypothesis = hypothesis
         self.silhouette = silhouette
         self.pose = pose
@@ -141,9 +139,8 @@ class ChainModel:
         self.blocks = self.layout.blocks
         self.mean, self.sigma = hypothesis.prior(options.angle_prior_sigma, options.unknown_angle_sigma)
         self.size = self.blocks + (BASE_PARAMETERS if options.fit_base else 0)
-        self.bounded = bounded
         self.lower, self.upper = np.full(self.size, -np.inf), np.full(self.size, np.inf)
-        if bounded:
+        if within_tolerance:
             self.lower[: self.blocks], self.upper[: self.blocks] = hypothesis.bounds(options.angle_tolerance)
         self.shown = np.ones(len(self.layout.block), dtype=bool)
         self.edge = options.edge_sigma * self.pixel  # [m]
@@ -424,7 +421,6 @@ def score(model: ChainModel, x: np.ndarray) -> Score:
         block_residual=residual,
         block_misfit=beyond(options.misfit_distance * model.pixel),
         block_unexplained=beyond(far),
-        designs=model.hypothesis.nearest_designs(theta),
     )
 
 
@@ -471,16 +467,16 @@ def inherited_start(model: ChainModel, parent_x: np.ndarray, first: int) -> np.n
 
 def fit(hypothesis: Hypothesis, silhouette: Silhouette, pose: ImagePose, options: FitOptions,
         start: np.ndarray | None = None, first: int = 0, tables: TrackingTables | None = None,
-        bounded: bool = True) -> Fit:
+        within_tolerance: bool = True) -> Fit:
     """Track blocks ``first``.. from ``start`` (default: the prior), refine by least squares, score."""
-    model = ChainModel(hypothesis, silhouette, pose, options, bounded)
+    model = ChainModel(hypothesis, silhouette, pose, options, within_tolerance)
     x, nfev = track(model, model.start() if start is None else start, first, tables)
     return _refined(model, x, nfev)
 
 
-def refit(fitted: Fit, silhouette: Silhouette, pose: ImagePose, options: FitOptions, bounded: bool) -> Fit:
+def refit(fitted: Fit, silhouette: Silhouette, pose: ImagePose, options: FitOptions, within_tolerance: bool) -> Fit:
     """The same hypothesis refined from a fit's parameters, bounded or free (no tracking: it starts close)."""
-    return _refined(ChainModel(fitted.hypothesis, silhouette, pose, options, bounded), fitted.x, 0)
+    return _refined(ChainModel(fitted.hypothesis, silhouette, pose, options, within_tolerance), fitted.x, 0)
 
 
 def held_within_bounds(fitted: Fit, silhouette: Silhouette, pose: ImagePose, options: FitOptions) -> Fit:
@@ -488,11 +484,9 @@ def held_within_bounds(fitted: Fit, silhouette: Silhouette, pose: ImagePose, opt
     uncertainties are unknown: NaN)."""
     model = ChainModel(fitted.hypothesis, silhouette, pose, options)
     x = np.clip(fitted.x, model.lower, model.upper)
-    return Fit(hypothesis=fitted.hypothesis, x=x, theta_std=np.full(model.blocks, np.nan), score=score(model, x), nfev=1,
-               bounded=True)
+    return Fit(hypothesis=fitted.hypothesis, x=x, theta_std=np.full(model.blocks, np.nan), score=score(model, x), nfev=1)
 
 
 def _refined(model: ChainModel, x: np.ndarray, nfev: int) -> Fit:
     x, theta_std, evaluations = refine(model, x)
-    return Fit(hypothesis=model.hypothesis, x=x, theta_std=theta_std, score=score(model, x), nfev=nfev + evaluations,
-               bounded=model.bounded)
+    return Fit(hypothesis=model.hypothesis, x=x, theta_std=theta_std, score=score(model, x), nfev=nfev + evaluations)

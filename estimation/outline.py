@@ -9,9 +9,11 @@ chain frame (x, z) [m], one pair per kinematics centreline sample:
 
     [+r side along the centreline | -r side | base face | tip face]
 
-Planar chains (every phi 0 or pi) use ``planner.kinematics.planar_chain``; others ``chain_shape``. The
-sampling depends on the block structure only, so one ``OutlineLayout`` serves every set of angles. A
-layout of blocks k.. of a chain, placed at block k's start frame, gives those blocks' samples alone.
+Planar chains (every phi 0 or pi) are sampled in closed form (``planar_centreline``: the samples of
+``planner.kinematics.planar_chain``, cheaper for the estimator's many small batches); others by
+``planner.kinematics.chain_shape``. The sampling depends on the block structure only, so one
+``OutlineLayout`` serves every set of angles. A layout of blocks k.. of a chain, placed at block k's start
+frame, gives those blocks' samples alone.
 """
 from __future__ import annotations
 
