@@ -388,9 +388,9 @@ def _mistakes(search: _Search, current: Fit, first: Fit, measured: Fit) -> tuple
 
 
 def _likely_designs(search: _Search, measured: Fit, block: int) -> tuple[int, ...]:
-    """The designs a block's measured angle allows: within the tolerance plus twice the angle's
+    """The designs a block's measured angle allows: within the tolerance plus three times the angle's
     uncertainty, nearest first (designs closer than that cannot be told apart by the image)."""
-    reach = search.options.angle_tolerance + 2.0 * float(measured.theta_std[block])
+    reach = search.options.angle_tolerance + 3.0 * float(measured.theta_std[block])
     return measured.hypothesis.ranked_designs(block, float(measured.theta[block]), reach)
 
 
