@@ -444,15 +444,19 @@ def candidate_study(table, seed: int, cases: int, pixel_size: float = 0.4e-3, re
 
 def time_study(table, rng, cases: int, repeats: int = 3, pixel_size: float = 0.25e-3) -> dict:
     """Time per as-built image against the block count, one estimate after the other in this process: CPU
-    (time.process_time) and wall time of each image's first run, and the best of ``repeats`` runs (the
-    machine is shared; the best run is the least disturbed); medians and 90th percentiles over the images."""
+    (time.process_time: every thread of the process) and wall time of each image's first run, and the best of
+    ``repeats`` runs (the machine is shared; the best run is the least disturbed); medians and 90th
+    percentiles over the images. Also the first estimate of the image drawn by the capsule renderer right
+    before it: that renderer's large array operations wake numpy's BLAS worker threads, which then spin for
+    a while and count as the process's CPU time (OPENBLAS_NUM_THREADS=1 has none); the estimating thread's
+    own CPU time (time.thread_time) and the wall time show what the estimate itself took."""
     rows = []
     for blocks in range(2, 9):
-        first_cpu, first_wall, best_cpu, best_wall = [], [], [], []
+        first_cpu, first_wall, best_cpu, best_wall, after_capsule = [], [], [], [], []
         for case in range(cases):
             ids = rng.choice(table.ids, blocks)
-            coverage, pose, _ = draw("reference", table, ids, None, offsets_within_tolerance(rng, blocks), pixel_size,
-                                     random_view(rng))
+            offsets, view = offsets_within_tolerance(rng, blocks), random_view(rng)
+            coverage, pose, _ = draw("reference", table, ids, None, offsets, pixel_size, view)
             image = to_binary(coverage)
             runs = []
             for _ in range(repeats):
@@ -463,14 +467,26 @@ def time_study(table, rng, cases: int, repeats: int = 3, pixel_size: float = 0.2
             first_wall.append(runs[0][1])
             best_cpu.append(min(r[0] for r in runs))
             best_wall.append(min(r[1] for r in runs))
+            coverage, pose, _ = draw("capsule", table, ids, None, offsets, pixel_size, view)
+            started, started_cpu, started_thread = time.perf_counter(), time.process_time(), time.thread_time()
+            estimate_chain(to_binary(coverage), chain_of(ids), pixel_size, pose, table=table)
+            after_capsule.append((time.process_time() - started_cpu, time.thread_time() - started_thread,
+                                  time.perf_counter() - started))
             progress(f"time: {blocks} blocks, {case + 1}/{cases}")
         rows.append({"blocks": blocks, "images": cases,
                      "median_cpu_s": float(np.median(first_cpu)), "p90_cpu_s": float(np.percentile(first_cpu, 90)),
                      "median_wall_s": float(np.median(first_wall)), "p90_wall_s": float(np.percentile(first_wall, 90)),
-                     "median_best_cpu_s": float(np.median(best_cpu)), "median_best_wall_s": float(np.median(best_wall))})
+                     "median_best_cpu_s": float(np.median(best_cpu)), "median_best_wall_s": float(np.median(best_wall)),
+                     "median_cpu_after_capsule_render_s": float(np.median([t[0] for t in after_capsule])),
+                     "median_thread_cpu_after_capsule_render_s": float(np.median([t[1] for t in after_capsule])),
+                     "median_wall_after_capsule_render_s": float(np.median([t[2] for t in after_capsule]))})
         print(f"  time: {blocks} blocks, median {1e3 * rows[-1]['median_cpu_s']:.1f} ms CPU, "
-              f"{1e3 * rows[-1]['median_wall_s']:.1f} ms wall (best of {repeats}: {1e3 * rows[-1]['median_best_cpu_s']:.1f} ms CPU)")
-    return {"rows": rows, "repeats": repeats, "pixel_size_m": pixel_size}
+              f"{1e3 * rows[-1]['median_wall_s']:.1f} ms wall (best of {repeats}: {1e3 * rows[-1]['median_best_cpu_s']:.1f} ms CPU; "
+              f"right after a capsule render: {1e3 * rows[-1]['median_cpu_after_capsule_render_s']:.1f} ms CPU, "
+              f"{1e3 * rows[-1]['median_thread_cpu_after_capsule_render_s']:.1f} ms of the thread, "
+              f"{1e3 * rows[-1]['median_wall_after_capsule_render_s']:.1f} ms wall)")
+    return {"rows": rows, "repeats": repeats, "pixel_size_m": pixel_size,
+            "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS", "unset")}
 
 
 # ------------------------------------------------------------------------------------------- output
@@ -509,11 +525,15 @@ def plot(results: dict, path: Path) -> None:
         ax.plot(blocks, [1e3 * r["median_cpu_s"] for r in rows], "o-", label="median CPU")
         ax.plot(blocks, [1e3 * r["p90_cpu_s"] for r in rows], "o:", label="90th percentile CPU")
         ax.plot(blocks, [1e3 * r["median_wall_s"] for r in rows], "s--", label="median wall")
+        ax.plot(blocks, [1e3 * r["median_cpu_after_capsule_render_s"] for r in rows], "^:",
+                label="right after a capsule render: median CPU, BLAS threads spinning")
+        ax.plot(blocks, [1e3 * r["median_wall_after_capsule_render_s"] for r in rows], "v:",
+                label="right after a capsule render: median wall")
         ax.axhline(50, color="tab:red", ls="--", lw=1, label="goal (8 blocks)")
         load = results.get("machine", {}).get("time_load", {}).get("before", ["?"])[0]
         ax.set(xlabel="blocks", ylabel="time per as-built image [ms]", ylim=(0, None),
                title=f"time per image, {1e3 * results['time']['pixel_size_m']:.2f} mm/px (one core, load {load})")
-        ax.legend(fontsize="small")
+        ax.legend(fontsize="x-small", loc="upper left")
     figure.tight_layout()
     figure.savefig(path, dpi=110)
     plt.close(figure)
@@ -583,7 +603,10 @@ def report(results: dict) -> None:
               f"median {1e3 * row['median_cpu_s']:.0f} ms CPU")
     for row in results.get("time", {}).get("rows", []):
         print(f"{row['blocks']} blocks: median {1e3 * row['median_cpu_s']:.1f} ms CPU, {1e3 * row['median_wall_s']:.1f} ms wall; "
-              f"best of {results['time']['repeats']}: {1e3 * row['median_best_cpu_s']:.1f} ms CPU")
+              f"best of {results['time']['repeats']}: {1e3 * row['median_best_cpu_s']:.1f} ms CPU; "
+              f"right after a capsule render {1e3 * row['median_cpu_after_capsule_render_s']:.1f} ms CPU, "
+              f"{1e3 * row['median_thread_cpu_after_capsule_render_s']:.1f} ms of the thread, "
+              f"{1e3 * row['median_wall_after_capsule_render_s']:.1f} ms wall")
 
 
 STUDIES = ("resolution", "faults", "mistakes", "time", "candidates")
