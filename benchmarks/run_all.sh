@@ -18,11 +18,11 @@ benchmarks=(
     hv_loop.py
     hv_ramp.py
     hv_fault_bounds.py
-    hv_supervisor_process.py
     recorder_load.py
     ros_nodes.py
     sequencer_gait.py
     publish_hold.py
+    mcap_open.py
 )
 for i in "${!benchmarks[@]}"; do
     printf '\n=== [%d/%d] benchmarks/%s ===\n' "$((i + 1))" "${#benchmarks[@]}" "${benchmarks[$i]}"

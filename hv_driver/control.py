@@ -15,11 +15,11 @@ an e-stop. A token from an earlier session (a restarted client) is never the liv
 neither feed the watchdog nor ramp. This guards against accidents, not an attacker in the DDS domain: without
 DDS-Security anyone there can read the claim's reply too (docs/hv_driver.md, "Who may command").
 
-The silence counts the time the driver could hear the client. While the driver's own process stalls, the
-client's heartbeats wait in the transport's buffers (or the client stalled with it, on a shared host), so the
-first check after the stall would find them all missing. A gap between two control cycles (`cycle`) counts
-towards the silence by at most LOOP_STALL_FRACTION of the timeout: a loop that keeps its period counts every
-second of it, and a dead client still lapses, later by at most its driver's own stalls.
+The silence is the time since the owner's last sign of life was sent. A caller that hears the client through a
+channel (the supervisor process, `hv_driver.server`) passes each heartbeat's sending time (``sent``: the node's
+CLOCK_MONOTONIC stamp, comparable between processes on one host) and takes in what waits in that channel before the
+silence is judged, so a stall of the driver's own process neither ends a live client's session (its beats are read,
+with their stamps, before the judgement) nor delays the lapse of a dead one.
 """
 import hashlib
 import hmac
@@ -45,10 +45,6 @@ RELEASE = ("release",)  # the content of hv/release_control
 # token seconds after the claim. Until it shows it, nothing is energised under the session (every ramp carries
 # the token), so the longer wait costs only the time another client waits to claim.
 FIRST_SIGN_OF_LIFE_S = 10.0
-# The most of the client's allowed silence one gap between the driver's control cycles may use up. A loop that
-# cycles slower than that (every 0.5 s for a 2 s timeout) is stalled: descheduled, or waiting on a supply that
-# does not answer (which the link watchdog trips on).
-LOOP_STALL_FRACTION = 0.25
 
 
 class ControlError(HvError, RuntimeError):
@@ -123,8 +119,6 @@ class ControlClaim:
         self._recent: set[int] = set()  # counters accepted within REPLAY_WINDOW of the newest
         self._last_heartbeat = -math.inf
         self._confirmed = False  # the owner has shown its token since the claim
-        self._last_cycle: float | None = None  # the driver's last control cycle (None before its first)
-        self._unheard = 0.0  # [s] of the current silence the driver's loop was stalled (not counted)
         self.ended = ""  # why the last control session ended, e.g. "control released by 'demo'"
 
     def heartbeat_age(self, now: float) -> float | None:
@@ -136,36 +130,18 @@ class ControlClaim:
         """How long the owner may stay silent: the timeout, or FIRST_SIGN_OF_LIFE_S if longer until its first sign."""
         return self.timeout_s if self._confirmed else max(self.timeout_s, FIRST_SIGN_OF_LIFE_S)
 
-    @property
-    def _max_cycle_gap_s(self) -> float:
-        return LOOP_STALL_FRACTION * self.timeout_s
-
-    def _stalled_since_cycle(self, now: float) -> float:
-        """How much of the time since the last control cycle (and since the last heartbeat) is a stall [s]."""
-        if self._last_cycle is None:
-            return 0.0
-        return max(0.0, now - max(self._last_cycle + self._max_cycle_gap_s, self._last_heartbeat))
-
-    def cycle(self, now: float) -> None:
-        """The driver's control loop ran a cycle at ``now``; a gap since its previous one is a stall of the driver
-        (its time beyond the most a gap may count is not the client's silence)."""
-        if self._last_cycle is not None and now < self._last_cycle:
-            return
-        self._unheard += self._stalled_since_cycle(now)
-        self._last_cycle = now
-
     def silence(self, now: float) -> float:
-        """Seconds the owner has been silent while the driver could hear it (0 without an owner)."""
+        """Seconds since the owner's last sign of life (0 without an owner)."""
         if self.owner is None:
             return 0.0
-        return max(0.0, now - self._last_heartbeat - self._unheard - self._stalled_since_cycle(now))
+        return max(0.0, now - self._last_heartbeat)
 
     def silent(self, now: float) -> bool:
         """True when the owner has been silent for longer than it may be."""
         return self.owner is not None and self.silence(now) > self.allowed_silence_s
 
     def _heard(self, now: float) -> None:
-        self._last_heartbeat, self._unheard = now, 0.0
+        self._last_heartbeat = now
 
     def claim(self, client: str, now: float, nonce: str = "") -> str:
         """Take control as ``client``; returns the session token. Refused while another session is live.
@@ -199,13 +175,15 @@ class ControlClaim:
     def _lapse_hint(self) -> str:
         return "" if math.isinf(self.timeout_s) else f" or stay silent for {self.allowed_silence_s:g} s"
 
-    def confirm(self, credential, now: float, command=HEARTBEAT) -> None:
+    def confirm(self, credential, now: float, command=HEARTBEAT, sent: float | None = None) -> None:
         """A command with ``credential`` (a `signed` command of content ``command``, or the token itself): accepted
-        as the owner's sign of life, else ControlError naming the owner and why."""
-        self.lapse_if_silent(now)
+        as the owner's sign of life, else ControlError naming the owner and why. ``sent``: when the client's
+        channel took it (at most ``now``): it counts from then, if the session was still live then."""
+        at = now if sent is None else min(sent, now)
+        self.lapse_if_silent(at)
         self._authenticate(credential, command)
-        if now >= self._last_heartbeat:
-            self._heard(now)
+        if at >= self._last_heartbeat:
+            self._heard(at)
         self._confirmed = True
 
     def release(self, credential, now: float) -> str:

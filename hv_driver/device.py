@@ -40,11 +40,14 @@ class Sent:
 
 @dataclass(frozen=True)
 class Reading:
-    """One channel's readback: voltage [V], current [A] (None: the supply has no current readback), status."""
+    """One channel's readback: voltage [V], current [A] (None: the supply has no current readback), status, and
+    when the voltage was measured (the answer's arrival on the device's clock: on a slow line the later queries
+    of the same readback arrive tens of milliseconds after it)."""
 
     voltage: float
     current: float | None
     report: StatusReport
+    measured_at: float
 
 
 @dataclass(frozen=True)
@@ -156,6 +159,7 @@ class Device:
         """Voltage and status of every channel as an earlier session left them."""
         statuses = [self.query(operation, self.indices) for operation in self.capabilities.status_operations]
         voltages = self.query("measure_voltage", self.indices)
+        measured_at = self.clock()
         return {config.name: (voltage, self.dialect.status_report(*(s[k] for s in statuses)))
                 for k, (config, voltage) in enumerate(zip(self.configs, voltages))}
 
@@ -163,6 +167,7 @@ class Device:
     def read(self) -> dict[str, Reading]:
         """Voltage, current (if the supply measures it) and status of every channel, one query each for all."""
         voltages = self.query("measure_voltage", self.indices)
+        measured_at = self.clock()
         currents = ([None] * len(self.indices) if self.capabilities.current is CurrentSensing.NONE
                     else self.query("measure_current", self.indices))
         statuses = [self.query(operation, self.indices) for operation in self.capabilities.status_operations]
@@ -170,7 +175,8 @@ class Device:
             sent = self.sent[config.name]
             if sent.pulse is not None and sent.switching_since is not None:
                 sent.counted = self.dialect.cycle_count(self.query("read_cycles", [config.index]))
-        return {config.name: Reading(voltage, current, self.dialect.status_report(*(s[k] for s in statuses)))
+        return {config.name: Reading(voltage, current, self.dialect.status_report(*(s[k] for s in statuses)),
+                                     measured_at)
                 for k, (config, voltage, current) in enumerate(zip(self.configs, voltages, currents))}
 
     def cut(self, configs: list[ChannelConfig]) -> None:

@@ -10,9 +10,11 @@ import atexit
 import logging
 import math
 import signal
+import statistics
 import threading
 import weakref
-from collections.abc import Sequence
+from collections import deque
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from .clock import SimulatedClock, as_clock
@@ -21,15 +23,22 @@ from .control import pulse_command
 from .device import ConfigurationError, Device
 from .dialects import CurrentSensing, Dialect, IsegEdcp, ProtocolError
 from .errors import SettingError, StateError
+from .events import SupervisorEvent
 from .faults import Fault
 from .link import LinkError
 from .pulse import PulseTally, PulseTrain, plan_pulse_train
-from .supervisor import DEFAULT_HEARTBEAT_TIMEOUT_S, Supervisor
+from .supervisor import DEFAULT_HEARTBEAT_TIMEOUT_S, DEFAULT_LOOP_RATE_HZ, IMMEDIATE_FAULTS, Supervisor
 
 log = logging.getLogger(__name__)
 
 # The longest a wait without a timeout runs the loop on a simulated clock [s]: the longest ramp a request may take.
 MAX_SIMULATED_WAIT_S = 600.0
+# The longest the loop waits for the reader of its client's channel to take in one more message before it judges the
+# client silent anyway [s] (`listen`): a stuck reader must not hold the loop; it waits so once per lapse at most.
+TAKE_IN_PATIENCE_S = 0.05
+# How many recent cycles tell the period the loop sustains (their median): a line slower than the loop rate sets it in
+# that many cycles, while one stall among them does not (the supervisor discounts a stall in this unit).
+SUSTAINED_PERIOD_CYCLES = 15
 
 
 @dataclass(frozen=True)
@@ -155,6 +164,15 @@ class PulseHandle:
             return {name: tally for name, tally in tallies.items()
                     if tally is not None and tally.ramp_id == self._ramp_ids[name]}
 
+    def _ended_by_host(self) -> dict[str, tuple[int, int] | None]:
+        """Per channel of a train the device switches that the host ended by its fallback, its count never reaching
+        the total: the count as the device last reported it (None: never)."""
+        with self._supply._lock:
+            ended = {name for name, train in self.trains.items()
+                     if self._supply._supervisor.channel(name).ended_by_host is train}
+            return {name: sent.counted for device in self._supply._devices
+                    for name, sent in device.sent.items() if name in ended}
+
     @property
     def short_pulses(self) -> dict[str, int]:
         """Per channel of a streamed train: pulses that fell short of the amplitude (see `PulseTally`)."""
@@ -173,12 +191,15 @@ class PulseHandle:
         failed += [f"{name}: {tally.short} of {train.cycles} pulses fell short of {train.amplitude:g} V (the control "
                    f"loop fell behind, its longest gap between cycles {tally.longest_gap * 1e3:.0f} ms; slew-limited, "
                    f"it does not catch up)" for name, tally in self._tallies().items() if tally.short]
+        failed += [f"{name}: not completed: the board counted "
+                   f"{'no cycle' if counted is None else f'{counted[0]} of {counted[1]} cycles'}, so the host ended "
+                   f"the train by its own clock (fallback)" for name, counted in self._ended_by_host().items()]
         return "; ".join(failed) if failed else f"completed {self.cycles_done} cycles"
 
     @property
     def succeeded(self) -> bool:
         return (self.done and all(channel.succeeded for channel in self._channels)
-                and not any(self.short_pulses.values()))
+                and not any(self.short_pulses.values()) and not self._ended_by_host())
 
     @property
     def cycles_done(self) -> int:
@@ -239,7 +260,7 @@ class HvSupply:
     """
 
     def __init__(self, port: str | Sequence[str], baudrate: int | None = None, channels: list[ChannelConfig] = (),
-                 loop_rate_hz: float = 100.0, link_timeout_s: float = 0.5,
+                 loop_rate_hz: float = DEFAULT_LOOP_RATE_HZ, link_timeout_s: float = 0.5,
                  heartbeat_timeout_s: float = DEFAULT_HEARTBEAT_TIMEOUT_S, reply_timeout_s: float | None = None,
                  dialect: Dialect | None = None, handle_signals: bool = True, clock=None,
                  expected_identity: str = ""):
@@ -279,8 +300,10 @@ class HvSupply:
         self._applied = {c.name: _Applied() for c in self.configs}
         self._reconfigure = self._device_reset = False
         self._cycles = 0
+        self._cycle_durations: deque[float] = deque(maxlen=SUSTAINED_PERIOD_CYCLES)
         self._stamp = clock()
         self._next_start: float | None = None  # start of the next train a supply switches, if one is armed
+        self._take_in: Callable[[float], None] | None = None  # see `listen`
 
     @property
     def device_id(self) -> str:
@@ -412,10 +435,13 @@ class HvSupply:
             raise SystemExit(128 + signum)
 
     # --- thread-safe API -----------------------------------------------------------------------
-    def _change(self, action):
+    def _change(self, action, wake: bool = True):
+        """``action(now)`` under the loop's lock; ``wake``: the loop applies it in a cycle at once (a change of what
+        is commanded), not at its next slot."""
         with self._lock:
             result = action(self._clock())
-        self._wake.set()
+        if wake:
+            self._wake.set()
         return result
 
     def enable(self, channel: str) -> None:
@@ -460,9 +486,18 @@ class HvSupply:
         """End the control session of ``token``; outputs it left energised ramp to 0 V. Returns the client name."""
         return self._change(lambda now: self._supervisor.release_control(token, now))
 
-    def heartbeat(self, token: str) -> None:
-        """Sign of life from the client holding control (ControlError for any other token)."""
-        self._change(lambda now: self._supervisor.heartbeat(now, token))
+    def heartbeat(self, token: str, sent: float | None = None) -> None:
+        """Sign of life from the client holding control (ControlError for any other token), sent at ``sent`` on
+        this supply's clock (default: now; see `listen`). It changes no command, so it does not wake the loop."""
+        self._change(lambda now: self._supervisor.heartbeat(now, token, sent), wake=False)
+
+    def listen(self, take_in: Callable[[float], None] | None) -> None:
+        """Hear the controlling client through a channel (`hv_driver.server`): before the loop judges the client
+        silent it calls ``take_in(patience)``, which returns once what the client sent before then has been taken in
+        (each heartbeat with its ``sent`` stamp), or once the channel's reader has taken in nothing for ``patience``
+        [s] (TAKE_IN_PATIENCE_S), so a stall of this process does not count as the client's silence. None: the client
+        calls in directly."""
+        self._take_in = take_in
 
     def node_lost(self, reason: str) -> None:
         """The node driving this supply is gone (see `hv_driver.server`): control ends, every channel latches
@@ -498,6 +533,11 @@ class HvSupply:
                 raise StateError("reset_device: switch every output off first (disable)")
             self._device_reset = self._reconfigure = True
         self._wake.set()
+
+    def drain_events(self) -> list[SupervisorEvent]:
+        """The supervisor's events since the last drain, oldest first (hv_driver.events)."""
+        with self._lock:
+            return self._supervisor.events.drain()
 
     def snapshot(self) -> SupplySnapshot:
         with self._lock:
@@ -610,6 +650,16 @@ class HvSupply:
             except (LinkError, ProtocolError):
                 pass
 
+    def _cut_at_once(self, k: int, device: Device, configs: list[ChannelConfig]) -> None:
+        """Cut the channels whose fault this cycle's readback showed, in this cycle (the next one sends the cut again
+        until the supply confirms it)."""
+        try:
+            device.cut(configs)
+        except (LinkError, ProtocolError) as error:
+            with self._lock:
+                self._supervisor.link_failed(self._clock(), k)
+                device.link_error = str(error)
+
     def _start_due_trains(self, pulses: dict) -> None:
         """Start every armed train the supplies switch whose start has come, before any other exchange."""
         for device in self._devices:
@@ -619,9 +669,16 @@ class HvSupply:
                 pass  # retried by apply, where a failure counts against the link
 
     def _cycle(self) -> bool:
-        """One control cycle; True when a new fault latched (the next cycle then runs at once)."""
+        """One control cycle; True when a new fault latched (the next cycle then runs at once). A fault read back
+        from a supply is cut at once, before the next supply's exchanges."""
+        now = started = self._clock()
+        if self._take_in is not None:
+            with self._lock:
+                lapsing = self._supervisor.control.silent(now)
+            if lapsing:  # what the client sent before now is heard before its silence is judged
+                self._take_in(TAKE_IN_PATIENCE_S)
         with self._lock:
-            self._stamp = self._clock()
+            self._stamp = now
             commands = self._supervisor.step(self._stamp)
             stepped = {n: (c.ramp_id, c.ramping, c.setpoint) for n, c in self._supervisor.channels.items()}
             reconfigure, self._reconfigure = self._reconfigure, False
@@ -674,13 +731,18 @@ class HvSupply:
                     channel = self._supervisor.channel(config.name)
                     if device.count_ended(config):
                         channel.device_count_ended(sent.pulse)
-                    channel.observe(now, reading.voltage, reading.current, fault, over_current)
+                    channel.observe(reading.measured_at, reading.voltage, reading.current, fault, over_current)
                     current = math.nan if reading.current is None else reading.current
                     self._measured[config.name] = (reading.voltage, current)
                     ramp_id, ramping, setpoint = stepped[config.name]
                     self._applied[config.name] = _Applied(ramp_id, ramping,
                                                           abs(reading.voltage - setpoint) <= config.mismatch_tolerance_v)
+                tripped = [c for c in device.configs if self._supervisor.channel(c.name).faults & IMMEDIATE_FAULTS
+                           and not device.sent[c.name].emergency]
+            self._cut_at_once(k, device, tripped)
+        self._cycle_durations.append(self._clock() - started)
         with self._cycle_done:
+            self._supervisor.set_cycle_period(max(self._period, statistics.median(self._cycle_durations)))
             self._cycles += 1
             self._cycle_done.notify_all()
             return any(c.faults != faults_before[n] for n, c in self._supervisor.channels.items())

@@ -1,26 +1,40 @@
-"""What changed between two snapshots of the supply that an operator must read in the log: faults latching and
-clearing, control ending without a release (lapsed, e-stop). Pure: the caller logs the lines at their level."""
+"""What an operator must read in the HV driver's log, queued by the supervisor as it happens: faults latching
+(ERROR, channel and fault text) and clearing (INFO), control ending other than by a release (WARNING: a lapse, an
+e-stop, the node lost; a release and a claim are logged where they are answered). Each event carries the supervisor's
+time, that of the control cycle it happened in. The node drains the queue at its state rate and logs every event, so
+a fault that latched and was reset between two of its snapshots is logged too. Pure: no I/O."""
 import logging
+from collections import deque
+from typing import NamedTuple
 
-from .driver import SupplySnapshot
-from .faults import fault_names
-
-RELEASED = "control released by "  # a release is logged where it is answered
+MAX_EVENTS = 128  # queued between two drains; beyond, the oldest go (counted, and said at the next drain)
+MAX_TEXT = 400    # characters of one event's text (a device's fault text is the device's)
 
 
-def snapshot_events(before: SupplySnapshot | None, after: SupplySnapshot) -> list[tuple[int, str]]:
-    """(logging level, line) for each change from ``before`` (None: the first snapshot) to ``after``: ERROR for a
-    fault that latched (channel, faults, the fault text), INFO for faults cleared, WARNING for control that ended
-    other than by a release (a lapse or an e-stop; a session claimed between the two snapshots hides it)."""
-    events = []
-    previous = {c.name: c.faults for c in before.channels} if before else {}
-    for channel in after.channels:
-        was = previous.get(channel.name, type(channel.faults)(0))
-        if channel.faults & ~was:
-            events.append((logging.ERROR, f"channel {channel.name!r}: fault latched: {channel.fault_text}"))
-        elif was and not channel.faults:
-            events.append((logging.INFO, f"channel {channel.name!r}: faults {fault_names(was)} cleared"))
-    ended = after.control_ended
-    if before and before.controller and not after.controller and not ended.startswith(RELEASED):
-        events.append((logging.WARNING, ended))
-    return events
+class SupervisorEvent(NamedTuple):  # a tuple: it crosses the supervisor's channel as a JSON list
+    time: float  # [s] on the supervisor's clock
+    level: int   # a `logging` level
+    text: str
+
+
+class EventLog:
+    """A bounded queue of SupervisorEvent, oldest first."""
+
+    def __init__(self, capacity: int = MAX_EVENTS):
+        self._events: deque[SupervisorEvent] = deque(maxlen=capacity)
+        self._dropped = 0
+
+    def add(self, time: float, level: int, text: str) -> None:
+        if len(self._events) == self._events.maxlen:
+            self._dropped += 1
+        self._events.append(SupervisorEvent(time, level, text[:MAX_TEXT]))
+
+    def drain(self) -> list[SupervisorEvent]:
+        """The events queued since the last drain, oldest first, after a WARNING if some were dropped."""
+        events = list(self._events)
+        if self._dropped:
+            events.insert(0, SupervisorEvent(events[0].time, logging.WARNING, f"{self._dropped} older supervisor "
+                                             f"events dropped: more than {self._events.maxlen} since the last drain"))
+        self._events.clear()
+        self._dropped = 0
+        return events

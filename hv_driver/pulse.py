@@ -97,8 +97,8 @@ class PulseTrain:
 @dataclass
 class PulseTally:
     """How many pulses of a streamed (smooth) train fell short: no setpoint in their period reached SHORT_FRACTION
-    of the amplitude, or the loop skipped their period. A loop much slower than its nominal rate cannot catch up (the
-    slew allowance per cycle is capped at two nominal periods), so its pulses shrink instead of arriving late."""
+    of the amplitude, or the loop skipped their period. A loop stalled for many periods cannot catch up (the
+    slew allowance per cycle is capped at two of its sustained periods), so its pulses shrink instead of arriving late."""
 
     train: PulseTrain
     ramp_id: int

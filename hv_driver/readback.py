@@ -8,7 +8,7 @@ rate; a readback between it and the command (± tolerance) is consistent. A volt
 rate is no fault; one that does not fall is.
 
 The time off the expectation counts only what the loop observed: each interval between two readbacks adds
-at most one nominal period, so a stall of the loop is not counted as time off (the count resumes after
+at most one period the loop sustains, so a stall of the loop is not counted as time off (the count resumes after
 the gap, as if restarted), while a loop that keeps running late still trips, later by its lateness.
 """
 
@@ -16,7 +16,7 @@ the gap, as if restarted), while a loop that keeps running late still trips, lat
 class ReadbackCheck:
     """tolerance_v, time_limit_s: a readback further than tolerance_v from the expectation for longer than
     time_limit_s is a mismatch. max_interval_s: the most one interval between readbacks adds to that time
-    (the loop's nominal period). ramp_rate_v_per_s: the device's own ramp, None when it has none (the
+    (the period the loop sustains, `hv_driver.supervisor.Supervisor.set_cycle_period`). ramp_rate_v_per_s: the device's own ramp, None when it has none (the
     output follows each command at once)."""
 
     def __init__(self, tolerance_v: float, time_limit_s: float, max_interval_s: float, now: float = 0.0):

@@ -17,11 +17,13 @@ import os
 import socket
 import subprocess
 import threading
+import time
 from collections.abc import Callable
 
 from . import ipc
 from .driver import ChannelSnapshot, SupplySnapshot
 from .errors import HvError
+from .events import SupervisorEvent
 from .faults import Fault, fault_names
 from .ipc import KEEPALIVE_PERIOD_S, MAX_WAIT_S, spec_digest
 
@@ -32,13 +34,17 @@ CALL_TIMEOUT_S = 10.0    # for the answer to a request that does not wait by its
 HELLO_TIMEOUT_S = 5.0
 
 
-class SupervisorLostError(HvError, ConnectionError):
-    """The supervisor process ended or its channel broke; the message says what still holds."""
-
-
 def supervisor_lost_text(reason: str) -> str:
     return (f"HV supervisor process lost ({reason}): only the supplies' own means still hold (device current trip "
             f"and limits, a device watchdog where the supply has one, the interlock)")
+
+
+class SupervisorLostError(HvError, ConnectionError):
+    """The supervisor process ended or its channel broke (``reason``); the message names the fault, as hv/state
+    shows it, and says what still holds."""
+
+    def __init__(self, reason: str):
+        super().__init__(f"{fault_names(Fault.SUPERVISOR_LOST)}: {supervisor_lost_text(reason)}")
 
 
 class RemoteRampHandle:
@@ -116,6 +122,7 @@ class RemoteSupply:
         self._sock: socket.socket | None = None
         self._ids = itertools.count(1)
         self._pending: dict[int, list] = {}   # id -> [event, reply]
+        self._forwarded: dict[int, Callable[[Exception], None]] = {}  # id -> what to call if it is refused
         self._lock = threading.Lock()
         self._send_lock = threading.Lock()
         self._lost: str | None = None
@@ -258,11 +265,13 @@ class RemoteSupply:
                 return  # the reader sees it too and reports it
 
     def _send(self, message: dict) -> None:
+        """Send ``message`` stamped with its sending time (CLOCK_MONOTONIC, comparable with the supervisor's on one
+        host; stamped under the lock, so the stamps rise in the channel's order)."""
         with self._send_lock:
             sock = self._sock
             if sock is None:
                 raise ipc.ChannelClosed("closed")
-            ipc.send(sock, message)
+            ipc.send(sock, {**message, ipc.SENT: time.monotonic()})
 
     def _receive(self) -> None:
         sock = self._sock
@@ -274,6 +283,9 @@ class RemoteSupply:
                 return
             with self._lock:
                 waiter = self._pending.pop(reply.get("id"), None)
+                refused = self._forwarded.pop(reply.get("id"), None)
+            if refused is not None and "error" in reply:
+                refused(ipc.remote_error(reply["error"]))
             if waiter is not None:
                 waiter[1] = reply
                 waiter[0].set()
@@ -284,7 +296,7 @@ class RemoteSupply:
                 return
             status = self._process.poll() if self._process is not None else None
             self._lost = reason if status is None else f"exited with status {status}"
-            waiters, self._pending = list(self._pending.values()), {}
+            waiters, self._pending, self._forwarded = list(self._pending.values()), {}, {}
         for waiter in waiters:
             waiter[0].set()
         if not self._closing:
@@ -299,7 +311,7 @@ class RemoteSupply:
 
     def _request(self, method: str, args: list, kwargs: dict | None = None, timeout: float = CALL_TIMEOUT_S):
         if self._lost is not None:
-            raise SupervisorLostError(supervisor_lost_text(self._lost))
+            raise SupervisorLostError(self._lost)
         request_id = next(self._ids)
         waiter = [threading.Event(), None]
         with self._lock:
@@ -311,12 +323,30 @@ class RemoteSupply:
         if not waiter[0].wait(timeout):
             with self._lock:
                 self._pending.pop(request_id, None)
-            raise SupervisorLostError(supervisor_lost_text(f"no answer to {method!r} within {timeout:g} s"))
+            raise SupervisorLostError(f"no answer to {method!r} within {timeout:g} s")
         if waiter[1] is None:
-            raise SupervisorLostError(supervisor_lost_text(self._lost or "channel closed"))
+            raise SupervisorLostError(self._lost or "channel closed")
         if "error" in waiter[1]:
             ipc.raise_remote_error(waiter[1]["error"])
         return waiter[1]["result"]
+
+    def forward_heartbeat(self, token: str, on_refused: Callable[[Exception], None]) -> None:
+        """Send a heartbeat without waiting for its answer: the node forwards its client's beats the moment they
+        arrive, stamped then, also while the supervisor stalls (a stalled supervisor holds none of the node's
+        threads). ``on_refused(error)`` is called from the reply thread if the supervisor refuses it (ControlError:
+        another client's, a copied one); SupervisorLostError at once once the supervisor is lost."""
+        if self._lost is not None:
+            raise SupervisorLostError(self._lost)
+        request_id = next(self._ids)
+        with self._lock:
+            self._forwarded[request_id] = on_refused
+        try:
+            self._send({"id": request_id, "method": "heartbeat", "args": [token], "kwargs": {}})
+        except ipc.ChannelClosed as error:
+            with self._lock:
+                self._forwarded.pop(request_id, None)
+            self._lose(str(error))
+            raise SupervisorLostError(self._lost or str(error)) from None
 
     def _wait(self, ask: Callable[[float], bool], timeout: float | None) -> bool:
         """A wait of any length as waits of at most MAX_WAIT_S each."""
@@ -346,8 +376,15 @@ class RemoteSupply:
             except SupervisorLostError:
                 pass
         if self._last_snapshot is None:
-            raise SupervisorLostError(supervisor_lost_text(self._lost or "never answered"))
+            raise SupervisorLostError(self._lost or "never answered")
         return _with_supervisor_lost(self._last_snapshot, self._lost or "no answer")
+
+    def drain_events(self) -> list[SupervisorEvent]:
+        """The supervisor's events since the last drain; none once it is lost (``on_lost`` reports that)."""
+        try:
+            return [SupervisorEvent(*fields) for fields in self._request("drain_events", [])]
+        except SupervisorLostError:
+            return []
 
     def wait_outputs_off(self, timeout: float | None = None) -> bool:
         return self._wait(lambda step: self._request("wait_outputs_off", [], {"timeout": step},

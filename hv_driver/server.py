@@ -8,6 +8,11 @@ outputs ramp to 0 V at their slew limit. Nothing is energised again until a node
 and the faults are reset. A supervisor without a node for ``orphan_timeout_s`` switches every output off, closes
 the ports and exits.
 
+Silence is judged only on a channel read to its end: keep-alives and heartbeats count from their sending stamps, the
+keep-alive's lapse is declared only when nothing waits unread, and the loop has the channel read before it judges the
+controlling client's heartbeat (`HvSupply.listen`). So a stall of this process, while the node's messages wait in the
+channel, is neither the node's silence nor its client's, and a dead node or client is not heard later for it.
+
     python -m hv_driver.server --socket PATH < spec.json    # prints "ready <pid>" or "error: <why>"
 """
 from __future__ import annotations
@@ -18,6 +23,7 @@ import json
 import logging
 import math
 import os
+import select
 import signal
 import socket
 import sys
@@ -44,10 +50,11 @@ THREAD_STACK_BYTES = 512 * 1024  # memory may be locked: keep each thread's stac
 # The supply's methods a client may call, and the attributes of a ramp or pulse handle it may read or call.
 SUPPLY_METHODS = frozenset({"enable", "disable", "ramp_to", "pulse", "claim_control", "release_control",
                             "heartbeat", "set_safe_voltage", "estop", "reset_faults", "reset_device", "snapshot",
-                            "wait_outputs_off", "wait_cycles"})
+                            "wait_outputs_off", "wait_cycles", "drain_events"})
 HANDLE_ATTRIBUTES = frozenset({"done", "message", "succeeded", "wait", "cancel", "cycles_done", "frequency",
                                "short_pulses"})
 ENDING_METHODS = frozenset({"close", "abort"})
+_NOTHING_WAITING, _CLOSED = object(), object()  # what reading the channel found instead of a message
 
 
 def supply_from_spec(spec: dict, ports: list[str] | None = None) -> HvSupply:
@@ -84,9 +91,17 @@ class SupervisorServer:
         self._next_handle = 0
         self._send_lock = threading.Lock()
         self._ended = threading.Event()
+        # Held from reading a message until it is taken in (a heartbeat applied, a request handed on); notified after.
+        self._taken = threading.Condition()
+        self._connection: socket.socket | None = None
+        self._last_keepalive = 0.0
+        self._taken_up_to = -math.inf  # the sending stamp of the last message taken in
+        self._messages_taken = 0
+        self._node_silent = False  # NODE_LOST latched for the silence of the connected node's keep-alive
         self._listener = socket.socket(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         self._listener.bind(path)
         self._listener.listen(1)
+        supply.listen(self._wait_taken_in)
 
     # --- serving ---------------------------------------------------------------------------------
     def serve(self) -> None:
@@ -114,55 +129,107 @@ class SupervisorServer:
         sign of life (requests may come from a thread that outlived the rest); when it stops, NODE_LOST latches once,
         and a node that resumes sees the faults latched and must reset them."""
         log.info("node connected")
-        last_beat, silent = time.monotonic(), False
-        while not self._ended.is_set():
-            remaining = last_beat + self.keepalive_timeout_s - time.monotonic()
-            if remaining <= 0 and not silent:
-                self._node_lost(f"HV driver node lost: no keep-alive for more than {self.keepalive_timeout_s:g} s")
-                silent = True
-            connection.settimeout(max(remaining, 0.0) if not silent else None)
-            try:
-                message = ipc.receive(connection)
-            except TimeoutError:
-                continue
-            except ipc.ChannelClosed:
-                if not self._ended.is_set():
-                    self._node_lost("HV driver node lost: its channel to the supervisor closed (the node's process "
-                                    "ended)")
-                return
-            except ValueError as error:  # not ours: refuse the message, keep serving
-                log.error("malformed request refused: %s", error)
-                continue
-            method = message.get("method")
-            if method == ipc.KEEPALIVE:
-                last_beat, silent = time.monotonic(), False
-                continue
-            if method in ENDING_METHODS:  # the loop stops: answer from this thread, then end
-                self._reply(connection, message, self._call)
-                self._ended.set()
-                _drain(connection)
-                return
-            pool.submit(self._reply, connection, message, self._call)
+        connection.setblocking(False)
+        with self._taken:
+            self._connection, self._last_keepalive, self._node_silent = connection, time.monotonic(), False
+        try:
+            while not self._ended.is_set():
+                with self._taken:
+                    message = self._take_in(connection, pool)
+                    overdue = time.monotonic() - self._last_keepalive - self.keepalive_timeout_s
+                    if message is _NOTHING_WAITING and overdue > 0 and not self._node_silent:
+                        self._node_silent = True  # nothing unread: the keep-alive really stopped
+                        self._node_lost(f"HV driver node lost: no keep-alive for more than "
+                                        f"{self.keepalive_timeout_s:g} s")
+                    silent = self._node_silent
+                if message is _CLOSED:
+                    if not self._ended.is_set():
+                        self._node_lost("HV driver node lost: its channel to the supervisor closed (the node's "
+                                        "process ended)")
+                    return
+                if message is _NOTHING_WAITING:
+                    select.select([connection], [], [], None if silent else max(-overdue, 0.0))
+                elif isinstance(message, dict):  # close or abort: the loop stops; answer from this thread, then end
+                    self._send_reply(connection, self._answer(message))
+                    self._ended.set()
+                    _drain(connection)
+                    return
+        finally:
+            with self._taken:
+                self._connection = None
+                self._taken.notify_all()
+
+    def _take_in(self, connection: socket.socket, pool: ThreadPoolExecutor):
+        """Read one message (``self._taken`` held) and take it in: a keep-alive or heartbeat at once, from its
+        sending stamp; a request handed to ``pool``. Returns _NOTHING_WAITING, _CLOSED, a close or abort request (for
+        the caller) or None."""
+        try:
+            message = ipc.receive(connection)
+        except BlockingIOError:
+            return _NOTHING_WAITING
+        except ipc.ChannelClosed:
+            return _CLOSED
+        except ValueError as error:  # not ours: refuse the message, keep serving
+            self._messages_taken += 1
+            log.error("malformed request refused: %s", error)
+            return None
+        finally:
+            self._taken.notify_all()
+        self._messages_taken += 1
+        try:
+            sent = ipc.sent_at(message, time.monotonic())
+        except ValueError as error:
+            log.error("malformed message refused: %s", error)
+            if "id" in message:
+                pool.submit(self._send_reply, connection, ipc.error_reply(message["id"], error))
+            return None
+        self._taken_up_to = max(self._taken_up_to, sent)
+        method = message.get("method")
+        if method in ENDING_METHODS:
+            return message
+        if method == ipc.KEEPALIVE:
+            self._last_keepalive, self._node_silent = sent, False
+        elif method == "heartbeat":  # taken in here, before the loop may judge the client's silence
+            pool.submit(self._send_reply, connection, self._answer(message))
+        else:
+            pool.submit(lambda: self._send_reply(connection, self._answer(message)))
+        return None
+
+    def _wait_taken_in(self, patience: float) -> None:
+        """`HvSupply.listen`: return once what the node sent before now has been taken in (or nothing waits
+        unread), or once the reading thread has taken in nothing for ``patience`` [s]: a reader that is stuck must
+        not hold the loop."""
+        now = time.monotonic()
+        with self._taken:
+            while (self._connection is not None and self._taken_up_to < now
+                   and select.select([self._connection], [], [], 0)[0]):
+                before = self._messages_taken
+                self._taken.wait(patience)
+                if self._messages_taken == before:
+                    return
 
     def _node_lost(self, reason: str) -> None:
         log.error("%s: every energised output ramps to 0 V (NODE_LOST)", reason)
         self.supply.node_lost(reason)
 
-    def _reply(self, connection: socket.socket, message: dict, call: Callable[[dict], object]) -> None:
+    def _answer(self, message: dict) -> dict:
+        """The reply to a request: its result, or the error it raised."""
         request_id = message.get("id")
         try:
-            reply = {"id": request_id, "result": call(message)}
+            return {"id": request_id, "result": self._call(message)}
         except (HvError, ValueError, TypeError, KeyError) as error:
-            reply = ipc.error_reply(request_id, error if isinstance(error, (HvError, ValueError)) else
-                                    ValueError(f"malformed request {message.get('method')!r}: {error}"))
+            return ipc.error_reply(request_id, error if isinstance(error, (HvError, ValueError)) else
+                                   ValueError(f"malformed request {message.get('method')!r}: {error}"))
         except Exception as error:  # a defect here must not end the loop's process: report it
             log.exception("request %r failed", message.get("method"))
-            reply = ipc.error_reply(request_id, HvError(f"supervisor error: {error!r}"))
+            return ipc.error_reply(request_id, HvError(f"supervisor error: {error!r}"))
+
+    def _send_reply(self, connection: socket.socket, reply: dict) -> None:
         with self._send_lock:
             try:
                 ipc.send(connection, reply)
             except (ipc.ChannelClosed, ValueError) as error:
-                log.warning("reply to %r not sent: %s", message.get("method"), error)
+                log.warning("reply to request %r not sent: %s", reply.get("id"), error)
 
     # --- requests --------------------------------------------------------------------------------
     def _call(self, message: dict):
@@ -183,6 +250,8 @@ class SupervisorServer:
             raise ValueError(f"method={method!r}: unknown")
         if method in ("wait_outputs_off", "wait_cycles"):
             kwargs["timeout"] = self._bounded_wait(kwargs.get("timeout"))
+        if method == "heartbeat":
+            kwargs["sent"] = ipc.sent_at(message, time.monotonic())
         result = getattr(self.supply, method)(*args, **kwargs)
         if isinstance(result, RampHandle):
             return {"handle": self._keep(result), "channel": result.channel, "target": result.target}

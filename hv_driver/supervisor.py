@@ -9,11 +9,11 @@ Rules enforced here:
 - ceiling = min(hard maximum, assembly safe voltage, supply limit); a request above it is refused
   with `LimitError` naming the limit, and the streamed setpoint is still clamped to it;
 - the setpoint rises and falls no faster than the channel's slew limit (a stalled loop catches up by
-  at most two nominal periods' worth per cycle), except that it drops at once when the ceiling drops
+  at most two sustained periods' worth per cycle), except that it drops at once when the ceiling drops
   below it or a fault latches;
 - only the client holding control (commands signed with its session token) may ramp or feed the heartbeat watchdog; the
-  watchdog is on unless switched off on purpose (heartbeat_timeout_s=math.inf), and a stall of the driver's
-  own loop is not counted as the client's silence (`ControlClaim.cycle`);
+  watchdog is on unless switched off on purpose (heartbeat_timeout_s=math.inf); a heartbeat counts from when it was
+  sent (`ControlClaim.confirm`);
 - the readback must follow the commands at the device's own ramp (`ReadbackCheck`);
 - on a supply without current readback (breakdown guard on), a measured voltage far below a setpoint held for a
   moment, or a pulse train none of whose pulses reaches half its amplitude for two periods, is a film breakdown
@@ -23,8 +23,11 @@ Rules enforced here:
   output to 0 V at once, one more square edge of the kind it was making);
 - faults latch until `reset`; every fault but HEARTBEAT and NODE_LOST puts the output to 0 V and off at once
   (emergency off), a lost heartbeat or node ramps to 0 V at the slew limit and then switches off;
-- after a reset the outputs stay off until enabled again (never resume by themselves).
+- after a reset the outputs stay off until enabled again (never resume by themselves);
+- faults latching and clearing and control ending other than by a release are queued in `events`
+  (hv_driver.events), for the node to log every one.
 """
+import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -32,6 +35,7 @@ from dataclasses import dataclass
 from .config import ChannelConfig
 from .control import HEARTBEAT, ControlClaim, ramp_command
 from .errors import HvError, SettingError, StateError
+from .events import EventLog
 from .faults import Fault, fault_names
 from .pulse import PulseTally, PulseTrain
 from .ramp import MinimumJerkRamp, check_slew_rate
@@ -59,10 +63,13 @@ PULSE_GUARD_PERIODS = 2.0
 DEVICE_COUNT_MARGIN_S = 0.25
 DEVICE_CLOCK_TOLERANCE = 1e-3
 
-# The control loop's nominal period [s] unless told otherwise (the time step unit of the slew credit, the readback
-# check and the pulse guard).
-DEFAULT_PERIOD_S = 0.01
-# A cycle credits the slew allowance with its elapsed time up to this many nominal periods. The driver's loop keeps its
+# The control loop's rate unless told otherwise [Hz]: a fault shows in the readback of the next cycle, so the period is
+# most of the time from a fault to the cut (docs/hv_driver.md, "Thresholds chosen for safety"). Over a link whose
+# exchanges take longer the loop runs as fast as the line allows; the period it sustains (`Supervisor.set_cycle_period`)
+# is the time step unit of the slew credit, the readback check and the pulse guard.
+DEFAULT_LOOP_RATE_HZ = 200.0
+DEFAULT_PERIOD_S = 1.0 / DEFAULT_LOOP_RATE_HZ
+# A cycle credits the slew allowance with its elapsed time up to this many periods (the loop's sustained period). The driver's loop keeps its
 # schedule while a cycle ends within one period of its slot (`HvSupply._run`), so a loop that runs late but on its
 # schedule keeps the timing of its ramps (a heartbeat ramp-down ends on time); one resuming from a stall moves by at
 # most this many periods' worth instead of jumping by the whole stall's.
@@ -101,8 +108,10 @@ def _finite(value) -> bool:
 class ChannelSupervisor:
     """Limits, ramp and latched faults of one output channel."""
 
-    def __init__(self, config: ChannelConfig, now: float = 0.0, nominal_period_s: float = DEFAULT_PERIOD_S):
+    def __init__(self, config: ChannelConfig, now: float = 0.0, nominal_period_s: float = DEFAULT_PERIOD_S,
+                 events: EventLog | None = None):
         self.config = config
+        self.events = EventLog() if events is None else events  # the supervisor's, shared by its channels
         self._clock = float(now) if _finite(now) else 0.0
         self.nominal_period_s = nominal_period_s
         self.setpoint = 0.0
@@ -124,7 +133,12 @@ class ChannelSupervisor:
         self._last_observed: float | None = None
         self.pulse_tally: PulseTally | None = None  # the last streamed train's short pulses (kept after it ends)
         self._counted_out: PulseTrain | None = None  # the device-switched train the device reported counted out
+        self.ended_by_host: PulseTrain | None = None  # ... or the one the host ended by its fallback instead
         self.ramp_id = 0  # counts accepted ramp requests, so a waiting caller sees being superseded
+
+    def set_cycle_period(self, period_s: float) -> None:
+        """The period the loop sustains (see `Supervisor.set_cycle_period`)."""
+        self.nominal_period_s = self._readback.max_interval_s = period_s
 
     # --- state -------------------------------------------------------------------------------
     def limits(self) -> dict[str, float]:
@@ -271,6 +285,8 @@ class ChannelSupervisor:
         if fault not in self.faults:
             self.faults |= fault
             self._reasons[fault] = reason
+            self.events.add(self._clock, logging.ERROR, f"channel {self.config.name!r}: fault latched: "
+                                                        f"{fault_names(fault)}: {reason}")
         if fault & IMMEDIATE_FAULTS:
             self.setpoint = self.target = 0.0
             self.output_enabled = False
@@ -327,7 +343,7 @@ class ChannelSupervisor:
 
     def _check_pulses(self, now: float, voltage: float, train: PulseTrain) -> None:
         """Every pulse must reach COLLAPSE_FRACTION of the amplitude; time counted as observed (a stalled loop adds
-        at most one nominal period per readback), where the on-phase is long enough for the loop to see it."""
+        at most one sustained period per readback), where the on-phase is long enough for the loop to see it."""
         if now < train.start or train.duty * train.period < PULSE_GUARD_MIN_CYCLES * self.nominal_period_s:
             return
         if voltage >= COLLAPSE_FRACTION * train.amplitude:
@@ -342,6 +358,9 @@ class ChannelSupervisor:
 
     def reset(self) -> None:
         """Clear the latched faults; the output stays off until enabled again."""
+        if self.faults:
+            self.events.add(self._clock, logging.INFO, f"channel {self.config.name!r}: faults "
+                                                       f"{fault_names(self.faults)} cleared")
         self.faults = Fault(0)
         self._reasons.clear()
         self.setpoint = self.target = 0.0
@@ -380,8 +399,11 @@ class ChannelSupervisor:
         train = self.pulse_train
         device_switched = train is not None and train.on_device
         if device_switched and now >= train.start:  # on until the device's count ends it (or the fallback)
-            finished = self._counted_out is train or now >= train.stop + DEVICE_COUNT_MARGIN_S + (
+            counted_out = self._counted_out is train
+            finished = counted_out or now >= train.stop + DEVICE_COUNT_MARGIN_S + (
                 DEVICE_CLOCK_TOLERANCE * (train.stop - train.start))
+            if finished and not counted_out:
+                self.ended_by_host = train
             desired = train.end if finished else train.amplitude
         if not device_switched:  # the device's own square edges are not the host's to slew
             allowance = self.config.slew_rate_v_per_s * dt
@@ -404,7 +426,8 @@ class Supervisor:
     heartbeat_timeout_s: the controlling client must show a sign of life (a heartbeat or a ramp request
         with its token) this often, or its control lapses and every output it energised ramps to 0 V
         (HEARTBEAT). math.inf switches the watchdog off; that takes this deliberate value, None is refused.
-    nominal_period_s: the control loop's period (the unit of the slew credit's cap, the readback check's).
+    nominal_period_s: the control loop's period (the unit of the slew credit's cap, the readback check's), until
+        the loop reports the period it sustains (`set_cycle_period`).
     """
 
     def __init__(self, configs: list[ChannelConfig], *, link_timeout_s: float,
@@ -426,12 +449,23 @@ class Supervisor:
         self.link_timeout_s = float(link_timeout_s)
         self.heartbeat_timeout_s = float(heartbeat_timeout_s)
         self._clock = float(now) if _finite(now) else 0.0
-        self.channels = {c.name: ChannelSupervisor(c, self._clock, nominal_period_s) for c in configs}
+        self.events = EventLog()
+        self.channels = {c.name: ChannelSupervisor(c, self._clock, nominal_period_s, self.events) for c in configs}
         self.control = ControlClaim(self.heartbeat_timeout_s)
         # Per supply (device): start and count of the current run of failed exchanges (None while its link
         # answers). Timing the failures, not the gap since the last success, keeps a host that was merely
         # descheduled (a loaded machine) from tripping while a supply that stops answering still trips on time.
         self._link_failing: dict[int, tuple[float, int] | None] = {c.device: None for c in configs}
+
+    def set_cycle_period(self, period_s: float) -> None:
+        """The period the control loop sustains: its nominal one, or longer on a line whose exchanges take longer.
+        The slew credit, the readback check and the pulse guard count time in this unit, so that a stall (a gap
+        of many periods) is discounted while a loop that is merely slow, every cycle, keeps its ramps' times and
+        trips on time."""
+        if not (_finite(period_s) and period_s > 0):
+            raise SettingError(f"period_s={period_s!r}: finite number > 0")
+        for channel in self.channels.values():
+            channel.set_cycle_period(period_s)
 
     @property
     def heartbeat_watchdog_off(self) -> bool:
@@ -481,10 +515,10 @@ class Supervisor:
                 channel.ramp_to(now, 0.0)
         return owner
 
-    def heartbeat(self, now: float, token: str) -> None:
+    def heartbeat(self, now: float, token: str, sent: float | None = None) -> None:
         """Sign of life of the controlling client (``token``: its session token or a signed HEARTBEAT; ControlError
-        for anything else)."""
-        self.control.confirm(token, self._now(now), HEARTBEAT)
+        for anything else), sent at ``sent`` (default: ``now``)."""
+        self.control.confirm(token, self._now(now), HEARTBEAT, sent)
 
     # --- requests ----------------------------------------------------------------------------
     def enable(self, name: str, now: float) -> None:
@@ -522,16 +556,21 @@ class Supervisor:
 
     def estop(self) -> None:
         """Every output off at once (ESTOP); open to everyone, and it ends the control session."""
-        self.control.end("control ended by an emergency stop")
+        self._end_control(self._clock, "control ended by an emergency stop")
         for channel in self.channels.values():
             channel.trip(Fault.ESTOP, "emergency stop")
 
     def node_lost(self, now: float, reason: str) -> None:
         """The node this supervisor serves is gone: its client's session ends and every channel latches NODE_LOST
         (energised outputs ramp to 0 V). Nothing is energised again until a client claims control and resets."""
-        self._now(now)
-        self.control.end(reason)
+        self._end_control(self._now(now), reason)
         self.trip_all(Fault.NODE_LOST, reason)
+
+    def _end_control(self, now: float, reason: str) -> None:
+        """End the session (if any) for ``reason``, other than by its release: an event."""
+        if self.control.owner is not None:
+            self.events.add(now, logging.WARNING, reason)
+        self.control.end(reason)
 
     def trip_all(self, fault: Fault, reason: str) -> None:
         for channel in self.channels.values():
@@ -554,14 +593,14 @@ class Supervisor:
                     if channel.config.device == device:
                         channel.trip(Fault.LINK, f"no valid reply from the supply for more than "
                                                  f"{self.link_timeout_s:g} s")
-        self.control.cycle(now)
         self._watch_control(now)
         return {name: channel.step(now) for name, channel in self.channels.items()}
 
     def _watch_control(self, now: float) -> None:
         """End a silent session; without a live client, trip every output held or raised above 0 V (one on its
         way to 0 V needs no client)."""
-        self.control.lapse_if_silent(now)
+        if self.control.lapse_if_silent(now):
+            self.events.add(now, logging.WARNING, self.control.ended)
         if not self.heartbeat_watchdog_off and self.control.owner is None:
             reason = self.control.ended or "no client holds control"
             for channel in self.channels.values():

@@ -24,9 +24,10 @@ def check_writable_target(path: str | Path) -> Path:
 
 
 @contextlib.contextmanager
-def atomic_write(path: str | Path, mode: str = "w", **open_kwargs):
+def atomic_write(path: str | Path, mode: str = "w", replace: bool = True, **open_kwargs):
     """Context manager yielding a file opened on a temporary file next to ``path``; on a clean exit the data
-    is flushed to disk and the temporary file renamed to ``path``, on an exception it is removed."""
+    is flushed to disk and the temporary file renamed to ``path``, on an exception it is removed. Without
+    ``replace`` a ``path`` that exists by then is kept (FileExistsError): the file is linked, not renamed."""
     path = check_writable_target(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
@@ -37,7 +38,11 @@ def atomic_write(path: str | Path, mode: str = "w", **open_kwargs):
             yield stream
             stream.flush()
             os.fsync(stream.fileno())
-        os.replace(temporary, path)
+        if replace:
+            os.replace(temporary, path)
+        else:
+            os.link(temporary, path)
+            os.remove(temporary)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.remove(temporary)

@@ -3,12 +3,17 @@
 Model (assumptions written out in docs/block_model.md):
 
 * The two rods bend with constant curvature (the paper's kinematics), so one angle theta
-  describes the block; their bending axis lies ``rod_depth`` below the top of the cap circle.
-  Each rod is a linear-elastic beam: the pair resists with M = 2 E I theta / L, I = pi D^4 / 64.
-* The active membrane covers the arc |psi| <= ``membrane_half_angle`` of the cap circle (psi from
-  the top). It is cut into N axial strips; a strip at height d above the rod axis runs between the
-  caps. Its reference length is L / lambda_1 and its hoop stretch stays lambda_2 (held by the
-  rigid caps), so bending changes only its axial stretch l / (L / lambda_1).
+  describes the block. Their bending axis lies ``rod_depth`` (h) below the top of the cap circle.
+* Where the active membrane lies on the cap outline is the model's ``MembraneLayout``:
+  ``beyond_rods`` (shipped) covers the outline on the far side of the rods, from one rod to the
+  other, so its arc is set by h alone and the block bends away from the rods; ``top_arc`` covers a
+  fitted arc centred on the cap top and bends toward it; ``full_wrap`` covers the whole outline.
+  The membrane is cut into N axial strips; a strip at height d above the rod axis (measured toward
+  the side the block bends to) runs between the caps. Its reference length is L / lambda_1 and its
+  hoop stretch stays lambda_2 (held by the rigid caps), so bending changes only its axial stretch.
+* Rods (``RodLaw``): ``constant_curvature`` resists with M = 2 E I theta / L, I = pi D^4 / 64 (exact
+  for rods clamped in the caps under end moments); ``beam_column`` adds the membrane's axial
+  compression of the rods (end rotation M L / EI * tan(u) / u, u = (L / 2) sqrt(P / EI)).
 * Fibre length l(theta): ``"arc"`` keeps the fibre parallel to the rods (l = L - d theta, the
   paper's constant-curvature picture); ``"chord"`` uses the straight line between the two
   anchor points on the rotated caps (l = (L - d theta) sin(theta/2) / (theta/2)), exact for the
@@ -16,11 +21,11 @@ Model (assumptions written out in docs/block_model.md):
 * Strip stress: plane-stress incompressible Ogden, minus the Maxwell stress eps (V/t)^2 at the
   strip's current thickness t = t0 / (lambda_a lambda_2). A strip cannot carry compression
   (it wrinkles), so its force is w t max(sigma, 0).
-* Equilibrium by virtual work: sum_k f_k (-dl_k/dtheta) = 2 E I theta / L.
+* Equilibrium by virtual work: sum_k f_k (-dl_k/dtheta) = rod moment.
 
-An equilibrium is only reported as valid if every strip is still in tension, the tangent
-stiffness is positive (no electromechanical pull-in) and the field stays below the material's
-dielectric strength; otherwise the angle is NaN and the status says which limit was crossed.
+An equilibrium is only reported as valid if some strip still holds tension, the tangent stiffness is
+positive (no electromechanical pull-in), the caps do not touch and the field stays below the
+material's dielectric strength; otherwise the angle is NaN and the status says which limit was crossed.
 """
 from __future__ import annotations
 
@@ -37,29 +42,111 @@ from planner.materials import ELASTOSIL_2030, VACUUM_PERMITTIVITY, OgdenMaterial
 from planner.ogden import biaxial_cauchy_stress, biaxial_cauchy_stress_slope
 
 
+class MembraneLayout(str, enum.Enum):
+    """Which part of the cap outline the active membrane covers."""
+
+    BEYOND_RODS = "beyond_rods"  # from rod to rod around the far side of the cap: the arc follows from h
+    TOP_ARC = "top_arc"  # an arc centred on the cap top, its half angle fitted
+    FULL_WRAP = "full_wrap"  # the whole outline
+
+
+class RodLaw(str, enum.Enum):
+    """How the two rods resist the membrane."""
+
+    CONSTANT_CURVATURE = "constant_curvature"  # end moments only: M = 2 E I theta / L
+    BEAM_COLUMN = "beam_column"  # end moments plus the membrane's axial compression
+
+
+@dataclass(frozen=True)
+class Mechanics:
+    """The physics a model uses; benchmarks/block_model_loo.py compares the alternatives."""
+
+    membrane: MembraneLayout = MembraneLayout.BEYOND_RODS
+    rods: RodLaw = RodLaw.CONSTANT_CURVATURE
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "membrane", MembraneLayout(self.membrane))
+        object.__setattr__(self, "rods", RodLaw(self.rods))
+
+    @property
+    def label(self) -> str:
+        return f"{self.membrane.value}, {self.rods.value}"
+
+
 @dataclass(frozen=True)
 class ModelConstants:
     """Constants the paper does not give; fitted by planner.model_calibration to its published points."""
 
     film_thickness: float  # effective unstretched film thickness t0 [m]
     rod_modulus: float  # NiTi Young's modulus [Pa]
-    membrane_half_angle: float  # active membrane covers |psi| <= this, psi from the cap top [rad]
+    mechanics: Mechanics = Mechanics()
+    # Only the TOP_ARC layout has one: the active membrane covers |psi| <= this, psi from the cap top [rad].
+    membrane_half_angle: float | None = None
+
+    def __post_init__(self) -> None:
+        fitted_arc = self.mechanics.membrane == MembraneLayout.TOP_ARC
+        if fitted_arc and not (self.membrane_half_angle is not None and 0.0 < self.membrane_half_angle <= math.pi):
+            raise ValueError(f"the top_arc layout needs membrane_half_angle in (0, pi], got {self.membrane_half_angle!r}")
+        if not fitted_arc and self.membrane_half_angle is not None:
+            raise ValueError(f"membrane_half_angle belongs to the top_arc layout only, not {self.mechanics.membrane.value}")
 
 
 # Output of `python -m planner calibrate` (planner/model_calibration.py); a test re-runs the fit.
-CALIBRATED_CONSTANTS = ModelConstants(
-    film_thickness=8.9346e-05,
-    rod_modulus=2.2630e10,
-    membrane_half_angle=1.758679,  # 100.76 deg: the arc over the top and ~32 deg below the rods
-)
+CALIBRATED_CONSTANTS = ModelConstants(film_thickness=8.0917e-05, rod_modulus=3.6539e10)
+
+
+@dataclass(frozen=True)
+class MembraneArc:
+    """The active membrane's arc of the cap outline, seen from the side the block bends to.
+
+    psi runs around the outline from its point farthest toward the bend; the membrane covers
+    |psi| <= half_angle. A point at psi lies d = centre_offset + R cos(psi) above the rod axis.
+    """
+
+    half_angle: float  # [rad]
+    centre_offset: float  # cap centre's height above the rod axis, toward the bend [m]
+    radius: float  # [m]
+
+    @classmethod
+    def of(cls, constants: ModelConstants, geometry: BlockGeometry) -> "MembraneArc":
+        layout, r, y = constants.mechanics.membrane, geometry.radius, geometry.rod_height
+        if layout == MembraneLayout.TOP_ARC:
+            return cls(constants.membrane_half_angle, -y, r)
+        # Bending away from the rods, the cap centre lies y beyond them; the membrane ends at the rods.
+        half_angle = math.pi if layout == MembraneLayout.FULL_WRAP else math.acos(-y / r)
+        return cls(half_angle, y, r)
+
+    @property
+    def length(self) -> float:
+        """Arc length of the membrane on the cap outline [m]."""
+        return 2.0 * self.half_angle * self.radius
+
+    @property
+    def reach(self) -> float:
+        """Distance from the rod axis to the outline's farthest point toward the bend [m]."""
+        return self.centre_offset + self.radius
+
+    def strips(self, n_strips: int) -> tuple[np.ndarray, float]:
+        """Heights d of the strip mid-lines above the rod axis [m] and each strip's width [m]."""
+        edges = np.linspace(-self.half_angle, self.half_angle, n_strips + 1)
+        mid = 0.5 * (edges[1:] + edges[:-1])
+        return self.centre_offset + self.radius * np.cos(mid), self.radius * (edges[1] - edges[0])
+
+    def moments(self) -> tuple[float, float]:
+        """First and second moments of the arc about the rod axis: int d ds, int d^2 ds."""
+        r, c, b = self.radius, self.centre_offset, self.half_angle
+        first = 2.0 * r * (r * math.sin(b) + c * b)
+        second = r * (r * r * (b + math.sin(b) * math.cos(b)) + 4.0 * r * c * math.sin(b) + 2.0 * c * c * b)
+        return first, second
 
 
 class Status(enum.IntEnum):
     OK = 0
-    MEMBRANE_SLACK = 1  # some strip lost its tension (wrinkling): the membrane no longer holds shape
+    MEMBRANE_SLACK = 1  # no strip holds tension any more: the membrane no longer holds the block's shape
     PULL_IN = 2  # tangent stiffness <= 0: electromechanical instability
     BREAKDOWN = 3  # field above the film's dielectric strength
     NO_EQUILIBRIUM = 4  # no root in 0 < theta < 90 deg (e.g. membrane moment <= 0 while straight)
+    CAP_CONTACT = 5  # the membrane still bends the block where the two caps touch
 
 
 @dataclass(frozen=True)
@@ -120,7 +207,8 @@ class BlockDesigns:
     relative_permittivity: np.ndarray
     rod_modulus: np.ndarray
     material: OgdenMaterial = ELASTOSIL_2030
-    membrane_half_angle: float = CALIBRATED_CONSTANTS.membrane_half_angle
+    mechanics: Mechanics = CALIBRATED_CONSTANTS.mechanics
+    membrane: MembraneArc = field(default=MembraneArc.of(CALIBRATED_CONSTANTS, PAPER_GEOMETRY))
     geometry: BlockGeometry = field(default=PAPER_GEOMETRY)
 
     @classmethod
@@ -156,10 +244,8 @@ class BlockDesigns:
             ),
             _checked("rod_modulus", constants.rod_modulus if rod_modulus is None else rod_modulus),
         )
-        if not 0.0 < constants.membrane_half_angle <= math.pi:
-            raise ValueError(f"membrane_half_angle must lie in (0, pi], got {constants.membrane_half_angle!r}")
         return cls(*(np.atleast_1d(a).astype(float) for a in arrays), material=material,
-                   membrane_half_angle=constants.membrane_half_angle, geometry=geometry)
+                   mechanics=constants.mechanics, membrane=MembraneArc.of(constants, geometry), geometry=geometry)
 
     @property
     def size(self) -> int:
@@ -181,19 +267,10 @@ class BlockDesigns:
     def permittivity(self) -> np.ndarray:
         return VACUUM_PERMITTIVITY * self.relative_permittivity
 
-    def strips(self, n_strips: int) -> tuple[np.ndarray, float]:
-        """Heights d of the strip mid-lines above the rod axis [m] and each strip's width [m]."""
-        radius = self.geometry.radius
-        edges = np.linspace(-self.membrane_half_angle, self.membrane_half_angle, n_strips + 1)
-        mid = 0.5 * (edges[1:] + edges[:-1])
-        return radius * np.cos(mid) - self.geometry.rod_height, radius * (edges[1] - edges[0])
-
-    def membrane_moments(self) -> tuple[float, float]:
-        """First and second moments of the membrane arc about the rod axis: int d ds, int d^2 ds."""
-        r, y, b = self.geometry.radius, self.geometry.rod_height, self.membrane_half_angle
-        first = 2.0 * r * (r * math.sin(b) - y * b)
-        second = r * (r * r * (b + math.sin(b) * math.cos(b)) - 4.0 * r * y * math.sin(b) + 2.0 * y * y * b)
-        return first, second
+    @property
+    def contact_angle(self) -> np.ndarray:
+        """Bending angle at which the caps' inner faces touch on the bending side [rad]."""
+        return self.rod_length / self.membrane.reach
 
 
 @dataclass(frozen=True)
@@ -243,13 +320,24 @@ def _fibre_length(theta, heights, rod_length, kind):
     return arc * sinc, -heights * sinc + 0.5 * arc * sinc_slope
 
 
+def _beam_column_factor(u, kind):
+    """The compressed rods' stiffness over the constant-curvature rods' (u / tan u for rods clamped in caps
+    that are free to rotate). The chord fibres already hold its first-order term -u^2 / 3, added back here so
+    that it is not counted twice."""
+    safe = np.maximum(u, 1e-2)
+    exact = np.where(u < 1e-2, 1.0 - u**2 / 3.0 - u**4 / 45.0, safe / np.tan(safe))
+    return exact + u**2 / 3.0 if kind == "chord" else exact
+
+
 class BlockModel:
     """Equilibrium, stiffness and voltage limit of block designs at one fidelity."""
 
     def __init__(self, designs: BlockDesigns, fidelity: Fidelity = TABLE_FIDELITY):
+        if fidelity.kind == "closed_form" and designs.mechanics.rods != RodLaw.CONSTANT_CURVATURE:
+            raise ValueError(f"the closed form models constant-curvature rods only, not {designs.mechanics.rods.value}")
         self.designs = designs
         self.fidelity = fidelity
-        self._heights, self._width = designs.strips(fidelity.n_strips)
+        self._heights, self._width = designs.membrane.strips(fidelity.n_strips)
 
     # -- membrane mechanics -------------------------------------------------------------------
     def _film_columns(self, index):
@@ -271,7 +359,13 @@ class BlockModel:
         """Membrane moment minus rod moment [N m] for designs[index]."""
         stress, thickness, slope = self._strip_state(theta, voltage, index)
         force = self._width * thickness * np.maximum(stress, 0.0)
-        return np.sum(force * -slope, axis=-1) - self.designs.rod_stiffness[index] * theta
+        rod_moment = self.designs.rod_stiffness[index] * theta
+        if self.designs.mechanics.rods == RodLaw.BEAM_COLUMN:
+            length = self.designs.rod_length[index]
+            bending = self.designs.rod_stiffness[index] * length  # E I of both rods
+            u = np.minimum(0.5 * length * np.sqrt(np.sum(force, axis=-1) / bending), math.pi - 1e-3)
+            rod_moment = rod_moment * _beam_column_factor(u, self.fidelity.kind)
+        return np.sum(force * -slope, axis=-1) - rod_moment
 
     # -- solvers ------------------------------------------------------------------------------
     def solve(self, voltage) -> EquilibriumResult:
@@ -293,14 +387,17 @@ class BlockModel:
         straight = np.zeros(n)
         no_moment = self._residual(straight, voltage, index) <= 0.0
         # Straight, every strip has the same stretch: no moment left means no tension left.
-        slack = np.min(self._strip_state(straight, voltage, index)[0], axis=-1) <= 0.0
+        slack = np.max(self._strip_state(straight, voltage, index)[0], axis=-1) <= 0.0
         status[no_moment] = np.where(slack[no_moment], Status.MEMBRANE_SLACK, Status.NO_EQUILIBRIUM)
+        # The root lies before the caps touch (and long before 90 degrees) or the caps rest on each other.
+        upper = np.minimum(self.designs.contact_angle, math.pi / 2.0)
+        touching = (status == Status.OK) & (self._residual(upper, voltage, index) > 0.0)
+        status[touching] = np.where(upper[touching] < math.pi / 2.0, Status.CAP_CONTACT, Status.NO_EQUILIBRIUM)
         solvable = np.flatnonzero(status == Status.OK)
         if solvable.size:
-            upper = np.full(solvable.size, math.pi / 2.0)  # caps collide long before 90 degrees
             root = elementwise.find_root(
                 lambda x, i, v: self._residual(x, v, i.astype(int)),
-                (np.zeros(solvable.size), upper),
+                (np.zeros(solvable.size), upper[solvable]),
                 args=(solvable.astype(float), voltage[solvable]),
                 tolerances={"xatol": 1e-10, "xrtol": 1e-12},
             )
@@ -314,15 +411,15 @@ class BlockModel:
         index = np.arange(n)
         ok = status == Status.OK
         theta_eval = np.where(ok, theta, 0.0)
-        stress, thickness, _ = self._strip_state(theta_eval, voltage, index)
+        _, thickness, _ = self._strip_state(theta_eval, voltage, index)
         max_field = np.max(voltage[:, None] / thickness, axis=-1)
         step = 1e-6
         stiffness = (
             self._residual(theta_eval - step, voltage, index) - self._residual(theta_eval + step, voltage, index)
         ) / (2.0 * step)
-        # Order matters: report the most fundamental failure first.
-        status = np.where(ok & (np.min(stress, axis=-1) <= 0.0), Status.MEMBRANE_SLACK, status)
-        status = np.where((status == Status.OK) & (stiffness <= 0.0), Status.PULL_IN, status)
+        # Order matters: report the most fundamental failure first. Strips that would be compressed wrinkle
+        # and carry nothing; at a root the rods' moment is held by the strips still in tension.
+        status = np.where(ok & (stiffness <= 0.0), Status.PULL_IN, status)
         breakdown = max_field >= self.designs.material.breakdown_field
         status = np.where((status == Status.OK) & breakdown, Status.BREAKDOWN, status)
         valid = status == Status.OK
@@ -336,7 +433,7 @@ class BlockModel:
     def _solve_closed_form(self, voltage) -> EquilibriumResult:
         """Small-angle estimate: arc model linearised about the straight block (no strips)."""
         d = self.designs
-        first, second = d.membrane_moments()
+        first, second = d.membrane.moments()
         stretch = d.prestretch_axial
         stress, thickness = _strip_tension(stretch, self._film_columns(slice(None)), voltage, d.material)
         slope = biaxial_cauchy_stress_slope(d.material.mu, d.material.alpha, stretch, d.prestretch_tangential)
@@ -348,6 +445,7 @@ class BlockModel:
         status = np.full(d.size, Status.OK, dtype=int)
         status[stress <= 0.0] = Status.MEMBRANE_SLACK
         status[(status == Status.OK) & (stiffness <= 0.0)] = Status.PULL_IN
+        status[(status == Status.OK) & (theta >= d.contact_angle)] = Status.CAP_CONTACT
         status[(status == Status.OK) & (max_field >= d.material.breakdown_field)] = Status.BREAKDOWN
         valid = status == Status.OK
         return EquilibriumResult(np.where(valid, theta, np.nan), np.where(valid, stiffness, np.nan), status, max_field)

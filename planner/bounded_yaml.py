@@ -55,12 +55,13 @@ def _one_line(source: str, error: yaml.YAMLError) -> YAMLInputError:
     return YAMLInputError(f"{source}: invalid YAML: {where}{problem[:MAX_PROBLEM]}")
 
 
-def parse_yaml(text: str | bytes, source: str, max_size: int = MAX_FILE_SIZE):
-    """The document in ``text`` (at most ``max_size`` characters or bytes); YAMLInputError otherwise."""
+def parse_yaml(text: str | bytes, source: str, max_size: int = MAX_FILE_SIZE, read=yaml.load):
+    """The document in ``text`` (at most ``max_size`` characters or bytes); YAMLInputError otherwise. ``read``:
+    yaml.load (Python values) or yaml.compose (the node tree: each scalar's text and quoting style, untyped)."""
     if len(text) > max_size:
         raise YAMLInputError(f"{source}: larger than {max_size} bytes, the limit for this file")
     try:
-        return yaml.load(text, Loader=BoundedLoader)  # a SafeLoader
+        return read(text, Loader=BoundedLoader)  # a SafeLoader
     except yaml.YAMLError as error:
         raise _one_line(source, error) from None
     except ValueError as error:  # a constructor's, e.g. an integer of more than 4300 digits
@@ -82,6 +83,7 @@ def read_regular_file(path: str | Path, max_size: int) -> bytes:
     return data
 
 
-def load_yaml_file(path: str | Path, max_size: int = MAX_FILE_SIZE):
-    """Read (bounded, see the module docstring) and parse one YAML file; YAMLInputError otherwise."""
-    return parse_yaml(read_regular_file(path, max_size), str(path), max_size)
+def load_yaml_file(path: str | Path, max_size: int = MAX_FILE_SIZE, read=yaml.load):
+    """Read (bounded, see the module docstring) and parse one YAML file (``read``: see parse_yaml);
+    YAMLInputError otherwise."""
+    return parse_yaml(read_regular_file(path, max_size), str(path), max_size, read)

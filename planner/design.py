@@ -27,6 +27,7 @@ from planner.objectives import ShapeTarget, evaluate, finger_target, path_target
 from planner.optimize import (DesignOptimizeResult, DesignSpace, design_space, solve_exact, solve_finger,
                               solve_pso)
 from planner.optimize.finger_search import DEFAULT_OPTIONS as FINGER_OPTIONS
+from planner.optimize.front_search import solve_finger_front
 from planner.optimize.lookahead import block_shapes, lookahead_fields
 from planner.optimize.space import MAX_BLOCKS
 from planner.table import load_table
@@ -263,6 +264,9 @@ def prepare_finger_search(configurations=PREPARED_CONFIGURATIONS, table=None, pr
     rows, columns = np.mgrid[:60, :40]
     ellipse = ((rows - 30) / 24.0) ** 2 + ((columns - 20) / 12.0) ** 2 < 1.0
     design_fingers(ellipse, 5e-4, 2, table=table)  # compiles every kernel on a small problem
+    target = finger_problems(extract_contours(ellipse, 5e-4))["left"][0]
+    for objects in (1, 2):  # the swap-front search of reconfiguration plans, for one and two objects
+        solve_finger_front([target] * objects, [1.0] * objects, design_space(table, 2))
     report(f"[1/{steps}] kernels ready in {time.perf_counter() - started:.1f} s")
     for step, (blocks, stiff) in enumerate(configurations, start=2):
         started = time.perf_counter()

@@ -23,7 +23,7 @@ class MassConstants:
 
 
 # Output of `python -m planner calibrate` (planner/model_calibration.py).
-CALIBRATED_MASS = MassConstants(fixed=4.8409e-04, per_length=3.5090e-02)
+CALIBRATED_MASS = MassConstants(fixed=4.8409e-04, per_length=3.5092e-02)
 
 
 def component_mass(designs: BlockDesigns) -> np.ndarray:
@@ -31,7 +31,7 @@ def component_mass(designs: BlockDesigns) -> np.ndarray:
     # Each rod also runs through both caps, where it is glued in.
     rod_length = designs.rod_length + 2.0 * designs.geometry.cap_length
     rods = 2.0 * NITI_DENSITY * math.pi * designs.rod_diameter**2 / 4.0 * rod_length
-    arc = 2.0 * designs.membrane_half_angle * designs.geometry.radius
+    arc = designs.membrane.length
     # Film volume is conserved: its current thickness times area equals t0 times reference area.
     film = designs.material.density * designs.film_thickness * arc * designs.rod_length / (
         designs.prestretch_axial * designs.prestretch_tangential

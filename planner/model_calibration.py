@@ -1,7 +1,8 @@
 """Fit the block model's unpublished constants to the paper's published numbers.
 
-Unknown: effective film thickness t0, NiTi modulus E, and the arc of the cap circle the active
-membrane covers. Targets (section 2.2.1 of the paper, FE model values):
+Unknown: effective film thickness t0 and NiTi modulus E (and, for the ``top_arc`` membrane layout
+only, the arc of the cap circle the active membrane covers). Targets (section 2.2.1 of the paper,
+FE model values):
 
 * ID 15 (lambda_1 = 1.5, L = 15 mm, D = 0.31 mm): theta_0 = 32.15 deg, stroke 5.29 deg at 2.4 kV;
 * IDs 5-7 and 40-42 have similar theta_0;
@@ -20,7 +21,15 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from planner.block_model import TABLE_FIDELITY, BlockModel, Fidelity, ModelConstants
+from planner.block_model import (
+    CALIBRATED_CONSTANTS,
+    TABLE_FIDELITY,
+    BlockModel,
+    Fidelity,
+    MembraneLayout,
+    Mechanics,
+    ModelConstants,
+)
 from planner.geometry import ROD_LENGTH_VALUES
 from planner.mass import MassConstants, component_mass
 from planner.table_builder import grid_designs
@@ -48,11 +57,9 @@ TARGET_NAMES = (
     "largest theta_0 (ID 21) = 40 deg",
 )
 
-INITIAL_GUESS = ModelConstants(film_thickness=100e-6, rod_modulus=40e9, membrane_half_angle=math.radians(90.0))
-BOUNDS = (  # t0 [um], E [GPa], half angle [deg]
-    (10.0, 5.0, 60.0),
-    (400.0, 200.0, 125.0),
-)
+# Start and bounds of the fitted parameters: t0 [um], E [GPa], and the top arc's half angle [deg].
+INITIAL_GUESS = (100.0, 40.0, 90.0)
+BOUNDS = ((10.0, 5.0, 60.0), (400.0, 200.0, 125.0))
 
 
 @dataclass(frozen=True)
@@ -65,8 +72,14 @@ class CalibrationResult:
     message: str
 
 
-def _constants(x) -> ModelConstants:
-    return ModelConstants(film_thickness=x[0] * 1e-6, rod_modulus=x[1] * 1e9, membrane_half_angle=math.radians(x[2]))
+def _parameter_count(mechanics: Mechanics) -> int:
+    return 3 if mechanics.membrane == MembraneLayout.TOP_ARC else 2
+
+
+def _constants(x, mechanics: Mechanics) -> ModelConstants:
+    half_angle = math.radians(x[2]) if _parameter_count(mechanics) == 3 else None
+    return ModelConstants(film_thickness=x[0] * 1e-6, rod_modulus=x[1] * 1e9, mechanics=mechanics,
+                          membrane_half_angle=half_angle)
 
 
 def _predictions(constants: ModelConstants, fidelity: Fidelity) -> dict:
@@ -113,20 +126,20 @@ def target_errors(predicted: dict) -> np.ndarray:
     return np.degrees(np.subtract(model, paper))
 
 
-def calibrate(fidelity: Fidelity = TABLE_FIDELITY, initial: ModelConstants = INITIAL_GUESS,
+def calibrate(mechanics: Mechanics = CALIBRATED_CONSTANTS.mechanics, fidelity: Fidelity = TABLE_FIDELITY,
               leave_out: tuple[int, ...] = ()) -> CalibrationResult:
-    """Weighted least-squares fit of the model constants to the paper's published points (without the
-    targets ``leave_out``, indices into ``TARGET_NAMES``)."""
-    x0 = [initial.film_thickness * 1e6, initial.rod_modulus * 1e-9, math.degrees(initial.membrane_half_angle)]
+    """Weighted least-squares fit of the constants of a model with ``mechanics`` to the paper's published
+    points (without the targets ``leave_out``, indices into ``TARGET_NAMES``)."""
+    count = _parameter_count(mechanics)
     kept = np.setdiff1d(np.arange(len(TARGET_NAMES)), leave_out)
     fit = least_squares(
-        lambda x: _residuals(_predictions(_constants(x), fidelity))[kept],
-        x0,
-        bounds=BOUNDS,
-        x_scale=[10.0, 10.0, 10.0],
+        lambda x: _residuals(_predictions(_constants(x, mechanics), fidelity))[kept],
+        INITIAL_GUESS[:count],
+        bounds=(BOUNDS[0][:count], BOUNDS[1][:count]),
+        x_scale=10.0,
         diff_step=1e-4,
     )
-    constants = _constants(fit.x)
+    constants = _constants(fit.x, mechanics)
     return CalibrationResult(
         constants=constants,
         mass=calibrate_mass(constants),

@@ -5,36 +5,45 @@ target: a weighted set of objects, each with its own contour sampling, base offs
 Every finger chain of the robot (a ``FingerSlot``: which side it grasps, how many top blocks must be stiff)
 is redesigned for the weighted sum of the objects' eq. (3) costs.
 
-One *swap* replaces the block at one position; a position whose shape does not change keeps its block.
-``plan_reconfiguration`` returns, for every swap budget from 0 up to a full rebuild, the best gripper it
-found and a proven lower bound: each finger's whole front comes from ``solve_finger_front`` (certified per
-budget), the fronts are combined over the fingers by min-plus convolution, and a combination is only
-taken when the blocks it needs are there (the shelf plus every block it removes; a removed block goes back
-to the shelf). A point is certified when its gripper reaches the convolution of the fingers' bounds.
+One *swap* is an operator action at one position: its block is replaced, or re-seated at another snap-fit;
+a position whose block stays keeps it. The designs are planar with every block at snap-fit 0; the finger
+as built, with blocks at step 6 (mirrored: they and the blocks after them bend the other way), is its own
+0-swap candidate, evaluated as it is; other steps leave the plane: such blocks are re-seated or replaced.
+``plan_reconfiguration`` returns, for every swap budget from 0 up to a full rebuild, the best gripper and a
+proven lower bound: each finger's front over every block of the robot and the shelf comes from
+``solve_finger_front`` (a relaxation that bounds the finger), and ``solve_gripper_front`` combines the
+fingers exactly under the one shelf they share (the shelf plus every block a gripper removes; a removed
+block goes back to the shelf). Complete, every point is certified and "no gripper" is proven; stopped, every
+point carries its bound.
 ``swap_steps`` turns a chosen point into ordered operator steps that never draw a block the shelf does not
 hold at that moment (when swaps form a cycle, one block is taken out first and its position filled last).
 """
 from __future__ import annotations
 
-import itertools
+import threading
 import time
 from collections import Counter
-from dataclasses import dataclass, field
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from planner.assembly import Assembly, Chain, PlacedBlock
+from planner.assembly import SNAP_FITS, Assembly, Chain, PlacedBlock
 from planner.contours import ObjectContours
 from planner.design import (DEFAULT_BASE_OFFSETS, DEFAULT_CONTOUR_SPACING, DEFAULT_MIN_STIFF_ROD_DIAMETER,
                             finger_problems)
 from planner.kinematics import BLOCK_RADIUS
-from planner.optimize import design_space, solve_finger
-from planner.optimize.front_search import FrontResult, solve_finger_front
-from planner.optimize.result import Progress, Status
+from planner.objectives import COLLISION_PENALTY
+from planner.optimize import design_costs, design_space, solve_finger
+from planner.optimize.front_search import Candidate, FingerFrontSearch, FrontResult, solve_finger_front
+from planner.optimize.gripper_search import FingerProblem, GripperFront, solve_gripper_front
+from planner.optimize.result import Progress, RunControl, Status
 from planner.table import load_table
 
 SIDES = ("left", "right")
 MAX_SHELF_BLOCKS = 10_000  # a shelf description larger than this is a mistake, not a shelf
+WORKERS = 2  # fingers searched side by side (the machine's cores)
+MIRROR_STEPS = SNAP_FITS // 2  # a block at this snap-fit bends to the other side, in the same plane
 
 
 @dataclass(frozen=True)
@@ -130,7 +139,7 @@ class ReconfigurationResult:
         return tuple(kept)
 
 
-def _check_shelf(shelf, table) -> dict[int, int]:
+def check_shelf(shelf, table) -> dict[int, int]:
     if not isinstance(shelf, dict):
         raise ValueError("shelf must map design IDs to block counts")
     known = set(int(i) for i in table.ids)
@@ -179,21 +188,26 @@ def _check_objects(objects) -> None:
 
 
 class _Finger:
-    """One slot's design space, current shapes, stock limits and targets."""
+    """One slot's design space, what it keeps without a swap, its targets and its prepared search."""
 
-    def __init__(self, slot: FingerSlot, chain: Chain, objects, pool: Counter, shelf: Counter, table,
-                 min_stiff_rod_diameter):
+    def __init__(self, slot: FingerSlot, chain: Chain, objects, pool: Counter, table, min_stiff_rod_diameter):
         self.slot, self.chain = slot, chain
-        self.space = design_space(table, len(chain.blocks), stiff_positions=range(slot.num_stiff_top),
-                                  min_stiff_rod_diameter=min_stiff_rod_diameter)
-        self.shape_of = {d: s for s, members in enumerate(self.space.members) for d in members}
-        self.stiff_ids = {d for members, stiff in zip(self.space.members, self.space.member_stiff)
+        self.space = space = design_space(table, len(chain.blocks), stiff_positions=range(slot.num_stiff_top),
+                                          min_stiff_rod_diameter=min_stiff_rod_diameter)
+        self.shape_of = {d: s for s, members in enumerate(space.members) for d in members}
+        self.stiff_ids = {d for members, stiff in zip(space.members, space.member_stiff)
                           for d, q in zip(members, stiff) if q}
-        self.current = np.array([
-            self.shape_of[b.design_id] if (not self.space.stiff_positions[k] or b.design_id in self.stiff_ids) else -1
-            for k, b in enumerate(chain.blocks)], np.int64)  # a soft block at a stiff position must go
+        forced = space.stiff_positions
+        block_stiff = np.array([b.design_id in self.stiff_ids for b in chain.blocks])
+        upright = np.array([b.rotation_steps == 0 for b in chain.blocks])
+        shapes = np.array([self.shape_of[b.design_id] for b in chain.blocks], np.int64)
+        # a block stays only upright (the designs are planar, every block at snap-fit 0) and, at a forced-
+        # stiff position, stiff; a stiff block at a free position may give way to a free one of its shape
+        self.current = np.where(upright & (~forced | block_stiff), shapes, -1)
+        self.keeps_stiff = forced | block_stiff
+        has_free = np.array([not all(space.member_stiff[s]) for s in shapes])
+        self.releasable = ~forced & block_stiff & (self.current >= 0) & has_free
         self.shared = self.limits(pool)  # every block of the robot may be freed: a relaxation, for bounds
-        self.own = self.limits(shelf + Counter(b.design_id for b in chain.blocks))  # what it can surely use
         self.targets, self.offsets = [], []
         for item in objects:
             target = finger_problems(item.contours, item.base_offsets, item.contour_spacing,
@@ -201,6 +215,8 @@ class _Finger:
             self.targets.append(target)
             self.offsets.append(-target.bases[:, 0])
         self.weights = np.array([item.weight for item in objects])
+        self.search = FingerFrontSearch(self.targets, self.weights, space)
+        self.extra = self._as_built(shapes, block_stiff)
 
     def limits(self, blocks: Counter) -> tuple[np.ndarray, np.ndarray]:
         """(stock, stiff stock) per shape of a collection of blocks."""
@@ -211,16 +227,44 @@ class _Finger:
                 stiff[self.shape_of[design_id]] += count
         return stock, stiff
 
+    def _as_built(self, shapes, block_stiff) -> tuple[Candidate, ...]:
+        """The finger exactly as built when a block sits at another snap-fit than 0 (outside the planar design
+        space): at step 6 a block bends to the other side, and so does every block after it; any other step
+        turns the finger out of the plane of its object, which the planar finger model cannot grasp with."""
+        rotations = np.array([b.rotation_steps for b in self.chain.blocks])
+        if (not rotations.any() or np.any((rotations != 0) & (rotations != MIRROR_STEPS))
+                or np.any(self.space.stiff_positions & ~block_stiff)):
+            return ()
+        side = np.cumprod(np.where(rotations == MIRROR_STEPS, -1.0, 1.0))
+        mirrored = replace(self.space, theta=side * self.space.theta[shapes], length=self.space.length[shapes])
+        order = np.arange(len(shapes))
+        costs, bases = [], []
+        for target in self.targets:
+            count = len(target.bases)
+            per_base = design_costs(target, mirrored, np.tile(order, (count, 1)), np.zeros((count, len(order)),
+                                                                                           np.int64), np.arange(count))
+            best = int(np.argmin(per_base))
+            if per_base[best] >= COLLISION_PENALTY:
+                return ()
+            costs.append(float(per_base[best]))
+            bases.append(best)
+        costs = np.array(costs)
+        return (Candidate(shapes, np.zeros(len(shapes), bool), costs, np.array(bases), float(self.weights @ costs),
+                          as_built=True),)
+
+    def problem(self, front: FrontResult) -> FingerProblem:
+        return FingerProblem(self.search, self.current, self.keeps_stiff, self.releasable, self.extra, front)
+
 
 def plan_reconfiguration(assembly: Assembly, shelf: dict[int, int], objects, *, slots=GRIPPER_SLOTS, table=None,
                          time_budget: float | None = None, callback=None,
                          min_stiff_rod_diameter: float = DEFAULT_MIN_STIFF_ROD_DIAMETER) -> ReconfigurationResult:
     """The Pareto set between the weighted objective of ``objects`` (``TargetObject``s) and the number of
     block swaps from ``assembly``, drawing on ``shelf``; ``slots`` say which chains are fingers.
-    ``time_budget`` [s] is shared by the fingers; ``callback(Progress)`` may raise StopIteration to cancel
+    ``time_budget`` [s] is shared by the searches; ``callback(Progress)`` may raise StopIteration to cancel
     (every point then carries its proven bound)."""
     table = load_table() if table is None else table
-    shelf = _check_shelf(shelf, table)
+    shelf = check_shelf(shelf, table)
     _check_slots(assembly, slots)
     _check_objects(objects)
     if time_budget is not None and not (np.isfinite(time_budget) and time_budget > 0):
@@ -228,149 +272,134 @@ def plan_reconfiguration(assembly: Assembly, shelf: dict[int, int], objects, *, 
     started = time.perf_counter()
     in_robot = Counter(b.design_id for slot in slots for b in assembly.chain(slot.chain).blocks)
     pool = Counter(shelf) + in_robot
-    fingers = [_Finger(slot, assembly.chain(slot.chain), objects, pool, Counter(shelf), table, min_stiff_rod_diameter)
+    fingers = [_Finger(slot, assembly.chain(slot.chain), objects, pool, table, min_stiff_rod_diameter)
                for slot in slots]
-    fronts, candidates, seeds, floors, canceled = {}, {f.slot.chain: [] for f in fingers}, {}, {}, False
+    meter = _Meter(callback, 2 * len(fingers) + 1)  # progress: seeds and a front per finger, then the joint
+    rounds = -(-len(fingers) // WORKERS)
+    stage = None if time_budget is None else time_budget * rounds / (rounds + 1) / rounds  # per finger
 
-    def search(finger, limits, index, count):
-        nonlocal canceled
-        budget = None
-        if time_budget is not None:
-            budget = max((time_budget - (time.perf_counter() - started)) / (count - index), 1e-3)
-        earlier, front_start = candidates[finger.slot.chain], 0.0
-        if not earlier:  # each object's own optimum (the compiled single-object search) to start from; when
-            own = []     # all are certified, their weighted sum bounds every finger
-            for j, target in enumerate(finger.targets):  # the first half of this search's share of the progress
-                own.append(solve_finger(target, finger.space, time_budget=budget, callback=_cancel if canceled else
-                                        _share(callback, index + 0.5 * j / len(finger.targets), count,
-                                               0.5 / len(finger.targets))))
-                canceled |= own[-1].status == Status.CANCELED
-            seeds[finger.slot.chain] = [r.shapes for r in own]
-            floors[finger.slot.chain] = float(finger.weights @ [r.lower_bound for r in own])
-            front_start = 0.5
-        front = solve_finger_front(finger.targets, finger.weights, finger.space, current=finger.current,
-                                   stock=limits[0], stiff_stock=limits[1], time_budget=budget,
-                                   callback=_cancel if canceled else
-                                   _share(callback, index + front_start, count, 1.0 - front_start),
-                                   starts=seeds[finger.slot.chain] + [s for f in earlier for s in f.shapes
-                                                                      if s[0] >= 0],
-                                   floor=floors[finger.slot.chain])
-        canceled |= front.status == Status.CANCELED
-        candidates[finger.slot.chain].append(front)
-        return front
+    def relaxed(index: int, finger: _Finger) -> FrontResult:
+        """One finger over every block of the robot and the shelf: its bounds and first fingers. Each
+        object's own optimum (the compiled single-object search) starts it; when all are certified, their
+        weighted sum bounds every finger."""
+        begin = time.perf_counter()
+        own = [solve_finger(target, finger.space, time_budget=None if stage is None else stage / 2 / len(objects),
+                            callback=meter.part((index, 0), j / len(objects), 1.0 / len(objects)))
+               for j, target in enumerate(finger.targets)]
+        return solve_finger_front(
+            finger.targets, finger.weights, finger.space, current=finger.current, stock=finger.shared[0],
+            stiff_stock=finger.shared[1], callback=meter.part((index, 1)),
+            time_budget=None if stage is None else max(stage - (time.perf_counter() - begin), 1e-3),
+            starts=[r.shapes for r in own], floor=float(finger.weights @ [r.lower_bound for r in own]),
+            search=finger.search, keeps_stiff=finger.keeps_stiff, releasable=finger.releasable, extra=finger.extra)
 
-    for index, finger in enumerate(fingers):  # over every block of the robot: the bounds
-        fronts[finger.slot.chain] = search(finger, finger.shared, index, 2 * len(fingers))
-    points = _combine(assembly, shelf, fingers, fronts, candidates)
-    if not all(p.optimal for p in points):  # fingers may want the same blocks: candidates that surely combine
-        for index, finger in enumerate(fingers):
-            if any(not np.array_equal(a, b) for a, b in zip(finger.own, finger.shared)):
-                search(finger, finger.own, len(fingers) + index, 2 * len(fingers))
-        points = _combine(assembly, shelf, fingers, fronts, candidates)
-    statuses = {front.status for front in fronts.values()}
-    status = (Status.CANCELED if Status.CANCELED in statuses else Status.TIME_BUDGET if Status.TIME_BUDGET in statuses
-              else Status.CERTIFIED if all(p.optimal for p in points if np.isfinite(p.objective)) else Status.FINISHED)
+    with ThreadPoolExecutor(max_workers=WORKERS) as workers:  # the compiled searches release the GIL
+        fronts = dict(zip([f.slot.chain for f in fingers], workers.map(relaxed, range(len(fingers)), fingers)))
+    pool_stock, pool_stiff = fingers[0].limits(pool)
+    budget = None if time_budget is None else max(time_budget - (time.perf_counter() - started), 1e-3)
+    joint = solve_gripper_front([f.problem(fronts[f.slot.chain]) for f in fingers], pool_stock, pool_stiff,
+                                RunControl(budget, meter.part("joint")))
+    canceled = meter.canceled or any(f.status == Status.CANCELED for f in fronts.values())
+    points = _points(assembly, shelf, fingers, joint)
+    status = joint.status
+    if canceled:
+        status = Status.CANCELED
+    elif status == Status.CERTIFIED and not np.isfinite(points[-1].objective):
+        status = Status.INFEASIBLE
     success = np.isfinite(points[-1].objective)
     certified = sum(p.optimal for p in points)
-    message = (f"{certified} of {len(points)} swap budgets certified; best {points[-1].objective:.6g} m with "
-               f"{points[-1].swaps} swaps" if success else "no gripper within the shelf and the robot's blocks")
+    if success:
+        message = (f"{certified} of {len(points)} swap budgets certified; best {points[-1].objective:.6g} m with "
+                   f"{points[-1].swaps} swaps")
+    elif status == Status.INFEASIBLE:
+        message = "no gripper within the shelf and the robot's blocks (proven)"
+    else:
+        message = "no gripper found"
     if status in (Status.CANCELED, Status.TIME_BUDGET):
         message += f" ({status.name.lower().replace('_', ' ')}: uncertified points carry their bound)"
     return ReconfigurationResult(success=bool(success), status=status, message=message, points=points,
                                  fronts=fronts, solve_time=time.perf_counter() - started)
 
 
-def _cancel(progress):
+def cancel_now(progress):
     raise StopIteration
 
 
-def _share(callback, start: float, count: int, width: float = 1.0):
-    """Progress of one search as a fraction of the whole plan of ``count`` searches: it spans ``width`` of
-    them from ``start``."""
+def share_progress(callback, start: float, count: int, width: float = 1.0):
+    """Progress of one search as a fraction of a whole of ``count`` searches: it spans ``width`` of them
+    from ``start``."""
     if callback is None:
         return None
     return lambda p: callback(Progress((start + width * p.fraction) / count, p.best_cost, p.nfev, p.elapsed))
 
 
-def _combine(assembly, shelf, fingers, fronts, candidates) -> tuple[ParetoPoint, ...]:
-    """Per swap budget, the cheapest combination of the fingers' candidate fingers whose blocks are there,
-    and the min-plus convolution of the fingers' bounds (``fronts``: proven bounds on every combination).
-    The candidates of a finger come from its front over every block of the robot and from its front over
-    the shelf and its own blocks only (those combine unless two fingers want the same shelf block)."""
-    sizes = [len(f.chain.blocks) for f in fingers]
-    total = sum(sizes)
-    bound = np.zeros(1)
-    for finger in fingers:
-        low = fronts[finger.slot.chain].lower_bound
-        bound = np.array([min(bound[a] + low[s - a] for a in range(len(bound)) if 0 <= s - a < len(low))
-                          for s in range(len(bound) + len(low) - 1)])
-    options = []
-    for finger in fingers:
-        seen, entries = set(), []
-        for front in candidates[finger.slot.chain]:
-            for s in range(len(front.fun)):
-                key = tuple(front.shapes[s])
-                if np.isfinite(front.fun[s]) and key not in seen:
-                    seen.add(key)
-                    entries.append((front, s))
-        options.append(entries)
-    best: list[tuple | None] = [None] * (total + 1)
-    for combo in itertools.product(*options):
-        swaps = sum(int(front.swaps[s]) for front, s in combo)
-        cost = sum(float(front.fun[s]) for front, s in combo)
-        if best[swaps] is not None and best[swaps][0] <= cost:
+class _Meter:
+    """The progress of searches that run side by side, as one: each part reports its own fraction, the
+    plan's is their sum over ``parts`` (never going back), one report at a time. Once the callback has
+    canceled, every later report cancels too."""
+
+    def __init__(self, callback, parts: int):
+        self.callback, self.parts, self.done = callback, parts, {}
+        self.lock, self.shown, self.canceled = threading.Lock(), 0.0, False
+
+    def part(self, key, start: float = 0.0, width: float = 1.0):
+        if self.callback is None:
+            return None
+
+        def report(progress):
+            with self.lock:
+                if self.canceled:
+                    raise StopIteration
+                self.done[key] = start + width * progress.fraction
+                self.shown = max(self.shown, sum(self.done.values()) / self.parts)
+                try:
+                    self.callback(Progress(self.shown, progress.best_cost, progress.nfev, progress.elapsed))
+                except StopIteration:
+                    self.canceled = True
+                    raise
+        return report
+
+
+def _points(assembly, shelf, fingers, joint: GripperFront) -> tuple[ParetoPoint, ...]:
+    """One point per swap budget from the joint front: its gripper's design IDs and assembly."""
+    points = []
+    for budget, (cost, picked) in enumerate(zip(joint.fun, joint.chosen)):
+        bound, optimal = float(joint.lower_bound[budget]), bool(joint.optimal[budget])
+        if picked is None:
+            points.append(ParetoPoint(budget, -1, np.inf, bound, optimal, (), None))
             continue
-        plans = _assign(fingers, combo, shelf)
-        if plans is not None:
-            best[swaps] = (cost, plans)
-    points, carried = [], None
-    for budget in range(total + 1):
-        if best[budget] is not None and (carried is None or best[budget][0] < carried[0]):
-            carried = best[budget] + (budget,)
-        if carried is None:
-            points.append(ParetoPoint(budget, -1, np.inf, float(bound[budget]), bool(np.isinf(bound[budget])), (),
-                                      None))
-            continue
-        cost, plans, swaps = carried
-        certified = cost <= bound[budget] + 1e-9  # the bounds are proven whether a search ended or not
-        points.append(ParetoPoint(budget, swaps, cost, float(min(bound[budget], cost)), bool(certified), plans,
+        plans = _assign(fingers, picked, shelf)
+        points.append(ParetoPoint(budget, sum(c.swaps for c in picked), float(cost), bound, optimal, plans,
                                   _assembly_with(assembly, plans)))
     return tuple(points)
 
 
-def _assign(fingers, combo, shelf) -> tuple[FingerPlan, ...] | None:
-    """Design IDs for one combination: kept positions keep their block; swapped ones draw on the shelf plus
-    every removed block, stiff positions first; None when the blocks are not there."""
+def _assign(fingers, picked, shelf) -> tuple[FingerPlan, ...]:
+    """Design IDs for one gripper: kept positions keep their block; swapped ones draw on the shelf plus
+    every removed block, stiff positions first, free positions free designs first."""
     available = Counter(shelf)
-    chosen = []
-    for finger, (front, s) in zip(fingers, combo):
-        shapes = front.shapes[s]
-        swapped = shapes != finger.current
-        chosen.append((finger, front, s, shapes, swapped))
-        for block, out in zip(finger.chain.blocks, swapped):
+    for finger, candidate in zip(fingers, picked):
+        for block, out in zip(finger.chain.blocks, candidate.swapped):
             available[block.design_id] += int(out)
     ids = {}
     for stiff_pass in (True, False):
-        for finger, _, _, shapes, swapped in chosen:
-            for k in np.flatnonzero(swapped):
+        for finger, candidate in zip(fingers, picked):
+            for k in np.flatnonzero(candidate.swapped):
                 if bool(finger.space.stiff_positions[k]) != stiff_pass:
                     continue
-                members = [d for d, q in zip(finger.space.members[shapes[k]], finger.space.member_stiff[shapes[k]])
+                shape = candidate.shapes[k]
+                members = [d for d, q in zip(finger.space.members[shape], finger.space.member_stiff[shape])
                            if available[d] > 0 and (q or not stiff_pass)]
-                if not stiff_pass:  # keep stiff designs for where they are needed: soft ones first
-                    members.sort(key=lambda d: d in finger.stiff_ids)
-                if not members:
-                    return None
-                available[members[0]] -= 1
+                members.sort(key=lambda d: d in finger.stiff_ids)  # keep stiff designs for where they are needed
+                available[members[0]] -= 1  # the search counted the blocks: one is there
                 ids[finger.slot.chain, int(k)] = members[0]
-    plans = []
-    for finger, front, s, shapes, swapped in chosen:
-        design_ids = tuple(ids.get((finger.slot.chain, k), b.design_id) for k, b in enumerate(finger.chain.blocks))
-        plans.append(FingerPlan(
-            chain=finger.slot.chain, design_ids=design_ids, swapped=tuple(bool(x) for x in swapped),
-            cost=float(front.fun[s]), object_costs=tuple(float(c) for c in front.object_costs[s]),
-            base_offsets_m=tuple(float(o[b]) for o, b in zip(finger.offsets, front.bases[s]))))
-    return tuple(plans)
+    return tuple(FingerPlan(
+        chain=finger.slot.chain,
+        design_ids=tuple(ids.get((finger.slot.chain, k), b.design_id) for k, b in enumerate(finger.chain.blocks)),
+        swapped=tuple(bool(x) for x in candidate.swapped), cost=candidate.cost,
+        object_costs=tuple(float(c) for c in candidate.costs),
+        base_offsets_m=tuple(float(o[b]) for o, b in zip(finger.offsets, candidate.bases)))
+        for finger, candidate in zip(fingers, picked))
 
 
 def _assembly_with(assembly: Assembly, plans) -> Assembly:

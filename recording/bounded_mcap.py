@@ -5,7 +5,12 @@ them allocate that much (MemoryError) or hand zstd an impossible size (ZstdError
 - only a regular file is opened (planner.regular_file: a FIFO would block, /dev/zero never ends);
 - no read asks for more bytes than remain in the file (BoundedFile), whatever a length field says;
 - every chunk's uncompressed size, as the chunk claims it and as its zstd/lz4 frame header claims it, is at
-  most MAX_CHUNK_BYTES (`chunk_problem`), checked for the whole file before any message is read;
+  most MAX_CHUNK_BYTES, and its records inflate to no more than the chunk claims (`_chunk_problem`: inflated
+  piece by piece and counted, never held whole): a frame that declares no size can inflate 4 MB to 1 GiB. This
+  is checked for the whole file before any message is read;
+- the summary's chunk index, which the seeking reader follows instead of the file's order, points only at chunks
+  that scan checked (`_index_problem`): an index entry pointing into an attachment found a chunk claiming 2^40
+  bytes there;
 - a schema or a message that is not what it claims, found while decoding (`undecodable`), is one ValueError.
 """
 from __future__ import annotations
@@ -14,11 +19,13 @@ import contextlib
 import io
 import os
 import struct
+from typing import NamedTuple
 
 import lz4.frame
 import zstandard
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
+from mcap.reader import make_reader
 from mcap_ros2._vendor.rosidl_adapter.parser import InvalidSpecification, InvalidValue
 from mcap.writer import MCAP0_MAGIC
 
@@ -29,6 +36,7 @@ _RECORD_HEADER = struct.Struct("<BQ")  # opcode, content length
 _CHUNK_START = struct.Struct("<QQQII")  # message start, end time, uncompressed size, its CRC, compression's length
 _FRAME_HEADER = 18  # bytes: the longest zstd frame header; an lz4 frame header is at most 19
 _UNKNOWN_SIZE = (0, zstandard.CONTENTSIZE_UNKNOWN, zstandard.CONTENTSIZE_ERROR)
+_PIECE = 1 << 20  # [bytes] inflated at a time while a chunk is measured
 
 
 class BoundedFile:
@@ -87,6 +95,25 @@ def _frame_size(compression: str, frame: bytes) -> int | None:
     return 0 if size in _UNKNOWN_SIZE else size
 
 
+def _inflated_size(compression: str, compressed: bytes, limit: int) -> int:
+    """How many bytes ``compressed`` inflates to, counted up to just past ``limit`` (at most _PIECE more are held
+    at a time); the first frame of lz4, as mcap reads it. ZstdError or RuntimeError (python-lz4) for data that
+    does not decompress."""
+    size = 0
+    if compression == "zstd":
+        with zstandard.ZstdDecompressor().stream_reader(io.BytesIO(compressed)) as reader:
+            while size <= limit and (piece := reader.read(_PIECE)):
+                size += len(piece)
+    elif compression == "lz4":
+        decompressor = lz4.frame.LZ4FrameDecompressor()
+        size = len(decompressor.decompress(compressed, max_length=_PIECE))
+        while size <= limit and not decompressor.eof and not decompressor.needs_input:
+            size += len(decompressor.decompress(b"", max_length=_PIECE))
+    else:
+        size = len(compressed)
+    return size
+
+
 def _chunk_problem(stream: BoundedFile, offset: int, length: int) -> str:
     """Why the chunk record whose content starts at ``offset`` must not be read, or ""."""
     where = f"chunk at byte {offset - _RECORD_HEADER.size}"
@@ -99,20 +126,35 @@ def _chunk_problem(stream: BoundedFile, offset: int, length: int) -> str:
         return f"{where} names a compression of {name_length} bytes"
     compression = stream.read(name_length).decode(errors="replace")
     (records_length,) = struct.unpack("<Q", stream.read(8).rjust(8, b"\0"))
+    records = stream.tell()
     declared = _frame_size(compression, stream.read(_FRAME_HEADER)) if records_length else 0
     if declared is None:
         return f"{where} does not start with a {compression} frame"
     if max(claimed, declared) > MAX_CHUNK_BYTES:
         return f"{where} claims {max(claimed, declared)} bytes uncompressed, above the limit of {MAX_CHUNK_BYTES}"
+    stream.seek(records)
+    try:
+        inflated = _inflated_size(compression, stream.read(records_length), claimed)
+    except (zstandard.ZstdError, RuntimeError) as error:
+        return f"{where} does not decompress ({type(error).__name__}: {' '.join(str(error).split())[:80]})"
+    if inflated > claimed:
+        return f"{where} inflates beyond the {claimed} bytes it declares"
     return ""
 
 
-def scan(stream: BoundedFile) -> tuple[int, str]:
-    """Walks the top-level records: (the offset where the sound ones end, why the next one is not sound, or ""
-    when the file is sound to its end). A record is sound when it fits in the file and, for a chunk, its
-    uncompressed size is bounded. The stream's position is left at 0."""
+class Scan(NamedTuple):
+    end: int              # the offset where the sound top-level records end
+    problem: str          # why the record there is not sound; "" when the file is sound to its end
+    chunks: dict[int, int]  # offset -> length (opcode and length field included) of each sound chunk record
+
+
+def scan(stream: BoundedFile) -> Scan:
+    """Walks the top-level records. A record is sound when it fits in the file and, for a chunk, its uncompressed
+    size is bounded and its records inflate to no more than that (`_chunk_problem`). The stream's position is
+    left at 0."""
     position = len(MCAP0_MAGIC)
     problem = ""
+    chunks = {}
     while position < stream.size:
         stream.seek(position)
         header = stream.read(_RECORD_HEADER.size)
@@ -128,18 +170,40 @@ def scan(stream: BoundedFile) -> tuple[int, str]:
             problem = _chunk_problem(stream, content, length)
             if problem:
                 break
+            chunks[position] = _RECORD_HEADER.size + length
         position = content + length
         if opcode == Opcode.FOOTER:
             break
     stream.seek(0)
-    return position, problem
+    return Scan(position, problem, chunks)
+
+
+# What the mcap reader raises on a summary section that is not one (on top of McapError).
+_SUMMARY_ERRORS = (ValueError, EOFError, KeyError, IndexError, TypeError, struct.error, OverflowError)
+
+
+def _index_problem(stream: BoundedFile, chunks: dict[int, int]) -> str:
+    """Why the summary's chunk index must not be followed, or "": each entry must point at a chunk record that
+    `scan` checked, with that record's length."""
+    try:
+        summary = make_reader(stream).get_summary()
+    except (McapError, *_SUMMARY_ERRORS) as error:
+        return f"the summary section cannot be read ({type(error).__name__}: {' '.join(str(error).split())[:80]})"
+    finally:
+        stream.seek(0)
+    for entry in summary.chunk_indexes if summary else ():
+        if chunks.get(entry.chunk_start_offset) != entry.chunk_length:
+            return (f"the summary's chunk index names a chunk of {entry.chunk_length} bytes at byte "
+                    f"{entry.chunk_start_offset}; the file has none there")
+    return ""
 
 
 def open_bounded(path: str) -> BoundedFile:
-    """The file, checked by `scan` to its end; McapError naming the record otherwise (e.g. a torn tail:
-    run the recover subcommand)."""
+    """The file, checked by `scan` to its end and its summary's chunk index by `_index_problem`; McapError
+    naming the record otherwise (e.g. a torn tail: run the recover subcommand)."""
     stream = BoundedFile(path)
-    _, problem = scan(stream)
+    found = scan(stream)
+    problem = found.problem or _index_problem(stream, found.chunks)
     if problem:
         stream.close()
         raise McapError(f"{path}: {problem}")

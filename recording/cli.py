@@ -24,7 +24,9 @@ def add_file_commands(commands) -> None:
 
     rescue = commands.add_parser("recover", help="rewrite a truncated recording as a valid one")
     rescue.add_argument("recording")
-    rescue.add_argument("-o", "--output", help="default: <name>.recovered.mcap")
+    rescue.add_argument("-o", "--output", help="default: <name>.recovered.mcap; an existing one is refused")
+    rescue.add_argument("--overwrite", action="store_true",
+                        help="replace an existing output (a link is replaced, never written through)")
 
     analyze = commands.add_parser("analyze", help="plots and summary of a grasp recording")
     analyze.add_argument("recording")
@@ -50,7 +52,7 @@ def _info(args) -> int:
 
 def _recover(args) -> int:
     output = args.output or os.path.splitext(args.recording)[0] + ".recovered.mcap"
-    result = recover(args.recording, output)
+    result = recover(args.recording, output, args.overwrite)
     print(result.message)
     return 0 if result.success else 1
 

@@ -43,9 +43,12 @@ def create_new(path: str, overwrite: bool = False):
     try:
         descriptor = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
     except FileExistsError:
-        raise FileExistsError(f"{path} exists; choose another output, or overwrite it on purpose "
-                              "(--overwrite, parameter overwrite)") from None
+        raise _exists(path, "--overwrite, parameter overwrite") from None
     return os.fdopen(descriptor, "wb")
+
+
+def _exists(path: str, how: str) -> FileExistsError:
+    return FileExistsError(f"{path} exists; choose another output, or overwrite it on purpose ({how})")
 
 
 class RecordingWriter:
@@ -175,20 +178,24 @@ class _NotMcap(Exception):
     """The source does not start with an MCAP header: nothing is written."""
 
 
-def recover(source: str, target: str) -> RecoveryResult:
+def recover(source: str, target: str, overwrite: bool = False) -> RecoveryResult:
     """Rewrites the readable prefix of `source` (e.g. a SIGKILL'd recording) as a valid `target`.
 
     `target` must not be `source` under any name (a link, another path): the files are compared,
-    not the names. The output goes to a temporary file renamed to `target` at the end, so `source`
-    is read whole before anything named `target` changes.
+    not the names. An existing `target` is refused (FileExistsError) unless `overwrite`, as
+    `RecordingWriter` refuses one. The output goes to a temporary file renamed to `target` at the end,
+    so `source` is read whole before anything named `target` changes; a link named `target` is
+    replaced, never written through.
     """
     if os.path.exists(target) and os.path.samefile(source, target):
         raise ValueError(f"target {target} is the recording {source} itself; choose another output")
+    if os.path.lexists(target) and not overwrite:
+        raise _exists(target, "--overwrite")
     counts: dict[str, int] = {}
     with BoundedFile(source) as records:
-        records.size, problem = scan(records)  # reads end where the sound records do (recording.bounded_mcap)
+        records.size, problem, _ = scan(records)  # reads end where the sound records do (recording.bounded_mcap)
         try:
-            with atomic_write(target, "wb") as stream:
+            with atomic_write(target, "wb", replace=overwrite) as stream:
                 _copy_readable(records, stream, counts)
         except _NotMcap:
             return RecoveryResult(False, f"{source} does not start with an MCAP header")

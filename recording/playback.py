@@ -16,9 +16,8 @@ from mcap.records import Channel
 
 from .bounded_mcap import open_bounded
 from .mcap_file import require_complete
-from .topics import is_command_topic, is_state_topic
+from .topics import is_command_topic, is_namespace, is_state_topic
 
-_NAMESPACE = re.compile(r"^(/[A-Za-z][A-Za-z0-9_]*)+$")
 STATE_NAMESPACE = "/replay"  # where a default replay puts the state topics
 
 
@@ -56,7 +55,7 @@ class PlaybackOptions:
             raise ValueError(f"clock_frequency_hz must be >= 0 Hz, not {self.clock_frequency_hz}")
         if self.delay_s < 0:
             raise ValueError(f"delay_s must be >= 0 s, not {self.delay_s}")
-        if self.namespace and not _NAMESPACE.match(self.namespace):
+        if self.namespace and not is_namespace(self.namespace):
             raise ValueError(f"namespace must look like /name or /a/b, not {self.namespace!r}")
         for name in ("include", "exclude"):
             try:

@@ -26,12 +26,24 @@ def is_command_topic(topic: str) -> bool:
 
 # Topics live clients watch to know the state of the stack: the sequencer and the estimator take hv/state
 # (a stale one is how a dead driver is noticed), the camera and the estimator the assembly and the image, the
-# console /diagnostics, log viewers /rosout. Replayed under their own names into a live domain, a recorded
-# hv/state hid a dead driver for 28 s; the player moves them to a namespace unless asked.
-STATE_TOPICS = ("hv/state", "assembly/current", "camera/silhouette", "diagnostics", "rosout")
+# simulated camera also what the simulated world has built (sim/assembly_built, latched), TF viewers /tf and
+# /tf_static, the console /diagnostics, log viewers /rosout. Replayed under their own names into a live domain, a
+# recorded hv/state hid a dead driver for 28 s; the player moves them to a namespace unless asked.
+STATE_TOPICS = ("hv/state", "assembly/current", "camera/silhouette", "sim/assembly_built", "tf", "tf_static",
+                "diagnostics", "rosout")
 _STATE = re.compile(r"(^|/)(" + "|".join(map(re.escape, STATE_TOPICS)) + r")$")
 
 
 def is_state_topic(topic: str) -> bool:
     """A topic live clients watch for the stack's state (in any namespace)."""
     return bool(_STATE.search(topic))
+
+
+# A namespace as rcl takes it (``-r __ns:=/robot1``): absolute, each part letters, digits and '_' from a letter on,
+# without '__' (rcl's mark of its own names); "a b", "robot1" and "/a//b" end a node's start in rcl.
+_NAMESPACE = re.compile(r"(/[A-Za-z][A-Za-z0-9_]*)+")
+
+
+def is_namespace(text: str) -> bool:
+    """Whether ``text`` is a namespace every ROS node takes, e.g. /robot1 or /lab/robot1."""
+    return bool(_NAMESPACE.fullmatch(text)) and "__" not in text

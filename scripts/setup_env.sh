@@ -30,8 +30,9 @@ if [[ "$(cat "$venv/.deps-stamp" 2>/dev/null)" != "$deps_hash" ]]; then
 fi
 
 # 2. colcon build of ros_ws (only when its sources changed)
-# config/*.yaml too: the ament package installs the parameter files and the stack description into share/.
-ws_hash="$({ find ros_ws/src -type f -not -name '*.pyc' -print0; find config -maxdepth 1 -name '*.yaml' -print0; } \
+# config/ too: the ament package installs its data files (parameter files, stack description, sequences, ...) into
+# share/.
+ws_hash="$({ find ros_ws/src config -type f -not -name '*.pyc' -print0; } \
     | sort -z | xargs -0 sha256sum | sha256sum | cut -c1-16)"
 if [[ "$(cat ros_ws/.build-stamp 2>/dev/null)" != "$ws_hash" || ! -f ros_ws/install/setup.bash ]]; then
     # colcon names each package as it starts and ends, and on a terminal (only there: in a log its updates would

@@ -10,8 +10,9 @@ set +u
 source "$repo/ros_ws/install/setup.bash"
 set -u
 export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
-# Unset, a domain of 1-9, apart from the test suite's (10-99 by default, tests/ros_domains.py): a stack started by
-# hand never reaches a running suite.
-export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-$(( $$ % 9 + 1 ))}"
+# Unset, a domain of 1-9 taken from the user id: every terminal of one user on this machine meets in it (a stack
+# in one, run_sequence in another), and it lies apart from the test suite's (10-99 by default, tests/ros_domains.py),
+# so a stack started by hand never reaches a running suite.
+export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-$(( $(id -u) % 9 + 1 ))}"
 export PYTHONUNBUFFERED=1
 exec "$@"

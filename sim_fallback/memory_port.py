@@ -1,10 +1,11 @@
 """An in-memory serial link between the driver and a simulated supply: no pty, no thread.
 
-`MemoryPort(device)` is a pyserial-like port (``write``, ``read``, ``in_waiting``, ``reset_input_buffer``,
-``timeout``) whose every write is answered at once by ``device.feed`` on the device's clock. Given to `HvSupply`
-with the same `hv_driver.clock.SimulatedClock`, the whole loop runs in simulated time: a device that stays silent
-makes a read wait its timeout on that clock, as a real port would; ``exchange_s`` is the simulated time one line
-takes on the wire (each write advances the clock by it), so a cycle of many exchanges takes time as on a real port.
+`MemoryPort(device)` is a pyserial-like port (``write``, ``read``, ``readline``, ``in_waiting``,
+``reset_input_buffer``, ``timeout``) whose every write is answered at once by ``device.feed`` on the device's
+clock. Given to `HvSupply` with the same `hv_driver.clock.SimulatedClock`, the whole loop runs in simulated time: a
+device that stays silent makes a read wait its timeout on that clock, as a real port would; ``exchange_s`` is the
+simulated time one line takes on the wire (each write advances the clock by it), so a cycle of many exchanges takes
+time as on a real port.
 """
 from .pty_device import PtyDevice
 
@@ -40,6 +41,13 @@ class MemoryPort:
         chunk = bytes(self._buffer[:size])
         del self._buffer[:size]
         return chunk
+
+    def readline(self) -> bytes:
+        """Bytes up to and including the next line feed; as pyserial, what came before a read timed out."""
+        line = b""
+        while not line.endswith(b"\n") and (byte := self.read(1)):
+            line += byte
+        return line
 
     def reset_input_buffer(self) -> None:
         self._buffer.clear()

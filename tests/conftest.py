@@ -64,7 +64,7 @@ def pytest_collection_modifyitems(config, items):
                                for item in items}
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def collected_tiers(request) -> dict[str, list[str]]:
     """node id -> its tier markers, of every test this run collected."""
     return request.config.stash[_TIERS_OF]

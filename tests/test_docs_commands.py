@@ -26,11 +26,12 @@ import runpy
 import shlex
 import subprocess
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import pytest
 import yaml
+from ros_domains import wrapper_domain
 from softblock_config import config_file
 
 from planner.assembly import load_assembly
@@ -49,10 +50,10 @@ NODE_OF_MODULE = {spec.module: spec.name for spec in STACK.nodes if not spec.arg
 NODE_OF_EXECUTABLE = {spec.executable: spec.name for spec in STACK.nodes if not spec.arguments}
 # Programs outside this repository (and shell built-ins) a page may show; their lines are not checked.
 EXTERNAL = {"source", "cd", "export", "pip", "colcon", "for", "do", "done", "mcap", "usermod", "groups", "newgrp",
-            "udevadm", "ls", "id", "dmesg", "sudo", "echo", "cat", "groupadd", "printf", "tee", "ulimit"}
+            "udevadm", "ls", "id", "dmesg", "sudo", "echo", "cat", "groupadd", "printf", "tee", "ulimit", "systemctl",
+            "apt"}
 EXTERNAL_ROS2 = {"bag", "security", "param", "topic", "node", "action", "service", "doctor"}
-# Files a page names that the reader makes (or that a command before makes); only their names are parsed.
-PLACEHOLDER_FILES = {"my_overrides.yaml"}
+VENV_PYTHON = ".venv/bin/python"  # the environment's interpreter, for the core without the colcon build
 # Words a page writes for a value the reader chooses, and a value of the right type to parse in their place.
 PLACEHOLDER_VALUES = {"X": "0.07", "Y": "0.005", "ANGLE": "1.5708", "S": "1.0", "M": "0.0", "CH=V": "front=0"}
 # Python blocks that run as written (key: the page and the block's first line); the others are checked
@@ -102,6 +103,12 @@ def named_files(page: str) -> dict[str, str]:
 def command_lines(block: Block) -> list[list[str]]:
     """The block's commands as argument lists: continuations joined, comments, prompts and output dropped,
     ``a && b`` split, environment assignments and scripts/with_env.sh taken off the front."""
+    return [words for _, words in typed_commands(block)]
+
+
+def typed_commands(block: Block) -> list[tuple[list[str], list[str]]]:
+    """The block's commands as (what stands before the program: environment assignments, scripts/with_env.sh,
+    sudo; the program's argument list)."""
     joined = re.sub(r"\\\n\s*|\n\s+(?=\[)", " ", block.text)  # a usage line goes on with an indented [option]
     commands = []
     for line in joined.splitlines():
@@ -116,15 +123,16 @@ def command_lines(block: Block) -> list[list[str]]:
                 if word.endswith(";"):
                     parts.append([])
         for part in parts:
+            prefix = []
             while part and (re.fullmatch(r"[A-Z_]+=\S*", part[0]) or part[0] in ("scripts/with_env.sh", "sudo")):
-                part = part[1:]
+                prefix, part = [*prefix, part[0]], part[1:]
             if part:
-                commands.append(part)
+                commands.append((prefix, part))
     return commands
 
 
 def is_command(word: str) -> bool:
-    return (word in EXTERNAL or word in ("python", "python3", "ros2", "make")
+    return (word in EXTERNAL or word in ("python", "python3", "ros2", "make", VENV_PYTHON)
             or word.startswith(("ros_ws/", "benchmarks/", "scripts/")))
 
 
@@ -137,11 +145,12 @@ class Parsed(Exception):
 
 
 @contextlib.contextmanager
-def stop_after_parsing():
+def stop_after_parsing(parse: bool = True):
+    """A program stops with Parsed once its parser has parsed (``parse``) or, else, as it starts to."""
     original = argparse.ArgumentParser.parse_args
 
     def parse_args(self, args=None, namespace=None):
-        raise Parsed(self, original(self, args, namespace))
+        raise Parsed(self, original(self, args, namespace) if parse else None)
 
     argparse.ArgumentParser.parse_args = parse_args
     try:
@@ -187,13 +196,11 @@ def known_options(parser: argparse.ArgumentParser, words: list[str]) -> set[str]
     return options
 
 
-def params_file(path: str, block: Block) -> dict | None:
+def params_file(path: str, block: Block) -> dict:
     """The parameter file ``path`` as a page uses it: one of the repository's, or the page's own named block."""
     path = path.replace("/path/to/softblock/", "")
     if path in named_files(block.page):
         return yaml.safe_load(named_files(block.page)[path])
-    if path in PLACEHOLDER_FILES:
-        return None
     assert (ROOT / path).is_file(), f"{block.id}: parameter file {path} does not exist (nor a `# {path}` block)"
     return yaml.safe_load((ROOT / path).read_text())
 
@@ -221,9 +228,7 @@ def check_ros_arguments(node: str, arguments: list[str], block: Block) -> None:
             assert name in schema, f"{block.id}: -p {name}: not a parameter of {node} (known: {', '.join(schema)})"
             schema[name].check(yaml.safe_load(value))
         elif word == "--params-file":
-            document = params_file(next(words), block)
-            if document is not None:
-                check_sections(document, block.id, nodes=None)
+            check_sections(params_file(next(words), block), block.id, nodes=None)
         elif word in ("-r", "--remap", "--enclave", "--log-level"):
             next(words)
         else:
@@ -267,6 +272,7 @@ def check_command(words: list[str], block: Block) -> Parsed | None:
         if re.match(r"(config|docs|tests|benchmarks|scripts)/", word) and not word.startswith("docs/figures/"):
             assert (ROOT / word.split("::")[0]).exists(), f"{block.id}: {word} does not exist"
     head, rest = words[0], words[1:]
+    head = "python" if head == VENV_PYTHON else head
     if head in EXTERNAL or (head == "ros2" and rest[0] in EXTERNAL_ROS2):
         return None
     if head in ("python", "python3") and rest[:2] == ["-m", "venv"]:
@@ -300,7 +306,7 @@ COMMANDS = [(block, words) for block in SHELL for words in command_lines(block)]
 
 @pytest.mark.parametrize("block, words", COMMANDS, ids=[f"{b.id}:{w[0]} {' '.join(w[1:3])}" for b, w in COMMANDS])
 def test_each_documented_command_parses_with_the_names_it_uses(block, words):
-    if any("[" in word or re.fullmatch(r"<[^>]+>", word) for word in words):
+    if words[0] not in EXTERNAL and any("[" in word or re.fullmatch(r"<[^>]+>", word) for word in words):
         bare, groups = synopsis(words)
         parsed = check_command(bare, block)
         assert parsed is not None, f"{block.id}: a usage line of a program without a parser: {words}"
@@ -318,9 +324,7 @@ def check_launch(args, block: Block) -> None:
     unknown = sorted(set(nodes) - set(STACK.names))
     assert not unknown, f"{block.id}: --nodes {unknown} are not nodes of config/stack.yaml ({', '.join(STACK.names)})"
     if args.params:
-        document = params_file(args.params, block)
-        if document is not None:
-            check_sections(document, f"{block.id} --params {args.params}")
+        check_sections(params_file(args.params, block), f"{block.id} --params {args.params}")
 
 
 # ------------------------------------------------------------------------------ what commands hand each other
@@ -365,6 +369,87 @@ def test_a_documented_sequence_runs_on_the_stack_documented_with_it(block, pair)
         assert "sim_arm" in nodes, f"{block.id}: {name} moves the arm, and the stack has no sim_arm: {nodes}"
 
 
+# ------------------------------------------------------------------------ terminals: what runs beside what
+# A comment line naming a terminal or a machine starts the commands typed into the next one.
+TERMINAL_MARK = re.compile(r"^#.*\b(?:terminal|machine|PC|workstation)\b.*$", re.M | re.I)
+MACHINE_MARK = re.compile(r"\b(?:machine|PC|workstation)\b", re.I)
+
+
+def terminals(block: Block) -> list[list[tuple[list[str], list[str]]]]:
+    """The block's typed commands (typed_commands), by the terminal or machine each is typed into."""
+    return [commands for part in TERMINAL_MARK.split(block.text) if (commands := typed_commands(replace(block, text=part)))]
+
+
+def starts_stack(words: list[str]) -> bool:
+    """A command that runs nodes in the foreground until Ctrl-C."""
+    text = " ".join(words)
+    return ("softblock_ros.launcher" in text or words[:2] == ["ros2", "launch"]
+            or (words[:2] == ["python", "-m"] and words[2] in NODE_OF_MODULE)
+            or (words[:2] == ["ros2", "run"] and words[3:4] and words[3] in {*NODE_OF_EXECUTABLE, "launcher"}))
+
+
+def needs_stack(words: list[str]) -> bool:
+    """A command that talks to nodes running elsewhere (and fails or waits without them)."""
+    program = words[2] if words[:2] in (["python", "-m"], ["python3", "-m"]) else " ".join(words[:4])
+    return (program in ("softblock_ros.run_sequence", "ros2 run softblock_ros run_sequence")
+            or (program in ("softblock_ros.hv_console", "ros2 run softblock_ros hv_console") and "--probe" not in words)
+            or (words[0] == "ros2" and words[1] in ("topic", "service", "action", "node", "param")))
+
+
+def ros_domain(prefix: list[str], words: list[str], exported: str | None) -> tuple[str, bool]:
+    """The ROS domain a command joins, and whether the page chose it (rather than a default): the launcher's
+    --domain-id, else ROS_DOMAIN_ID given before the command or exported in its terminal, else the default of
+    scripts/with_env.sh (asked of the wrapper itself, in a process of its own as each command runs) or of ROS 2."""
+    if "--domain-id" in words:
+        return words[words.index("--domain-id") + 1], True
+    given = [word.partition("=")[2] for word in prefix if word.startswith("ROS_DOMAIN_ID=")]
+    chosen = given[-1] if given else exported
+    if "scripts/with_env.sh" not in prefix:
+        return chosen or "0", chosen is not None
+    return str(wrapper_domain(chosen)), chosen is not None
+
+
+def graph_domains(block: Block) -> list[tuple[int, str, str, bool]]:
+    """(terminal, command, domain, chosen by the page) of each command of the block that runs or needs nodes."""
+    found = []
+    for terminal, commands in enumerate(terminals(block)):
+        exported = None
+        for prefix, words in commands:
+            if words[0] == "export":
+                exported = next((w.partition("=")[2] for w in words if w.startswith("ROS_DOMAIN_ID=")), exported)
+            elif starts_stack(words) or needs_stack(words):
+                found.append((terminal, " ".join(words[:4]), *ros_domain(prefix, words, exported)))
+    return found
+
+
+SEVERAL_TERMINALS = [b for b in SHELL if len({terminal for terminal, *_ in graph_domains(b)}) >= 2]
+STACK_AND_CLIENT = [b for b in SHELL if any(map(starts_stack, command_lines(b))) and any(map(needs_stack, command_lines(b)))]
+
+
+@pytest.mark.parametrize("block", SEVERAL_TERMINALS, ids=[b.id for b in SEVERAL_TERMINALS])
+def test_the_terminals_of_a_block_meet_in_one_ros_domain(block):
+    """Typed as written, each terminal's commands join the same ROS domain (a per-process default of the
+    wrapper left run_sequence in one terminal without the sequencer started in another: exit 3)."""
+    commands = graph_domains(block)
+    domains = {domain for _, _, domain, _ in commands}
+    assert len(domains) == 1, f"{block.id}: the terminals' commands run in different ROS domains: " + "; ".join(
+        f"terminal {terminal + 1}: {command!r} in domain {domain}" for terminal, command, domain, _ in commands)
+    if MACHINE_MARK.search(" ".join(TERMINAL_MARK.findall(block.text))):  # each machine's defaults are its own
+        unchosen = [command for _, command, _, chosen in commands if not chosen]
+        assert not unchosen, f"{block.id}: on two machines the domain must be given, not a default: {unchosen}"
+
+
+@pytest.mark.parametrize("block", STACK_AND_CLIENT, ids=[b.id for b in STACK_AND_CLIENT])
+def test_a_client_of_the_stack_is_typed_into_another_terminal_than_the_stack(block):
+    """The launcher holds its terminal until Ctrl-C: a client typed after it into the same terminal never runs
+    while the stack does."""
+    for commands in terminals(block):
+        stack = next((i for i, (_, words) in enumerate(commands) if starts_stack(words)), len(commands))
+        late = [" ".join(words[:4]) for _, words in commands[stack + 1:] if needs_stack(words)]
+        assert not late, (f"{block.id}: {late} typed after {' '.join(commands[stack][1][:4])!r} into one terminal; "
+                          "mark the second terminal (`# second terminal:`)")
+
+
 RENDER_PAIRS = [(block, render, estimate) for block in SHELL
                 for render, estimate in zip(command_lines(block), command_lines(block)[1:])
                 if render[1:4] == ["-m", "estimation", "render"] and estimate[1:4] == ["-m", "estimation", "estimate"]]
@@ -380,6 +465,26 @@ def test_an_estimate_takes_the_base_its_render_printed(block, render, estimate, 
     given = estimate[estimate.index("--base") + 1:][:3]
     assert printed and [float(v) for v in printed.groups()] == [float(v) for v in given], (
         f"{block.id}: render prints {printed and printed.group(0)!r}, the estimate line gives --base {' '.join(given)}")
+
+
+def files_given_as(options: tuple[str, ...]) -> dict[str, set[str]]:
+    """File name -> the pages whose commands give it after one of ``options``."""
+    found: dict[str, set[str]] = {}
+    for block in SHELL:
+        for words in command_lines(block):
+            for option, value in zip(words, words[1:]):
+                if option in options:
+                    found.setdefault(Path(value).name, set()).add(block.page)
+    return found
+
+
+def test_no_file_name_is_a_parameter_file_on_one_page_and_an_assembly_on_another():
+    """A lab that follows two pages keeps one file of each name (the quick start's driver parameters and the
+    estimation's assembly were both rig.yaml)."""
+    parameters = files_given_as(("--params", "--params-file"))
+    assemblies = files_given_as(("--assembly",))
+    both = {name: sorted(parameters[name] | assemblies[name]) for name in set(parameters) & set(assemblies)}
+    assert not both, f"parameter file and assembly under one name: {both}"
 
 
 # ------------------------------------------------------------------------------------------------ YAML blocks
@@ -414,6 +519,36 @@ def test_an_inline_list_of_node_parameters_names_parameters_of_one_node(page, nu
         assert key in schema, f"{page}:{number}: `{key}: ...` is not a parameter of {owners[0]}"
         if "..." not in value:
             schema[key].check(yaml.safe_load(value))
+
+
+# ------------------------------------------------------------------------------------ inline subcommand lists
+SUBCOMMAND_LIST = re.compile(r"`python -m ([\w.]+) \{([\w,]+)\}")
+SUBCOMMAND_LISTS = [(str(path.relative_to(ROOT)), number, match.group(1), match.group(2).split(","))
+                    for path in PAGES for number, line in enumerate(path.read_text().splitlines(), start=1)
+                    for match in SUBCOMMAND_LIST.finditer(line)]
+
+
+def subcommands(module: str) -> set[str]:
+    """The subcommands of ``python -m module`` (its parser, taken as the program starts to parse)."""
+    saved = sys.argv
+    sys.argv = [module]
+    try:
+        with stop_after_parsing(parse=False):
+            runpy.run_module(module, run_name="__main__", alter_sys=True)
+    except Parsed as parsed:
+        return {name for action in parsed.parser._actions if isinstance(action, argparse._SubParsersAction)
+                for name in action.choices}
+    finally:
+        sys.argv = saved
+    pytest.fail(f"python -m {module} built no parser")
+
+
+@pytest.mark.parametrize("page, number, module, listed", SUBCOMMAND_LISTS,
+                         ids=[f"{p}:{n}:{m}" for p, n, m, _ in SUBCOMMAND_LISTS])
+def test_an_inline_list_of_subcommands_names_them_all(page, number, module, listed):
+    assert set(listed) == subcommands(module), (
+        f"{page}:{number}: `python -m {module} {{{','.join(listed)}}}`; its subcommands are "
+        f"{{{','.join(sorted(subcommands(module)))}}}")
 
 
 # ---------------------------------------------------------------------------------------------- Python blocks
@@ -487,3 +622,13 @@ def test_the_runnable_python_blocks_run_as_written(key, request, monkeypatch):
     monkeypatch.chdir(ROOT if RUN[key] == "root" else request.getfixturevalue("gripper_recording"))
     with contextlib.redirect_stdout(io.StringIO()):
         exec(compile(block.text, block.id, "exec"), {"__name__": "__doc_snippet__"})
+
+
+
+def test_a_python_command_runs_in_the_projects_environment():
+    """Typed into a fresh terminal, `python -m planner ...` finds no planner: a command runs through
+    scripts/with_env.sh, or (the core alone, without the colcon build) with the venv's own .venv/bin/python."""
+    outside = [f"{block.id}: {' '.join(words)}" for block in SHELL for prefix, words in typed_commands(block)
+               if words[0] in ("python", "python3") and words[1:3] != ["-m", "venv"]
+               and "scripts/with_env.sh" not in prefix]
+    assert not outside, "run outside the environment (prefix scripts/with_env.sh):\n" + "\n".join(outside)

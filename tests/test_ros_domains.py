@@ -2,13 +2,9 @@
 (a shared domain let one worker's fuzz test e-stop another worker's HV driver in a fresh-clone run)."""
 import itertools
 import os
-import subprocess
-from pathlib import Path
 
 import pytest
-from ros_domains import DEFAULT_TEST_DOMAINS, WRAPPER_DOMAINS, domain_for
-
-WRAPPER = Path(__file__).resolve().parents[1] / "scripts" / "with_env.sh"
+from ros_domains import DEFAULT_TEST_DOMAINS, WRAPPER_DOMAINS, domain_for, wrapper_domain
 
 pytestmark = pytest.mark.fast
 
@@ -30,11 +26,14 @@ def test_a_range_smaller_than_the_workers_is_refused_by_name():
 
 def test_the_env_wrappers_default_domain_is_outside_the_suites_default_range():
     """A stack started by hand through scripts/with_env.sh without ROS_DOMAIN_ID must not join a running suite
-    (the old default, $$ % 100 + 1, fell inside 10-99 for 90 pids in 100). Each run has another pid."""
+    (the old default, $$ % 100 + 1, fell inside 10-99 for 90 pids in 100)."""
     first, last = (int(bound) for bound in DEFAULT_TEST_DOMAINS.split("-"))
-    environment = {name: value for name, value in os.environ.items() if name != "ROS_DOMAIN_ID"}
-    domains = {int(subprocess.run([str(WRAPPER), "sh", "-c", "echo $ROS_DOMAIN_ID"], env=environment,
-                                  capture_output=True, text=True, check=True, timeout=60).stdout)
-               for _ in range(8)}
-    assert domains <= set(WRAPPER_DOMAINS)
+    assert wrapper_domain() in WRAPPER_DOMAINS
     assert not set(WRAPPER_DOMAINS) & set(range(first, last + 1))
+
+
+def test_every_command_of_one_user_gets_the_same_default_domain():
+    """Two terminals of one user meet: the launcher in one and run_sequence in the other, both without
+    ROS_DOMAIN_ID (a default taken from the process id put them in different domains, and run_sequence found no
+    sequencer). Each run is another process."""
+    assert {wrapper_domain() for _ in range(6)} == {os.getuid() % 9 + 1}

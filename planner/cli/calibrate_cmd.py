@@ -5,7 +5,7 @@ import math
 
 
 def register(subparsers) -> None:
-    parser = subparsers.add_parser("calibrate", help="fit film thickness, NiTi modulus and membrane arc to the paper")
+    parser = subparsers.add_parser("calibrate", help="fit film thickness and NiTi modulus to the paper")
     parser.set_defaults(handler=run)
 
 
@@ -15,12 +15,8 @@ def run(args) -> int:
     result = calibrate()
     c, m, p = result.constants, result.mass, result.predictions
     print(f"{result.message} (success={result.success})")
-    print(
-        "ModelConstants(\n"
-        f"    film_thickness={c.film_thickness:.4e},\n"
-        f"    rod_modulus={c.rod_modulus:.4e},\n"
-        f"    membrane_half_angle={c.membrane_half_angle:.6f},  # {math.degrees(c.membrane_half_angle):.2f} deg\n)"
-    )
+    print(f"ModelConstants(film_thickness={c.film_thickness:.4e}, rod_modulus={c.rod_modulus:.4e})"
+          f"  # {c.mechanics.label}")
     print(f"MassConstants(fixed={m.fixed:.4e}, per_length={m.per_length:.4e})")
     print(f"ID 15: theta0 {math.degrees(p['id15_theta0']):.2f} deg (paper 32.15), "
           f"stroke at 2.4 kV {math.degrees(p['id15_stroke']):.2f} deg (paper 5.29)")

@@ -7,10 +7,12 @@ object. The search reuses the compiled kernels of ``planner.optimize.finger_sear
 bound every object's cost below a prefix, per base; the minimum over an object's bases bounds that object,
 and the weighted sum of the objects' bounds bounds the finger.
 
-A *current* finger (the robot as built) turns the search into a Pareto search: a position whose shape
-changes is one block swap, and ``best[s]`` is the lowest objective over fingers with at most ``s`` swaps.
-``best`` does not increase with ``s``, so a prefix with ``u`` swaps so far can only improve some budget if
-its bound is below ``best[u]``; one depth-first search certifies every budget from 0 to N at once. Shape
+A *current* finger (the robot as built) turns the search into a Pareto search: a position that does not
+keep its block is one block swap (see ``Run`` for which blocks may stay), and ``best[s]`` is the lowest
+objective over fingers with at most ``s`` swaps. ``best`` does not increase with ``s``, so a prefix with
+``u`` swaps so far can only improve a budget ``v >= u``, below ``best[v]`` (and not where a proven bound
+already reaches that); one depth-first search certifies every budget from 0 to N at once. It runs compiled
+(``_search_front``) and returns to Python for each finger below its limit and for progress checks. Shape
 counts are limited by ``stock`` (and ``stiff_stock`` for stiff positions), checked as blocks are placed, so
 the lookahead fields stay those of the unlimited space (prepared once, on disk): a restricted set of
 continuations can only be farther away than the full one, so their bounds stay valid.
@@ -21,6 +23,8 @@ smallest bound of the prefixes not yet visited with at most that many swaps.
 from __future__ import annotations
 
 import itertools
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -95,23 +99,366 @@ def _leaf_exact(problem, poses, alphas, alive, s):
     return best, best_base
 
 
+@njit(cache=True, nogil=True)
+def _admissible(total, shape, current, keeps_stiff, stiff_position, releasable, swaps, limit, counts, stock,
+                stiff_counts, stiff_stock):
+    """The children of a node worth visiting, lowest bound first: (bound, shape, swaps after, whether it
+    takes a stiff block). A child is kept when its bound is below ``limit[swaps after]`` and its shape is
+    still in stock (a stiff block too, where one is needed); a releasable position also offers its own
+    shape with another block of it (one swap more, any block)."""
+    count = len(shape)
+    bounds, shapes = np.empty(count + 1), np.empty(count + 1, np.int64)
+    afters, stiff = np.empty(count + 1, np.int64), np.empty(count + 1, np.bool_)
+    m = 0
+    for k in range(count):
+        s = shape[k]
+        kept = s == current
+        after = swaps if kept else swaps + 1
+        needs_stiff = stiff_position or (kept and keeps_stiff)
+        if counts[s] >= stock[s]:
+            continue
+        if total[k] < limit[after] and (not needs_stiff or stiff_counts[s] < stiff_stock[s]):
+            bounds[m], shapes[m], afters[m], stiff[m] = total[k], s, after, needs_stiff
+            m += 1
+        if kept and releasable and total[k] < limit[swaps + 1]:
+            bounds[m], shapes[m], afters[m], stiff[m] = total[k], s, swaps + 1, False
+            m += 1
+    order = np.argsort(bounds[:m], kind="mergesort")
+    return bounds[order], shapes[order], afters[order], stiff[order]
+
+
+CHECKPOINT, LEAF, DONE = 0, 1, 2  # why the compiled search returned
+
+
+@njit(cache=True, nogil=True)
+def _expand(problems, weights, sizes, level, blocks, poses, alphas, alive, choices, n_choices, current, keeps_stiff,
+            stiff_positions, releasable, swaps, limit, counts, stock, stiff_counts, stiff_stock, scratch, per_object,
+            total, state_bounds, state_shapes, state_afters, state_stiff, count, placements):
+    """The admissible children of the node at ``level`` (its object states at index ``level``), lowest bound
+    first, into the level's rows of the child lists."""
+    leaf = level + 1 == blocks
+    n = n_choices[level]
+    total[:n] = 0.0
+    for i in range(len(problems)):
+        b, q = sizes[i, 0], sizes[i, 1]
+        _node_bounds(problems[i], level, poses[i, level, :b], alphas[i, level, :b, :q], alive[i, level, :b], leaf,
+                     scratch, per_object)
+        for k in range(n):
+            total[k] += weights[i] * per_object[k]
+    placements[0] += n * len(problems)
+    bounds, shapes, afters, stiff = _admissible(total[:n], choices[level, :n], current[level], keeps_stiff[level],
+                                                stiff_positions[level], releasable[level], swaps, limit, counts, stock,
+                                                stiff_counts, stiff_stock)
+    m = len(bounds)
+    state_bounds[level, :m], state_shapes[level, :m] = bounds, shapes
+    state_afters[level, :m], state_stiff[level, :m] = afters, stiff
+    count[level] = m
+
+
+@njit(cache=True, nogil=True)
+def _search_front(problems, weights, sizes, blocks, choices, n_choices, current, keeps_stiff, stiff_positions,
+                  releasable, limit, stock, stiff_stock, combos, combo_order, combo_bounds, root_poses, root_alphas,
+                  state, check_every):
+    """Resumable depth-first search (see ``FingerFrontSearch.run``): returns LEAF with a complete finger
+    below its limit in the state's leaf rows, CHECKPOINT every ``check_every`` nodes, DONE at the end."""
+    (top, combo_next, next_child, count, bounds, shapes, afters, stiff, node_swaps, path, swapped, stiff_used,
+     counts, stiff_counts, poses, alphas, alive, leaf_costs, leaf_bases, scratch, per_object, total, stats) = state
+    while True:
+        level = top[0]
+        if level < 0:  # the next base per object
+            if combo_next[0] >= len(combo_order):
+                return DONE
+            j = combo_order[combo_next[0]]
+            combo_next[0] += 1
+            if combo_bounds[j] >= limit[0]:
+                continue
+            for i in range(len(problems)):
+                b, q = sizes[i, 0], sizes[i, 1]
+                poses[i, 0, :b] = root_poses[i, :b]
+                alphas[i, 0, :b, :q] = root_alphas[i, :b, :q]
+                for base in range(b):
+                    alive[i, 0, base] = base == combos[j, i]
+            node_swaps[0] = 0
+            next_child[0] = 0
+            _expand(problems, weights, sizes, 0, blocks, poses, alphas, alive, choices, n_choices, current,
+                    keeps_stiff, stiff_positions, releasable, 0, limit, counts, stock, stiff_counts, stiff_stock,
+                    scratch, per_object, total, bounds, shapes, afters, stiff, count, stats[1:])
+            top[0] = 0
+            continue
+        if next_child[level] >= count[level]:  # every child done: back to the parent
+            top[0] = level - 1
+            if level >= 1:
+                s = path[level - 1]
+                counts[s] -= 1
+                if stiff_used[level - 1]:
+                    stiff_counts[s] -= 1
+            continue
+        k = next_child[level]
+        next_child[level] += 1
+        s, after = shapes[level, k], afters[level, k]
+        if bounds[level, k] >= limit[after]:
+            continue
+        if level + 1 == blocks:  # a complete finger: each object at its best collision-free base
+            partial = 0.0
+            for i in range(len(problems)):
+                b, q = sizes[i, 0], sizes[i, 1]
+                cost, base = _leaf_exact(problems[i], poses[i, level, :b], alphas[i, level, :b, :q],
+                                         alive[i, level, :b], s)
+                leaf_costs[i], leaf_bases[i] = cost, base
+                partial += weights[i] * cost
+                if partial >= limit[after]:
+                    break
+            else:
+                path[level], swapped[level] = s, after > node_swaps[level]
+                return LEAF
+            continue
+        clear = True
+        for i in range(len(problems)):
+            b, q = sizes[i, 0], sizes[i, 1]
+            if not _child(problems[i], poses[i, level, :b], alphas[i, level, :b, :q], alive[i, level, :b], s,
+                          poses[i, level + 1, :b], alphas[i, level + 1, :b, :q], alive[i, level + 1, :b]):
+                clear = False
+                break
+        if not clear:
+            continue
+        path[level], swapped[level], stiff_used[level] = s, after > node_swaps[level], stiff[level, k]
+        counts[s] += 1
+        if stiff[level, k]:
+            stiff_counts[s] += 1
+        node_swaps[level + 1] = after
+        next_child[level + 1] = 0
+        _expand(problems, weights, sizes, level + 1, blocks, poses, alphas, alive, choices, n_choices, current,
+                keeps_stiff, stiff_positions, releasable, after, limit, counts, stock, stiff_counts, stiff_stock,
+                scratch, per_object, total, bounds, shapes, afters, stiff, count, stats[1:])
+        top[0] = level + 1
+        stats[0] += 1
+        if stats[0] % check_every == 0:
+            return CHECKPOINT
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One complete finger: its shapes, which positions change their block (``swapped``), each object's
+    cost and base index, the weighted ``cost`` [m] and the swaps it needs. ``as_built``: the finger exactly
+    as built, rotations included (not a point of the planar design space)."""
+
+    shapes: np.ndarray
+    swapped: np.ndarray
+    costs: np.ndarray
+    bases: np.ndarray
+    cost: float
+    as_built: bool = False
+
+    @property
+    def swaps(self) -> int:
+        return int(self.swapped.sum())
+
+
+@dataclass
+class Run:
+    """One depth-first search of a ``FingerFrontSearch``.
+
+    ``current``: the shape each position keeps without a swap (-1: none); ``keeps_stiff``: keeping the
+    position's block uses one of its shape's stiff blocks (a forced-stiff position, or a stiff block at a free
+    one); ``releasable``: the position may instead take another block of its shape, for one swap (a stiff
+    block at a free position whose shape also has free designs: it may be wanted at a stiff position).
+    ``stock`` / ``stiff_stock``: blocks per shape. A child is dropped when its bound reaches
+    ``limit[swaps after it]`` (read at every step: the caller may lower it); ``on_leaf(Candidate)`` receives
+    every complete finger below its limit. ``frames`` hold the children not yet visited (see ``frontier``).
+    """
+
+    current: np.ndarray
+    keeps_stiff: np.ndarray
+    releasable: np.ndarray
+    stock: np.ndarray
+    stiff_stock: np.ndarray
+    limit: np.ndarray
+    on_leaf: object
+    frames: object = None  # what the search has not visited yet; None: not started
+
+    def frontier(self) -> list[tuple[float, int]]:
+        """(bound, swaps) of every child not yet visited: a stopped search proves nothing below them."""
+        return [] if self.frames is None else self.frames.frontier()
+
+
+class FingerFrontSearch:
+    """The compiled problems of one finger (its objects, weights and planar unlimited space), ready for
+    depth-first searches under any stock, current finger and limits (``run``)."""
+
+    def __init__(self, targets, weights, space: DesignSpace, options=None):
+        if not targets:
+            raise ValueError("targets: at least one object is needed")
+        if any(target.body is None for target in targets):
+            raise ValueError("targets must be finger targets (with a body); see planner.design.finger_problems")
+        weights = np.asarray(weights, dtype=float).reshape(-1)
+        if len(weights) != len(targets) or not np.all(np.isfinite(weights) & (weights > 0)):
+            raise ValueError(f"weights must be {len(targets)} finite numbers > 0, got {weights.tolist()}")
+        if space.rotations != 1 or space.stock is not None:
+            raise ValueError("space must be a planar space without inventory (limits go in stock / stiff_stock)")
+        settings = DEFAULT_OPTIONS | (options or {})
+        self.space, self.weights = space, weights
+        self.problems = [search_problem(target, space, settings) for target in targets]
+        self.choices = [np.asarray(c, np.int64) for c in space.choices]
+        self.scratch = np.zeros(max(len(c) for c in self.choices))
+        self.roots = _object_states(self.problems)
+        self.combos, self.combo_bounds = _base_combinations(self.problems, weights, self.roots, self.scratch,
+                                                            space.num_blocks)
+        self.combo_order = np.argsort(self.combo_bounds, kind="mergesort")
+        self.placements = 0
+        # the compiled search's view: one tuple of problems, per-position choices, per-object states padded
+        self.problems_tuple = tuple(self.problems)
+        self.n_choices = np.array([len(c) for c in self.choices], np.int64)
+        self.choices = np.full((len(self.choices), self.n_choices.max()), -1, np.int64)
+        for k, c in enumerate(space.choices):
+            self.choices[k, :len(c)] = c
+        self.sizes = np.array([[len(poses), alphas.shape[1]] for poses, alphas, _ in self.roots], np.int64)
+        b, q = self.sizes.max(axis=0)
+        self.root_poses, self.root_alphas = np.zeros((len(targets), b, 3)), np.zeros((len(targets), b, q))
+        for i, (poses, alphas, _) in enumerate(self.roots):
+            self.root_poses[i, :len(poses)], self.root_alphas[i, :len(poses), :alphas.shape[1]] = poses, alphas
+
+    def evaluate(self, shapes) -> tuple[np.ndarray, np.ndarray]:
+        """Each object's cost (inf: colliding at every base) and best base for one complete finger."""
+        return _evaluate(self.problems, self.roots, np.asarray(shapes, np.int64))
+
+    def _new_state(self) -> tuple:
+        """The compiled search's working arrays (see ``_search_front`` for the order)."""
+        blocks, n_objects, width = self.space.num_blocks, len(self.problems), self.choices.shape[1] + 1
+        b, q = self.sizes.max(axis=0)
+        size = len(self.space.theta)
+        return (np.array([-1]), np.zeros(1, np.int64), np.zeros(blocks, np.int64), np.zeros(blocks, np.int64),
+                np.zeros((blocks, width)), np.zeros((blocks, width), np.int64), np.zeros((blocks, width), np.int64),
+                np.zeros((blocks, width), np.bool_), np.zeros(blocks, np.int64), np.full(blocks, -1, np.int64),
+                np.zeros(blocks, np.bool_), np.zeros(blocks, np.bool_), np.zeros(size, np.int64),
+                np.zeros(size, np.int64), np.zeros((n_objects, blocks, b, 3)), np.zeros((n_objects, blocks, b, q)),
+                np.zeros((n_objects, blocks, b), np.bool_), np.zeros(n_objects), np.zeros(n_objects, np.int64),
+                np.zeros(width), np.zeros(width), np.zeros(width), np.zeros(2, np.int64))
+
+    def run(self, run: Run, control: RunControl, fraction=lambda done: done, workers: int = 1) -> int:
+        """Search every finger whose bound stays below ``run.limit`` (read at every step: ``run.on_leaf``
+        may lower it); returns the nodes expanded. ``control`` may raise Stop (``run.frontier()`` then holds
+        what is left). ``fraction`` maps the share of base combinations done to the progress reported.
+        ``workers`` > 1: the base combinations are dealt out to that many threads (the compiled search
+        releases the GIL), which share the limit; ``on_leaf`` and reports are then made one at a time."""
+        workers = max(1, min(workers, len(self.combo_order)))
+        shares = [np.ascontiguousarray(self.combo_order[w::workers]) for w in range(workers)]
+        states = [self._new_state() for _ in shares]
+        run.frames = _Pending(list(zip(states, shares)), self.combo_bounds)
+        placed = self.placements
+        control.report(fraction(0.0), float(run.limit[-1]), placed)
+        common = (self.problems_tuple, self.weights, self.sizes, self.space.num_blocks, self.choices, self.n_choices,
+                  np.asarray(run.current, np.int64), np.asarray(run.keeps_stiff, np.bool_),
+                  np.asarray(self.space.stiff_positions, np.bool_), np.asarray(run.releasable, np.bool_), run.limit,
+                  np.asarray(run.stock, np.int64), np.asarray(run.stiff_stock, np.int64), self.combos)
+        lock, stopped = threading.Lock(), []
+
+        def search(share, state) -> None:
+            arguments = common + (share, self.combo_bounds, self.root_poses, self.root_alphas, state, CHECK_EVERY)
+            path, swapped, leaf_costs, leaf_bases = state[9], state[10], state[17], state[18]
+            while not stopped:
+                code = _search_front(*arguments)
+                with lock:
+                    self.placements = placed + sum(int(st[22][1]) for st in states)
+                    try:
+                        if code == LEAF:
+                            run.on_leaf(Candidate(path.copy(), swapped.copy(), leaf_costs.copy(), leaf_bases.copy(),
+                                                  float(self.weights @ leaf_costs)))
+                        elif code == CHECKPOINT:
+                            done = sum(max(int(st[1][0]) - 1, 0) for st in states) / len(self.combo_order)
+                            control.report(fraction(min(done, 1.0)), float(run.limit[-1]), self.placements)
+                        else:
+                            return
+                    except Stop as stop:
+                        stopped.append(stop)
+                        return
+
+        if workers == 1:
+            search(shares[0], states[0])
+        else:
+            with ThreadPoolExecutor(max_workers=workers) as pool:
+                for future in [pool.submit(search, share, state) for share, state in zip(shares, states)]:
+                    future.result()
+        if stopped:
+            raise stopped[0]
+        return sum(int(state[22][0]) for state in states)
+
+
+class _Pending:
+    """The children the compiled searches (their states and shares of the base combinations) have not
+    visited yet."""
+
+    def __init__(self, searches, combo_bounds):
+        self.searches, self.combo_bounds = searches, combo_bounds
+
+    def frontier(self) -> list[tuple[float, int]]:
+        out = []
+        for state, share in self.searches:
+            top, combo_next, next_child, count, bounds, _, afters = state[:7]
+            out += [(float(self.combo_bounds[j]), 0) for j in share[int(combo_next[0]):]]
+            for level in range(int(top[0]) + 1):
+                out += [(float(bounds[level, k]), int(afters[level, k]))
+                        for k in range(next_child[level], count[level])]
+        return out
+
+
+class Front:
+    """The best candidate per swap budget 0..N so far (``best``, ``chosen``), and the limit a search
+    prunes with. A finger with v swaps matters only below min(best[v], ``ceiling[v]``) (a caller's need), and
+    not at all where ``floor[v]`` (a proven bound on every finger with at most v swaps) reaches that: a
+    prefix with u swaps is searched below the largest such cap over v >= u."""
+
+    def __init__(self, blocks: int, ceiling=None, floor=None):
+        self.best = np.full(blocks + 1, np.inf)
+        self.chosen: list[Candidate | None] = [None] * (blocks + 1)
+        self.ceiling = np.full(blocks + 1, np.inf) if ceiling is None else np.asarray(ceiling, float).copy()
+        self.floor = np.full(blocks + 1, -np.inf) if floor is None else np.asarray(floor, float)
+        self.limit = np.empty(blocks + 1)
+        self.tighten()
+
+    def tighten(self, ceiling=None) -> None:
+        """Lower the ceiling (when given) and recompute the limit in place (searches hold it)."""
+        if ceiling is not None:
+            np.minimum(self.ceiling, ceiling, out=self.ceiling)
+        cap = np.minimum(self.best, self.ceiling)
+        self.limit[:] = np.maximum.accumulate(np.where(self.floor < cap, cap, -np.inf)[::-1])[::-1]
+
+    def record(self, candidate: Candidate) -> None:
+        improved = False
+        for s in range(candidate.swaps, len(self.best)):
+            if candidate.cost < self.best[s]:
+                self.best[s], self.chosen[s] = candidate.cost, candidate
+                improved = True
+        if improved:
+            self.tighten()
+
+
+def within(shapes, stiff_used, stock, stiff_stock) -> bool:
+    """Whether a finger's blocks (shapes, which of them use a stiff block) fit the stock."""
+    counts = np.bincount(shapes, minlength=len(stock))
+    stiff = np.bincount(shapes[stiff_used], minlength=len(stock))
+    return bool(np.all(counts <= stock) and np.all(stiff <= stiff_stock))
+
+
 @dataclass
 class FrontResult:
     """Outcome of ``solve_finger_front`` (scipy style), per swap budget s = 0..N (index s).
 
     ``fun[s]``: lowest weighted objective [m] found with at most s swaps (inf: none found);
     ``lower_bound[s]``: proven lower bound on it (= ``fun[s]`` when ``optimal[s]``); ``shapes[s]`` the
-    finger's shape indices (-1 when none); ``bases[s]`` each object's base index; ``object_costs[s]`` each
-    object's eq. (3) cost [m]; ``swaps[s]``: the swaps that finger actually needs.
+    finger's shape indices (-1 when none); ``swapped[s]`` the positions that change their block;
+    ``bases[s]`` each object's base index; ``object_costs[s]`` each object's eq. (3) cost [m];
+    ``swaps[s]``: the swaps that finger actually needs; ``candidates[s]`` the same as a ``Candidate``.
     """
 
     fun: np.ndarray
     lower_bound: np.ndarray
     optimal: np.ndarray
     shapes: np.ndarray
+    swapped: np.ndarray
     bases: np.ndarray
     object_costs: np.ndarray
     swaps: np.ndarray
+    candidates: list
     success: bool
     status: Status
     message: str
@@ -158,12 +505,6 @@ def _evaluate(problems, roots, shapes):
     return costs, bases
 
 
-def _within(shapes, space, stock, stiff_stock) -> bool:
-    counts = np.bincount(shapes, minlength=len(stock))
-    stiff = np.bincount(shapes[space.stiff_positions], minlength=len(stock))
-    return bool(np.all(counts <= stock) and np.all(stiff <= stiff_stock))
-
-
 def _base_combinations(problems, weights, roots, scratch, blocks):
     """Every combination of one base per object (rows of base indices) and its bound: the weighted sum of
     each object's bound at that base (the smallest over its first blocks)."""
@@ -181,16 +522,7 @@ def _base_combinations(problems, weights, roots, scratch, blocks):
     return combos, total
 
 
-def _check_inputs(targets, weights, space, current, stock, stiff_stock):
-    if not targets:
-        raise ValueError("targets: at least one object is needed")
-    if any(target.body is None for target in targets):
-        raise ValueError("targets must be finger targets (with a body); see planner.design.finger_problems")
-    weights = np.asarray(weights, dtype=float).reshape(-1)
-    if len(weights) != len(targets) or not np.all(np.isfinite(weights) & (weights > 0)):
-        raise ValueError(f"weights must be {len(targets)} finite numbers > 0, got {weights.tolist()}")
-    if space.rotations != 1 or space.stock is not None:
-        raise ValueError("space must be a planar space without inventory (limits go in stock / stiff_stock)")
+def _check_limits(space, current, stock, stiff_stock):
     blocks, shapes = space.num_blocks, len(space.theta)
     current = np.full(blocks, -1, np.int64) if current is None else np.asarray(current, dtype=np.int64)
     if current.shape != (blocks,) or np.any((current < -1) | (current >= shapes)):
@@ -201,11 +533,13 @@ def _check_inputs(targets, weights, space, current, stock, stiff_stock):
     stiff_stock = stock if stiff_stock is None else np.asarray(stiff_stock, dtype=np.int64)
     if stock.shape != (shapes,) or stiff_stock.shape != (shapes,) or np.any(stock < 0) or np.any(stiff_stock < 0):
         raise ValueError(f"stock and stiff_stock must be {shapes} counts >= 0 (one per shape)")
-    return weights, current, stock, stiff_stock
+    return current, stock, stiff_stock
 
 
 def solve_finger_front(targets, weights, space: DesignSpace, *, current=None, stock=None, stiff_stock=None,
-                       time_budget=None, callback=None, options=None, starts=(), floor: float = 0.0) -> FrontResult:
+                       time_budget=None, callback=None, options=None, starts=(), floor: float = 0.0,
+                       search: FingerFrontSearch | None = None, keeps_stiff=None, releasable=None,
+                       extra=(), workers: int = 2) -> FrontResult:
     """Minimise sum_i weights[i] * cost_i over the fingers of ``space`` (planar, unlimited: its lookahead
     fields are the prepared ones), for every swap budget 0..N from ``current`` (N shape indices; -1 or None:
     every position counts as a swap). ``stock`` / ``stiff_stock`` (one count per shape) limit how often a
@@ -213,125 +547,59 @@ def solve_finger_front(targets, weights, space: DesignSpace, *, current=None, st
     StopIteration; ``time_budget`` [s]. ``starts``: complete fingers (shape indices) to prune with from the
     start, e.g. each object's own optimum; each is also tried with every subset of its positions as now.
     ``floor``: a proven lower bound on every finger [m] (e.g. the weighted sum of the objects' own certified
-    optima), reported where the search's own bound is lower. Certified unless stopped (then every budget
-    carries a proven bound)."""
-    weights, current, stock, stiff_stock = _check_inputs(targets, weights, space, current, stock, stiff_stock)
-    settings = DEFAULT_OPTIONS | (options or {})
+    optima), reported where the search's own bound is lower. ``search``: the prepared ``FingerFrontSearch``
+    of the same targets (built here when None); ``keeps_stiff`` / ``releasable``: see ``Run`` (default: a
+    kept block at a forced-stiff position is stiff, nothing releasable); ``extra``: ``Candidate`` fingers
+    outside the design space to consider too (a finger as built with its rotations); ``workers``: threads
+    that share the search. Certified unless stopped (then every budget carries a proven bound)."""
+    search = FingerFrontSearch(targets, weights, space, options) if search is None else search
+    current, stock, stiff_stock = _check_limits(space, current, stock, stiff_stock)
+    blocks = space.num_blocks
+    keeps_stiff = space.stiff_positions.copy() if keeps_stiff is None else np.asarray(keeps_stiff, bool)
+    releasable = np.zeros(blocks, bool) if releasable is None else np.asarray(releasable, bool)
     control = RunControl(time_budget, callback)
-    problems = [search_problem(target, space, settings) for target in targets]
-    blocks, n_objects = space.num_blocks, len(targets)
-    choices = [np.asarray(c, np.int64) for c in space.choices]
-    best = np.full(blocks + 1, np.inf)
-    best_shapes = np.full((blocks + 1, blocks), -1, np.int64)
-    best_bases = np.full((blocks + 1, n_objects), -1, np.int64)
-    best_costs = np.full((blocks + 1, n_objects), np.inf)
-    counts, stiff_counts = np.zeros(len(space.theta), np.int64), np.zeros(len(space.theta), np.int64)
-    scratch = np.zeros(max(len(c) for c in choices))
-    stats = {"nodes": 0, "placements": 0}
-
-    def record(path, costs, bases):
-        total = float(weights @ costs)
-        swaps = int(np.sum(np.asarray(path) != current))
-        for s in range(swaps, blocks + 1):
-            if total < best[s]:
-                best[s], best_shapes[s], best_bases[s], best_costs[s] = total, path, bases, costs
-
-    def children(depth, states, swaps):
-        """(bound, shape, swaps after) of the node's admissible children, lowest bound first."""
-        leaf = depth + 1 == blocks
-        total = np.zeros(len(choices[depth]))
-        per_object = np.empty(len(choices[depth]))
-        for problem, weight, (poses, alphas, alive) in zip(problems, weights, states):
-            _node_bounds(problem, depth, poses, alphas, alive, leaf, scratch, per_object)
-            total += weight * per_object
-        stats["placements"] += len(choices[depth]) * n_objects
-        shape = choices[depth]
-        after = swaps + (shape != current[depth])
-        usable = (total < best[np.minimum(after, blocks)]) & (counts[shape] < stock[shape])
-        if space.stiff_positions[depth]:
-            usable &= stiff_counts[shape] < stiff_stock[shape]
-        picked = np.flatnonzero(usable)
-        picked = picked[np.argsort(total[picked], kind="mergesort")]
-        return [(float(total[k]), int(shape[k]), int(after[k])) for k in picked]
-
-    def place(s, depth, sign):
-        counts[s] += sign
-        if space.stiff_positions[depth]:
-            stiff_counts[s] += sign
-
-    roots = _object_states(problems)
+    front = Front(blocks)
     for seed in _mixtures(current, starts):  # first fingers to prune with, for every budget
-        costs, bases = _evaluate(problems, roots, seed)
-        if np.all(seed >= 0) and np.all(np.isfinite(costs)) and _within(seed, space, stock, stiff_stock):
-            record(seed.copy(), costs, bases)
-    combos, combo_bounds = _base_combinations(problems, weights, roots, scratch, blocks)
-    # frames[0]: the objects' base combinations; frames[1 + d]: the children of a node with d blocks placed.
-    # Each frame: next entry, entries (bound, choice, swaps after), the node's object states.
-    frames = [[0, [(float(combo_bounds[j]), j, 0) for j in np.argsort(combo_bounds, kind="mergesort")], roots]]
-    path = np.full(blocks, -1, np.int64)
-    status, nit = Status.CERTIFIED, 0
+        if np.any(seed < 0):
+            continue
+        swapped = seed != current
+        if within(seed, space.stiff_positions | (~swapped & keeps_stiff), stock, stiff_stock):
+            costs, bases = search.evaluate(seed)
+            if np.all(np.isfinite(costs)):
+                front.record(Candidate(seed.copy(), swapped, costs, bases, float(search.weights @ costs)))
+    for candidate in extra:
+        front.record(candidate)
+    run = Run(current, keeps_stiff, releasable, stock, stiff_stock, front.limit, front.record)
+    status, placed, nodes = Status.CERTIFIED, search.placements, 0
     try:
-        control.report(0.0, best[blocks], 0)
-        while frames:
-            depth = len(frames) - 2  # blocks placed at the node whose children this frame holds
-            frame = frames[-1]
-            if frame[0] >= len(frame[1]):
-                frames.pop()
-                if depth >= 1:
-                    place(path[depth - 1], depth - 1, -1)
-                    path[depth - 1] = -1
-                continue
-            bound, s, after = frame[1][frame[0]]
-            frame[0] += 1
-            if bound >= best[after]:
-                continue
-            if depth < 0:  # a base per object
-                states = [(poses, alphas, np.arange(len(alive)) == combos[s, i])
-                          for i, (poses, alphas, alive) in enumerate(roots)]
-                frames.append([0, children(0, states, 0), states])
-                continue
-            if depth + 1 == blocks:
-                costs, bases, partial = np.empty(n_objects), np.empty(n_objects, np.int64), 0.0
-                for i, (problem, (poses, alphas, alive)) in enumerate(zip(problems, frame[2])):
-                    costs[i], bases[i] = _leaf_exact(problem, poses, alphas, alive, s)
-                    partial += weights[i] * costs[i] if costs[i] < np.inf else np.inf  # inf: it collides
-                    if partial >= best[after]:
-                        break
-                else:
-                    path[depth] = s
-                    record(path.copy(), costs, bases)
-                    path[depth] = -1
-                continue
-            states = []
-            for problem, (poses, alphas, alive) in zip(problems, frame[2]):
-                out = (np.empty_like(poses), np.empty_like(alphas), np.empty_like(alive))
-                if not _child(problem, poses, alphas, alive, s, *out):
-                    break
-                states.append(out)
-            else:
-                path[depth] = s
-                place(s, depth, +1)
-                frames.append([0, children(depth + 1, states, after), states])
-                stats["nodes"] += 1
-                if stats["nodes"] % CHECK_EVERY == 0:
-                    nit += 1
-                    control.report(frames[0][0] / len(frames[0][1]), best[blocks], stats["placements"])
+        nodes = search.run(run, control, workers=workers)
     except Stop as stop:
         status = stop.status
-    lower = best.copy()
-    for frame in frames:  # prefixes not yet visited
-        for bound, _, after in frame[1][frame[0]:]:
-            lower[after:] = np.minimum(lower[after:], bound)
-    swaps = np.array([int(np.sum(best_shapes[s] != current)) if best_shapes[s, 0] >= 0 else -1
-                      for s in range(blocks + 1)])
+    lower = front.best.copy()
+    for bound, after in run.frontier():  # prefixes not yet visited
+        lower[after:] = np.minimum(lower[after:], bound)
     lower = np.maximum(lower, floor)
+    return front_result(front, lower, status, nodes=nodes, nfev=search.placements - placed, elapsed=control.elapsed,
+                        objects=len(targets))
+
+
+def front_result(front: Front, lower, status: Status, *, nodes: int, nfev: int, elapsed: float,
+                 objects: int) -> FrontResult:
+    """The result of a finished or stopped front: ``lower`` the proven bound per budget."""
+    best, blocks = front.best, len(front.best) - 1
     optimal = np.full(blocks + 1, status == Status.CERTIFIED) | (best <= lower + 1e-12)
     found = np.isfinite(best)
     if status == Status.CERTIFIED and not found[-1]:
         status = Status.INFEASIBLE
     message = MESSAGES[status] if status != Status.CERTIFIED else "every swap budget certified"
     message += f" (best {best[-1]:.6g} m with up to {blocks} swaps)" if found[-1] else ""
+    chosen = front.chosen
+    none = np.full(blocks, -1, np.int64)
     return FrontResult(
-        fun=best, lower_bound=np.where(optimal, best, lower), optimal=optimal, shapes=best_shapes, bases=best_bases,
-        object_costs=best_costs, swaps=swaps, success=bool(found[-1]), status=status, message=message, nit=nit,
-        nfev=stats["placements"], solve_time=control.elapsed)
+        fun=best, lower_bound=np.where(optimal, best, lower), optimal=optimal,
+        shapes=np.array([none if c is None else c.shapes for c in chosen]),
+        swapped=np.array([np.zeros(blocks, bool) if c is None else c.swapped for c in chosen]),
+        bases=np.array([np.full(objects, -1) if c is None else c.bases for c in chosen], np.int64),
+        object_costs=np.array([np.full(objects, np.inf) if c is None else c.costs for c in chosen]),
+        swaps=np.array([-1 if c is None else c.swaps for c in chosen]), candidates=list(chosen),
+        success=bool(found[-1]), status=status, message=message, nit=nodes, nfev=nfev, solve_time=elapsed)

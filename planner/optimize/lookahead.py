@@ -24,7 +24,7 @@ from __future__ import annotations
 import threading
 from collections import OrderedDict
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, lru_cache
 
 import numpy as np
 from numba import njit
@@ -61,19 +61,27 @@ class BlockShapes:
 
 
 def block_shapes(space: DesignSpace, cap_length: float) -> BlockShapes:
-    shape = chain_shape(space.theta[:, None], space.length[:, None], 0.0, samples_per_block=SAMPLES_PER_BLOCK,
+    """The shapes' samples, ends and discs (kept in memory: every search of the same table needs them)."""
+    theta, length = np.asarray(space.theta, float), np.asarray(space.length, float)
+    return _block_shapes(tuple(theta.tolist()), tuple(length.tolist()), float(cap_length))
+
+
+@lru_cache(maxsize=KEPT_IN_MEMORY)
+def _block_shapes(theta: tuple, length: tuple, cap_length: float) -> BlockShapes:
+    theta, length = np.array(theta), np.array(length)
+    shape = chain_shape(theta[:, None], length[:, None], 0.0, samples_per_block=SAMPLES_PER_BLOCK,
                         cap_length=cap_length)
     samples = shape.points[:, 1:, :][..., [0, 2]]
-    ends = np.column_stack([shape.positions[:, 1, 0], shape.positions[:, 1, 2], space.theta])
+    ends = np.column_stack([shape.positions[:, 1, 0], shape.positions[:, 1, 2], theta])
     centre = 0.5 * (samples.min(axis=1) + samples.max(axis=1))
     disc = np.column_stack([centre, np.linalg.norm(samples - centre[:, None], axis=-1).max(axis=1)])
-    dense = np.empty((len(space.theta), DENSE_PER_BLOCK, 2))
-    for s, (theta, length) in enumerate(zip(space.theta, space.length)):
-        total = 2 * cap_length + length
-        dense[s] = [block_point(theta, length, cap_length, total * i / (DENSE_PER_BLOCK - 1))
+    dense = np.empty((len(theta), DENSE_PER_BLOCK, 2))
+    for s, (bend, rod) in enumerate(zip(theta, length)):
+        total = 2 * cap_length + rod
+        dense[s] = [block_point(bend, rod, cap_length, total * i / (DENSE_PER_BLOCK - 1))
                     for i in range(DENSE_PER_BLOCK)]
     return BlockShapes(np.ascontiguousarray(samples), dense, ends, np.linalg.norm(samples, axis=-1).max(axis=1),
-                       disc, np.asarray(space.theta, float), np.asarray(space.length, float), float(cap_length))
+                       disc, theta, length, float(cap_length))
 
 
 @dataclass(frozen=True)

@@ -32,7 +32,9 @@ FINGER_GRASP_STEPS = ["above_object", "open_back", "surround_object", "close_bac
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory):
     out = tmp_path_factory.mktemp("demo")
-    demo_run = run([sys.executable, "-m", "softblock_ros.demo", "--out", str(out)], timeout=DEMO_TIMEOUT)
+    # the live view on a free port: a fixed one would meet another suite's demo (or a user's) on this machine
+    demo_run = run([sys.executable, "-m", "softblock_ros.demo", "--out", str(out), "--live-view-port", "0"],
+                   timeout=DEMO_TIMEOUT)
     return demo_run, out
 
 
@@ -42,6 +44,13 @@ def test_demo_exits_zero_and_writes_its_outputs(demo):
     for name in ("fingers.png", "recording.png", "run.mcap", "summary.json", "stack.log"):
         assert (out / name).stat().st_size > 0, name
     assert "=== demo summary ===" in demo_run.stdout
+
+
+def test_demo_names_the_live_views_address_once_it_serves(demo):
+    demo_run, out = demo
+    url = json.loads((out / "summary.json").read_text())["live_view"]
+    assert url and url.startswith("ws://127.0.0.1:") and not url.endswith(":0"), url
+    assert f"live view: open {url} in Foxglove" in demo_run.stdout
 
 
 def test_demo_designs_the_papers_gripper_and_runs_the_six_step_grasp(demo):

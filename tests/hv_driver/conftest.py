@@ -1,10 +1,13 @@
 """Fixtures for the HV driver tests: a scripted serial port; a simulated supply linked in memory to the driver,
 both on the test's simulated clock (deterministic, no sleeps); the same supply on a real pty for the few real-time
 integration tests."""
+import dataclasses
 import threading
 import time
 
 import pytest
+import waiting
+from dialect_rig import REAL_TIME_LINK_TIMEOUT_S, REAL_TIME_MISMATCH_TIME_S
 
 from hv_driver import ChannelConfig, HvSupply
 from hv_driver.clock import SimulatedClock
@@ -111,25 +114,17 @@ def pty_sim():
 
 @pytest.fixture
 def pty_supply(pty_sim):
-    # A generous link timeout: the suite runs on two loaded cores.
-    hv = HvSupply(pty_sim.port, channels=CHANNELS, link_timeout_s=0.5, heartbeat_timeout_s=30.0,
+    channels = [dataclasses.replace(config, mismatch_time_s=REAL_TIME_MISMATCH_TIME_S) for config in CHANNELS]
+    hv = HvSupply(pty_sim.port, channels=channels, link_timeout_s=REAL_TIME_LINK_TIMEOUT_S, heartbeat_timeout_s=30.0,
                   handle_signals=False).open()
     yield hv
     hv.abort()
 
 
-def _wait_until(predicate, deadline_s: float = 3.0, poll_s: float = 0.005):
-    """Poll ``predicate`` in real time until it holds or the generous deadline passes; returns its last value
-    (real-time integration tests only)."""
-    end = time.monotonic() + deadline_s
-    while not (result := predicate()) and time.monotonic() < end:
-        time.sleep(poll_s)
-    return result
-
-
 @pytest.fixture
 def wait_until():
-    return _wait_until
+    """``wait_until(predicate, what)``: the real-time wait of the integration tests (tests/waiting.py)."""
+    return waiting.wait_until
 
 
 @pytest.fixture

@@ -1,12 +1,39 @@
 """`Rig`: each dialect's simulated supplies behind one HvSupply, for the tests that run the same scenario on every
-dialect."""
+dialect; steps the driver tests share, in simulated and in real time."""
 import numpy as np
 
 from hv_driver import ChannelConfig, HvSupply
 from hv_driver.clock import SimulatedClock
 from hv_driver.dialects import dialect
+from hv_driver.dialects.base import CurrentSensing
 from sim_fallback.memory_port import MemoryPort
 from sim_fallback.rig import SIMULATORS
+
+# Ramps of a fraction of a second. The trip leaves room for the charging current of a host-ramped supply (Keithley):
+# its output follows each setpoint step with a 10 ms lag into 2 nF, and a cycle whose exchange with one supply ran
+# late sends the other two steps of up to two periods' slew each almost at once (test_dialects_sim.py's Keithley
+# test); an arc (2 mA) and ten times the load still trip it.
+FAST_LIMITS = dict(max_voltage_v=3000.0, slew_rate_v_per_s=8000.0, mismatch_tolerance_v=150.0, mismatch_time_s=0.2,
+                   current_trip_a=100e-6)
+
+# On real ptys in real time the host's speed must not decide an outcome: the link window (and with it each reply's,
+# a quarter of it) and the readback window are longer than any stall of a loaded host. Their timing is tested in
+# simulated time.
+REAL_TIME_LINK_TIMEOUT_S = 20.0
+REAL_TIME_MISMATCH_TIME_S = 20.0
+WAIT_S = 60.0  # [s] of the clock the rig runs on: a wait ends at its event, the deadline only when that never comes
+
+
+def all_off(sim) -> bool:
+    return not any(ch.output_on for ch in sim.plant)
+
+
+def ramp_both(supply, token, volts):
+    for name in ("front", "back"):
+        supply.enable(name)
+    handles = [supply.ramp_to(name, volts, token=token) for name in ("front", "back")]
+    assert all(h.wait(WAIT_S) for h in handles)
+    assert all(h.succeeded for h in handles), [h.message for h in handles]
 
 
 class Rig:
@@ -48,8 +75,23 @@ class Rig:
         for name in "ab":
             self.supply.enable(name)
         handles = [self.supply.ramp_to(name, volts, token=self.token) for name in "ab"]
-        assert all(h.wait(5.0) for h in handles)
+        assert all(h.wait(WAIT_S) for h in handles)
         return handles
+
+    def check_ramps_both_channels(self, wait) -> None:
+        """Both channels ramped to 2400 V and back without a fault; ``wait(predicate)`` is true once the predicate
+        holds (on the rig's clock)."""
+        handles = self.ramp(2400.0)
+        assert all(h.succeeded for h in handles), [h.message for h in handles]
+        assert wait(lambda: all(abs(self.plant(c).voltage - 2400.0) < 5.0 for c in "ab"))
+        snapshot = self.supply.snapshot()
+        assert not any(c.faults for c in snapshot.channels)
+        if self.supply.dialect.capabilities.current is CurrentSensing.NONE:  # NaN, never a made-up 0 A
+            assert all(c.measured_current != c.measured_current for c in snapshot.channels)
+        else:  # at rest the charging current is gone; the loop may still hold a reading from the ramp's end
+            assert wait(lambda: all(abs(c.measured_current) < 1e-5 for c in self.supply.snapshot().channels))
+        for handle in [self.supply.ramp_to(c, 0.0, token=self.token) for c in "ab"]:
+            assert handle.wait(WAIT_S) and handle.succeeded
 
     def watch(self, channel: str, level: float) -> None:
         sim, index = self.where[channel]

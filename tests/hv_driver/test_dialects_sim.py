@@ -1,12 +1,12 @@
 """The same fault matrix for every dialect: HvSupply against each simulated supply, two channels (one two-channel
 iseg module; two single-channel Keithley units; two PPV boards, i.e. two ports behind one driver), linked in memory on
 one simulated clock. Every injected fault ends with the outputs off and the fault each device's capabilities let the
-driver name. One test per dialect runs on real ptys in real time (integration)."""
+driver name. The same ramps on real ptys in real time: test_driver_pty.py."""
 import dataclasses
 
 import pytest
 
-from dialect_rig import Rig
+from dialect_rig import FAST_LIMITS, Rig
 
 from hv_driver import ChannelConfig, Fault, FaultLatchedError
 from hv_driver.clock import SimulatedClock
@@ -16,13 +16,7 @@ from hv_driver.supervisor import DEFAULT_PERIOD_S, ChannelSupervisor
 from sim_fallback.hv_plant import PlantChannel
 from sim_fallback.keithley_supply import SimulatedKeithley2290
 
-pytestmark = pytest.mark.integration
-
-# The trip leaves room for the charging current of a host-ramped supply (Keithley): its output follows each setpoint
-# step with a 10 ms lag into 2 nF, and a cycle whose exchange with one supply ran late sends the other two steps of up
-# to two periods' slew each almost at once (see the test below); an arc (2 mA) and ten times the load still trip it.
-FAST = dict(max_voltage_v=3000.0, slew_rate_v_per_s=8000.0, mismatch_tolerance_v=150.0, mismatch_time_s=0.2,
-            current_trip_a=100e-6)
+pytestmark = pytest.mark.fast
 
 # fault -> dialect -> expected fault
 MATRIX = {
@@ -42,40 +36,14 @@ MATRIX = {
 
 @pytest.fixture(params=list(DIALECTS))
 def rig(request):
-    made = Rig(request.param, FAST, link_timeout_s=0.5, clock=SimulatedClock())
-    yield request.param, made
-    made.close()
-
-
-@pytest.fixture(params=list(DIALECTS))
-def pty_rig(request):
-    made = Rig(request.param, FAST, link_timeout_s=0.5)
+    made = Rig(request.param, FAST_LIMITS, link_timeout_s=0.5, clock=SimulatedClock())
     yield request.param, made
     made.close()
 
 
 def test_every_dialect_identifies_configures_and_ramps_both_channels(rig):
-    name, made = rig
-    check_ramps_both_channels(name, made, made.supply.wait_for)
-
-
-def test_every_dialect_ramps_both_channels_on_real_ptys(pty_rig, wait_until):
-    """Integration: the loop in its own thread, each simulator serving a real pty in real time."""
-    check_ramps_both_channels(*pty_rig, wait_until)
-
-
-def check_ramps_both_channels(name, made, wait_until):
-    handles = made.ramp(2400.0)
-    assert all(h.succeeded for h in handles), [h.message for h in handles]
-    assert wait_until(lambda: all(abs(made.plant(c).voltage - 2400.0) < 5.0 for c in "ab"), 3.0)
-    snapshot = made.supply.snapshot()
-    assert not any(c.faults for c in snapshot.channels)
-    if name == "ppv":  # no current readback: shown as NaN, never as a made-up 0 A
-        assert all(c.measured_current != c.measured_current for c in snapshot.channels)
-    else:  # at rest the charging current is gone; the loop may still hold a reading from the ramp's end
-        assert wait_until(lambda: all(abs(c.measured_current) < 1e-5 for c in made.supply.snapshot().channels), 3.0)
-    for handle in [made.supply.ramp_to(c, 0.0, token=made.token) for c in "ab"]:
-        assert handle.wait(5.0) and handle.succeeded
+    _, made = rig
+    made.check_ramps_both_channels(lambda predicate: made.supply.wait_for(predicate, 3.0))
 
 
 def keithley_charging_peak(late_cycle: int, trip: float) -> tuple[float, bool]:
@@ -83,14 +51,14 @@ def keithley_charging_peak(late_cycle: int, trip: float) -> tuple[float, bool]:
     its setpoint reaches it 1 ms into each cycle, after unit a's exchange; in ``late_cycle`` that exchange stalls for
     1.9 periods, so b gets the cycle's step late and, the loop running on at once, the next one (1.9 periods' slew)
     right after it. Returns the peak charging current [A] and whether the unit tripped."""
-    config, exchange, stall = ChannelConfig("b", 0, **FAST), 0.001, 1.9 * DEFAULT_PERIOD_S
+    config, exchange, stall = ChannelConfig("b", 0, **FAST_LIMITS), 0.001, 1.9 * DEFAULT_PERIOD_S
     host = ChannelSupervisor(config, 0.0, DEFAULT_PERIOD_S)
     host.enable()
     host.ramp_to(0.0, 2400.0)
     plant = PlantChannel(defaults=dataclasses.replace(SimulatedKeithley2290.default_defaults, current_limit=trip))
     plant.switch_on()
     arrivals, now = [], 0.0
-    for cycle in range(80):
+    for cycle in range(round(0.8 / DEFAULT_PERIOD_S)):  # the whole 0.56 s ramp
         arrivals.append((now + (stall if cycle == late_cycle else exchange), host.step(now).setpoint))
         now += stall + exchange if cycle == late_cycle else DEFAULT_PERIOD_S
     t, dt, peak = 0.0, 1e-4, 0.0
@@ -105,9 +73,10 @@ def keithley_charging_peak(late_cycle: int, trip: float) -> tuple[float, bool]:
 
 def test_the_keithley_trip_holds_two_setpoint_steps_bunched_by_a_late_exchange():
     """The rig's trip leaves room for the worst bunching the loop's schedule allows, wherever in the ramp it falls
-    (cycles 20-39 span its fastest part)."""
-    trip = Keithley2290.capabilities.device_current_margin * FAST["current_trip_a"]
-    peaks = {cycle: keithley_charging_peak(cycle, trip) for cycle in range(20, 40)}
+    (the cycles from 0.2 s to 0.4 s span its fastest part)."""
+    trip = Keithley2290.capabilities.device_current_margin * FAST_LIMITS["current_trip_a"]
+    peaks = {cycle: keithley_charging_peak(cycle, trip)
+             for cycle in range(round(0.2 / DEFAULT_PERIOD_S), round(0.4 / DEFAULT_PERIOD_S))}
     tripped = {cycle: f"{peak * 1e6:.1f} uA" for cycle, (peak, trip_latched) in peaks.items() if trip_latched}
     assert not tripped, f"unit trip {trip * 1e6:.1f} uA exceeded with the late exchange in cycles {tripped}"
 
@@ -135,6 +104,7 @@ def test_fault_matrix(rig, fault):
         return all(expected in snap.channel(c).faults for c in tripped) and all(
             not (reachable and made.plant(c).output_on) for c in tripped)
     assert made.supply.wait_for(tripped_and_off, 5.0), made.supply.snapshot()
+    made.supply.wait_cycles(1)  # the readback that confirms the cut (sent in the cycle that read the fault)
     snap = made.supply.snapshot()
     for c in tripped:  # claimed off only once a reading confirmed the cut (none over a failing link)
         assert (snap.channel(c).setpoint, snap.channel(c).output_enabled) == (0.0, expected is Fault.LINK)
@@ -146,7 +116,7 @@ def test_fault_matrix(rig, fault):
 
 
 def test_a_supply_that_stops_answering_trips_only_its_own_channels():
-    made = Rig("ppv", FAST, link_timeout_s=0.5, clock=SimulatedClock())
+    made = Rig("ppv", FAST_LIMITS, link_timeout_s=0.5, clock=SimulatedClock())
     try:
         made.ramp(800.0)
         made.sims[1].inject("no_reply")
@@ -159,7 +129,7 @@ def test_a_supply_that_stops_answering_trips_only_its_own_channels():
 
 
 def test_a_reset_clears_a_breakdown_and_the_board_comes_back_at_0_v():
-    made = Rig("ppv", FAST, link_timeout_s=0.5, clock=SimulatedClock())
+    made = Rig("ppv", FAST_LIMITS, link_timeout_s=0.5, clock=SimulatedClock())
     try:
         made.ramp(1200.0)
         made.inject("over_current", "a")

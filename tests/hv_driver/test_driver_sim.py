@@ -1,17 +1,12 @@
 """HvSupply against the simulated supply: ramps, every injected fault, e-stop, exit paths, the heartbeat watchdog
 and the control claim, resets and outputs that ramp down at the device ramp. The driver's loop and the simulated
-module run on one simulated clock, linked in memory (deterministic: timing is asserted in simulated time); a few
-integration tests run the same supply on a real pty in real time (their waits have generous deadlines and assert no
-duration)."""
+module run on one simulated clock, linked in memory (deterministic: timing is asserted in simulated time). The same
+supply on a real pty in real time: test_driver_pty.py."""
 import logging
 import math
-import os
-import signal
-import subprocess
-import sys
-import textwrap
 
 import pytest
+from dialect_rig import all_off, ramp_both
 
 from hv_driver import (ChannelConfig, ConfigurationError, ControlError, Fault, FaultLatchedError, HvSupply, LimitError,
                        LinkError)
@@ -20,26 +15,12 @@ from sim_fallback.hv_plant import ChannelDefaults, PlantEvent
 from sim_fallback.hv_supply import SimulatedSupply
 from sim_fallback.memory_port import MemoryPort
 
-pytestmark = pytest.mark.integration
-
-REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-
-def all_off(sim) -> bool:
-    return not any(ch.output_on for ch in sim.plant)
+pytestmark = pytest.mark.fast
 
 
 def simulated(sim, clock, configs, **options) -> HvSupply:
     """An HvSupply for ``sim`` on the test's simulated clock (not opened)."""
     return HvSupply(MemoryPort(sim), channels=configs, handle_signals=False, clock=clock, **options)
-
-
-def ramp_both(supply, token, volts):
-    for name in ("front", "back"):
-        supply.enable(name)
-    handles = [supply.ramp_to(name, volts, token=token) for name in ("front", "back")]
-    assert all(h.wait(5.0) for h in handles)
-    assert all(h.succeeded for h in handles), [h.message for h in handles]
 
 
 def test_open_identifies_and_configures_the_device_side_limits(sim, supply):
@@ -128,6 +109,7 @@ def test_every_injected_fault_ends_with_outputs_off_and_the_named_fault(fault, s
     # time after the drift (500 V/s) leaves the 150 V tolerance; else a cycle or two.
     bound = {Fault.LINK: 0.5 + 3 * 0.125, Fault.READBACK_MISMATCH: 150.0 / 500.0 + 0.2}.get(expected, 0.0)
     assert clock() - injected <= bound + 2 * DEFAULT_PERIOD_S + 1e-9
+    supply.wait_cycles(1)  # the readback that confirms the cut (sent in the cycle that read the fault)
     snap = supply.snapshot()
     for name in tripped:
         c = snap.channel(name)
@@ -174,32 +156,6 @@ def test_device_reset_only_with_outputs_off_and_limits_are_restored(sim, supply)
     assert sim.plant[0].ramp_up == pytest.approx(8000.0 * 1.2) and not supply.snapshot().channel("front").faults
 
 
-def test_estop_while_another_thread_streams_ramps(pty_sim, pty_supply, background, wait_until):
-    """Integration on a real pty, the loop in its own thread: requests from another thread race the e-stop."""
-    sim, supply, token = pty_sim, pty_supply, pty_supply.claim_control("test")
-    ramp_both(supply, token, 800.0)
-    refused = []
-
-    def stream():  # keeps requesting new ramps until 20 requests after the e-stop were refused
-        k = 0
-        while len(refused) <= 20:
-            k += 1
-            try:
-                supply.heartbeat(token)
-                supply.ramp_to("front" if k % 2 else "back", 200.0 + (k * 37) % 1500, token=token)
-            except (FaultLatchedError, ControlError) as error:
-                refused.append(error)
-            supply.wait_cycles(1, timeout=1.0)
-    background(stream)
-    supply.wait_cycles(5)
-    supply.estop()
-    assert wait_until(lambda: all_off(sim) and len(refused) > 20, 10.0)
-    snap = supply.snapshot()
-    assert snap.estop and all(c.faults == Fault.ESTOP and not c.output_enabled for c in snap.channels)
-    assert all(ch.emergency for ch in sim.plant)  # device-side emergency off, latched
-    assert "emergency stop" in str(refused[-1]) and snap.controller == ""  # the e-stop ended the session
-
-
 def test_lost_heartbeat_ramps_outputs_down_at_the_slew_limit(sim, clock):
     configs = [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=8000.0)]
     with simulated(sim, clock, configs, heartbeat_timeout_s=0.3) as hv:
@@ -216,9 +172,10 @@ def test_lost_heartbeat_ramps_outputs_down_at_the_slew_limit(sim, clock):
 
 
 @pytest.mark.parametrize("first", ["the control loop's cycle", "the client's next beat"])
-def test_a_stall_of_the_whole_process_longer_than_the_timeout_keeps_control(sim, clock, first):
-    """Driver and client in one stalled process (a garbage collection, a loaded host): after the stall the
-    client beats again at once, or only after the driver's loop has run a cycle; either way it keeps control."""
+def test_a_stall_of_the_whole_process_longer_than_the_timeout_ends_control(sim, clock, first):
+    """Driver and client in one stalled process: the client sent nothing for three timeouts, so its control lapses,
+    whether the loop's next cycle or the client's next beat comes first, and the output ramps down. (The supervisor
+    process hears its node through a channel and reads it before it judges: test_supervisor_process.py.)"""
     configs = [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=8000.0)]
     with simulated(sim, clock, configs, heartbeat_timeout_s=0.5, link_timeout_s=2.0) as hv:
         token = hv.claim_control("test")
@@ -228,12 +185,11 @@ def test_a_stall_of_the_whole_process_longer_than_the_timeout_keeps_control(sim,
         clock.advance(1.5)  # three timeouts without a cycle or a beat
         if first == "the control loop's cycle":
             hv.step()
-        for _ in range(20):
+        with pytest.raises(ControlError, match="lapsed: no heartbeat for more than 0.5 s"):
             hv.heartbeat(token)
-            hv.run_for(0.05)
+        assert hv.wait_for(lambda: sim.plant[0].voltage < 50.0, 5.0)
         snap = hv.snapshot()
-        assert snap.controller == "test" and not snap.channel("front").faults, snap.channel("front").fault_text
-        assert sim.plant[0].output_on and sim.plant[0].voltage_set == 1000.0
+        assert snap.controller == "" and snap.channel("front").faults == Fault.HEARTBEAT
 
 
 def test_close_ramps_down_and_switches_off(sim, clock):
@@ -273,30 +229,6 @@ def test_device_that_cannot_take_the_ramp_speed_is_refused_at_open(clock):
         hv.open()
 
 
-def test_sigterm_switches_the_outputs_off(pty_sim):
-    """Integration: a driver process on a real pty, ended by SIGTERM, cuts its outputs."""
-    sim = pty_sim
-    script = textwrap.dedent(f"""
-        import sys, time
-        from hv_driver import ChannelConfig, HvSupply
-        hv = HvSupply({sim.port!r}, channels=[ChannelConfig("front", 0, max_voltage_v=3000.0)]).open()
-        hv.enable("front")
-        hv.ramp_to("front", 400.0, token=hv.claim_control("test")).wait(5.0)
-        print("ramped", flush=True)
-        time.sleep(30)
-    """)
-    child = subprocess.Popen([sys.executable, "-c", script], cwd=REPO, stdout=subprocess.PIPE, text=True)
-    try:
-        assert child.stdout.readline().strip() == "ramped"
-        assert sim.plant[0].output_on
-        child.send_signal(signal.SIGTERM)
-        assert child.wait(timeout=10) == 128 + signal.SIGTERM
-    finally:
-        child.kill()
-        child.stdout.close()
-    assert all_off(sim) and sim.plant[0].emergency
-
-
 def test_the_heartbeat_watchdog_is_on_by_default(sim, clock):
     configs = [ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=8000.0)]
     with simulated(sim, clock, configs) as hv:
@@ -307,7 +239,8 @@ def test_the_heartbeat_watchdog_is_on_by_default(sim, clock):
         requested = clock()
         assert ramp.wait(5.0)
         assert hv.wait_for(lambda: Fault.HEARTBEAT in hv.snapshot().channel("front").faults, 10.0)
-        assert 2.0 < clock() - requested <= 2.0 + DEFAULT_PERIOD_S + 1e-9  # the 2 s timeout ran from the ramp request
+        # The 2 s timeout ran from the ramp request: judged in the first cycle after it, seen after the next step.
+        assert 2.0 < clock() - requested <= 2.0 + 2 * DEFAULT_PERIOD_S + 1e-9
         assert hv.wait_for(lambda: not sim.plant[0].output_on and sim.plant[0].voltage < 1.0, 5.0)
         assert hv.snapshot().controller == ""
 
@@ -421,14 +354,3 @@ def test_open_rides_out_answers_missing_in_the_middle_of_the_set_up(sim, clock):
         hv.wait_cycles(3)
         assert not hv.snapshot().channel("front").faults
     assert sum(line == "*IDN?" for _, line in sim.command_log) >= 2  # set up again from the start
-
-
-def test_the_real_time_loop_ramps_and_trips_on_a_real_pty(pty_sim, pty_supply, wait_until):
-    """Integration: the loop in its own thread over a real pty ramps both channels and cuts an arc."""
-    token = pty_supply.claim_control("test")
-    ramp_both(pty_supply, token, 1500.0)
-    assert wait_until(lambda: all(abs(ch.voltage - 1500.0) < 5.0 for ch in pty_sim.plant), 10.0)
-    pty_sim.inject("over_current", 0)
-    assert wait_until(lambda: Fault.OVER_CURRENT in pty_supply.snapshot().channel("front").faults
-                      and not pty_sim.plant[0].output_on, 10.0), pty_supply.snapshot()
-    assert pty_sim.plant[1].output_on and not pty_supply.snapshot().channel("back").faults

@@ -181,10 +181,13 @@ def test_port_failure_is_a_link_error(scripted_port):
 class LatePort:
     """A port whose device answers a write marked late only after the host gave up on it and flushed its
     input (as a device descheduled past the reply timeout would), the others at once; ``noisy``: the line
-    never falls quiet after that flush."""
+    never falls quiet after that flush. Runs on ``clock`` (simulated): each read takes READ_S on the wire."""
 
-    def __init__(self, exchanges, noisy=False):
+    READ_S = 0.001
+
+    def __init__(self, exchanges, clock: SimulatedClock, noisy=False):
         self.exchanges = list(exchanges)  # (sent, reply, late)
+        self.clock = clock
         self.held = bytearray()
         self.buffer = bytearray()
         self.flushed = False
@@ -205,6 +208,7 @@ class LatePort:
         return len(self.buffer)
 
     def read(self, size: int = 1) -> bytes:
+        self.clock.advance(self.READ_S)
         chunk = bytes(self.buffer[:size])
         del self.buffer[:size]
         return chunk
@@ -224,8 +228,9 @@ def test_an_answer_that_comes_after_the_timeout_is_not_taken_for_the_next_comman
     """The late answer to a voltage query arrives after the host gave up and moved on: without
     resynchronising, a device without echo had its 2400 V read as 2400 A (and one with echo failed on the
     echo, a false link fault)."""
-    port = LatePort([(first, late_answer, True), (second, answer, False)])
-    link = Link(port, dialect, 0.02)
+    clock = SimulatedClock()
+    port = LatePort([(first, late_answer, True), (second, answer, False)], clock)
+    link = Link(port, dialect, 0.02, clock)
     with pytest.raises(LinkError, match="no reply"):
         link.query("measure_voltage", [0])
     assert link.query("measure_current", [0]) == [2e-6]
@@ -233,8 +238,9 @@ def test_an_answer_that_comes_after_the_timeout_is_not_taken_for_the_next_comman
 
 
 def test_a_device_that_keeps_sending_after_a_failure_is_a_link_error():
-    port = LatePort([(b"VOUT?\n", b"", True)], noisy=True)
-    link = Link(port, Keithley2290(), 0.02)
+    clock = SimulatedClock()
+    port = LatePort([(b"VOUT?\n", b"", True)], clock, noisy=True)
+    link = Link(port, Keithley2290(), 0.02, clock)
     with pytest.raises(LinkError, match="no reply"):
         link.query("measure_voltage", [0])
     with pytest.raises(LinkError, match="kept sending"):

@@ -103,7 +103,7 @@ def test_trains_of_one_frequency_share_a_time_grid(now, delay):
 @pytest.fixture
 def switching():
     """A PPV channel (breakdown guard on) running a square 5 Hz train planned at t = 0: (channel, train)."""
-    channel = ChannelSupervisor(CONFIG)
+    channel = ChannelSupervisor(CONFIG, nominal_period_s=PERIOD)
     channel.breakdown_guard = True
     channel.enable()
     train = plan(PetaPicoVoltron, edge="square", now=0.0)

@@ -84,7 +84,8 @@ def test_a_counted_train_ends_by_the_boards_own_count_with_every_pulse_complete(
 
 def test_the_host_ends_a_train_whose_count_never_comes_within_its_bounded_fallback(make_rig):
     """A board that takes the count but does not keep it (it switches on, its QCycle never reaching the total): the
-    host ends the train itself, no later than the fallback margin after its own clock's end."""
+    host ends the train itself, no later than the fallback margin after its own clock's end, and reports it not
+    completed with the board's count."""
     rig = make_rig("ppv")
     sim, _ = rig.where["a"]
     execute = sim.execute
@@ -97,7 +98,9 @@ def test_the_host_ends_a_train_whose_count_never_comes_within_its_bounded_fallba
     sim.execute = miscounting
     handle = rig.supply.pulse(["a"], 600.0, 5.0, duty=0.5, cycles=10, edge="square", token=rig.token)
     train = handle.trains["a"]
-    assert handle.wait(10.0) and handle.succeeded, handle.message
+    assert handle.wait(10.0) and not handle.succeeded
+    assert handle.message == "a: not completed: the board counted 9 of 10 cycles, so the host ended the train by " \
+                             "its own clock (fallback)"
     ended = next(t for t, line in sim.command_log if line == "SVset 0" and t > train.start)
     fallback = train.stop + DEVICE_COUNT_MARGIN_S + DEVICE_CLOCK_TOLERANCE * (train.stop - train.start)
     assert fallback <= ended <= fallback + 2 * DEFAULT_PERIOD_S

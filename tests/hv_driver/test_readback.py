@@ -14,6 +14,7 @@ from hv_driver.supervisor import SLEW_CREDIT_PERIODS, ChannelSupervisor
 
 pytestmark = pytest.mark.fast
 
+PERIOD = 0.01  # [s] the loop's nominal period in these tests, which step it every 10 ms
 GAIT = ChannelConfig("leg", 0, max_voltage_v=3000.0, slew_rate_v_per_s=16000.0)  # the legged gait's 16 kV/s
 DEVICE_MARGIN = 1.2  # the driver sets the device ramp to 1.2 x the slew limit
 
@@ -50,7 +51,7 @@ class Rig:
 
 def test_a_loop_stall_at_16_kv_per_s_is_no_readback_mismatch():
     """The CI failure: one 20 ms cycle, then a 550 ms stall, mid-ramp at 16 kV/s."""
-    channel = ChannelSupervisor(GAIT)
+    channel = ChannelSupervisor(GAIT, nominal_period_s=PERIOD)
     channel.enable()
     rig = Rig(channel, DEVICE_MARGIN * GAIT.slew_rate_v_per_s)
     channel.ramp_to(0.0, 2400.0)
@@ -65,7 +66,7 @@ def test_a_loop_stall_at_16_kv_per_s_is_no_readback_mismatch():
 
 
 def test_a_stalled_loop_catches_up_by_at_most_two_nominal_periods_of_slew():
-    channel = ChannelSupervisor(GAIT)  # nominal period 10 ms
+    channel = ChannelSupervisor(GAIT, nominal_period_s=PERIOD)
     channel.enable()
     channel.ramp_to(0.0, 2400.0)
     before = channel.step(0.1).setpoint
@@ -78,7 +79,7 @@ GRIPPER = ChannelConfig("front", 0, max_voltage_v=3000.0, slew_rate_v_per_s=1000
 
 def held_at_2400_volts() -> tuple[ChannelSupervisor, Rig]:
     """A healthy channel of a supply ramping at 1.2 kV/s, held at 2.4 kV."""
-    channel = ChannelSupervisor(GRIPPER)
+    channel = ChannelSupervisor(GRIPPER, nominal_period_s=PERIOD)
     channel.set_device_ramp(1200.0)
     channel.enable()
     rig = Rig(channel, 1200.0)
@@ -115,14 +116,14 @@ def test_an_output_that_does_not_fall_after_off_is_a_mismatch():
 
 
 def test_an_output_left_on_by_an_earlier_session_may_ramp_down_after_open():
-    channel = ChannelSupervisor(GRIPPER)
+    channel = ChannelSupervisor(GRIPPER, nominal_period_s=PERIOD)
     channel.set_device_ramp(1200.0)
     channel.output_found(0.0, 2400.0)
     rig = Rig(channel, 1200.0, voltage=2400.0)
     for _ in range(300):
         rig.cycle(0.01)
     assert not channel.faults and rig.voltage == 0.0
-    stuck = ChannelSupervisor(GRIPPER)
+    stuck = ChannelSupervisor(GRIPPER, nominal_period_s=PERIOD)
     stuck.set_device_ramp(1200.0)
     stuck.output_found(0.0, 2400.0)
     rig = Rig(stuck, 1200.0, voltage=2400.0)
@@ -154,7 +155,7 @@ def test_a_device_that_follows_at_its_ramp_never_trips_the_readback_check(slew, 
     """Any loop timing (stalls up to 2 s), ramps, disables and resets: a readback that follows the commands
     at the device ramp (within 2 % and 20 V of noise) is never a mismatch."""
     config = ChannelConfig("ch", 0, max_voltage_v=3000.0, slew_rate_v_per_s=slew)
-    channel = ChannelSupervisor(config)
+    channel = ChannelSupervisor(config, nominal_period_s=PERIOD)
     channel.set_device_ramp(DEVICE_MARGIN * slew)
     channel.enable()
     rig = Rig(channel, DEVICE_MARGIN * slew * device_error, delay)
@@ -178,7 +179,7 @@ def test_an_output_that_does_not_fall_always_trips(start, slew, intervals):
     """Switched off at ``start`` V and stuck there: trips after the tolerance is ramped through and the
     mismatch has been seen for mismatch_time of loop time (each interval counted up to one nominal period)."""
     config = ChannelConfig("ch", 0, max_voltage_v=3000.0, slew_rate_v_per_s=slew)
-    channel = ChannelSupervisor(config)  # nominal period 10 ms
+    channel = ChannelSupervisor(config, nominal_period_s=PERIOD)
     rate = DEVICE_MARGIN * slew
     channel.set_device_ramp(rate)
     channel.output_found(0.0, start)

@@ -30,7 +30,7 @@ def run(channel: ChannelSupervisor, t0: float, t1: float, dt: float = 0.01):
 
 
 def enabled(config=CONFIG) -> ChannelSupervisor:
-    channel = ChannelSupervisor(config)
+    channel = ChannelSupervisor(config, nominal_period_s=0.01)  # the tests' readbacks come every 10 ms
     channel.enable()
     return channel
 

@@ -1,7 +1,8 @@
 """Timing of the whole loop, driver and simulated supplies on one simulated clock (deterministic, no sleeps): a
 ramp's minimum-jerk end time and its slew, a silent supply's LINK trip within the link timeout's bound on every
-dialect, a breakdown caught within its readbacks, smooth pulse edges on their time grid, and (property) a deaf
-supply's cut confirmed whatever the silence lasts."""
+dialect, a breakdown caught within its readbacks, a fault read back from one supply cut before the next supply's
+exchanges, a heartbeat costing no extra cycle, a client heard through a channel across a stall, smooth pulse edges on
+their time grid, and (property) a deaf supply's cut confirmed whatever the silence lasts."""
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -9,11 +10,13 @@ from hypothesis import strategies as st
 
 from dialect_rig import Rig
 
-from hv_driver import Fault
+from hv_driver import ChannelConfig, Fault, HvSupply
 from hv_driver.clock import SimulatedClock
 from hv_driver.dialects import DIALECTS
 from hv_driver.ramp import MIN_JERK_PEAK_RATE
-from hv_driver.supervisor import COLLAPSE_READBACKS, DEFAULT_PERIOD_S
+from hv_driver.supervisor import COLLAPSE_READBACKS, DEFAULT_PERIOD_S, IMMEDIATE_FAULTS
+from sim_fallback.hv_supply import SimulatedSupply
+from sim_fallback.memory_port import MemoryPort
 
 pytestmark = pytest.mark.fast
 
@@ -87,6 +90,76 @@ def test_a_breakdown_on_the_ppv_is_caught_within_its_readbacks():
         made.close()
 
 
+@pytest.mark.parametrize("name", [n for n, d in DIALECTS.items() if d.capabilities.channels_per_device == 1])
+def test_a_fault_read_back_from_one_supply_is_cut_before_the_next_supplys_exchanges(name):
+    """Two single-channel supplies on two ports, each line 1 ms on the wire: the arc one readback shows is cut in the
+    same cycle, before the loop serves the other supply (not in the next cycle, after it)."""
+    made = rig_for(name, exchange_s=0.001)
+    try:
+        made.ramp(1000.0)
+        made.supply.run_for(0.1)  # held
+        first, second = made.sims
+        arced = made.clock()
+        made.inject("over_current", "a")
+        while not made.supply.snapshot().channel("a").faults & IMMEDIATE_FAULTS:
+            made.supply.step()
+        made.supply.run_for(0.05)
+        cut_line = DIALECTS[name].commands["output_off"].template
+        cut = next(t for t, line in first.command_log if t > arced and line == cut_line)
+        shown = max(t for t, line in first.command_log if t < cut)  # the last readback before the cut showed it
+        assert not [line for t, line in second.command_log if shown < t < cut]
+    finally:
+        made.close()
+
+
+def test_a_heartbeat_changes_no_command_and_costs_the_loop_no_extra_cycle():
+    made = rig_for("iseg-edcp")
+    try:
+        made.ramp(1000.0)
+        sim, _ = made.where["a"]
+        start = made.clock()
+        for k in range(10):  # ten heartbeats in one second, each between two cycles
+            made.clock.call_at(start + (k + 0.5) * 0.1 + PERIOD / 2, lambda: made.supply.heartbeat(made.token))
+        made.supply.run_for(1.0)
+        cycles = [t for t, line in sim.command_log if t >= start and line.startswith(":MEAS:VOLT?")]
+        assert abs(len(cycles) - round(1.0 / PERIOD)) <= 1, len(cycles)
+    finally:
+        made.close()
+
+
+def test_the_loop_takes_in_what_waits_in_its_clients_channel_before_it_judges_a_silence():
+    """A supply heard through a channel (`HvSupply.listen`, as the supervisor process hears its node): its process
+    stalls 1.5 s, three heartbeat timeouts, while the client's beats wait in the channel; taken in with their sending
+    stamps before the judgement, they keep the client. Then the client dies: it lapses one timeout after its last
+    beat was sent."""
+    clock = SimulatedClock()
+    sim = SimulatedSupply(channels=2, clock=clock)
+    supply = HvSupply(MemoryPort(sim), channels=[ChannelConfig("a", 0, **LIMITS)], heartbeat_timeout_s=0.5,
+                      handle_signals=False, clock=clock).open()
+    try:
+        token = supply.claim_control("test")
+        supply.enable("a")
+        assert supply.ramp_to("a", 1000.0, token=token).wait(5.0)
+        supply.heartbeat(token)
+        waiting = []  # sending stamps of the beats in the channel
+
+        def take_in(patience):
+            while waiting:
+                supply.heartbeat(token, sent=waiting.pop(0))
+        supply.listen(take_in)
+        stalled = clock()
+        waiting += [stalled + 0.1 * k for k in range(1, 15)]
+        clock.advance(1.5)  # the stall: no cycle ran
+        supply.step()
+        assert supply.snapshot().controller == "test" and not supply.snapshot().channel("a").faults
+        last_sent = stalled + 1.4
+        assert supply.wait_for(lambda: supply.snapshot().controller == "", 5.0)
+        assert 0.5 < clock() - last_sent <= 0.5 + 2 * PERIOD + EPSILON
+        assert supply.snapshot().channel("a").faults == Fault.HEARTBEAT
+    finally:
+        supply.abort()
+
+
 def test_smooth_pulse_edges_cross_half_the_amplitude_on_their_grid_at_half_the_edge_time():
     made = rig_for("iseg-edcp")
     try:
@@ -121,5 +194,40 @@ def test_whatever_a_supplys_deafness_lasts_its_output_is_never_claimed_off_and_t
             snap = made.supply.snapshot().channel("a")
             assert snap.output_enabled or not made.plant("a").output_on
         assert not made.plant("a").output_on and not made.supply.snapshot().channel("a").output_enabled
+    finally:
+        made.close()
+
+
+# An iseg at its factory 9600 baud echoes each line: a query and its answer take about 40 ms on the wire, so a cycle
+# of readbacks takes far longer than the loop's nominal period. The loop's timing must follow the line it has.
+SLOW_LINE_EXCHANGE_S = 0.04
+
+
+@pytest.mark.parametrize("name", list(DIALECTS))
+def test_on_a_line_slower_than_the_loop_rate_a_ramp_keeps_its_time_and_a_drift_trips_on_time(name):
+    limits = {**LIMITS, "slew_rate_v_per_s": 1000.0}  # the shipped slew limit: steps of a slow cycle stay gentle
+    made = Rig(name, limits, link_timeout_s=LINK_TIMEOUT_S, clock=SimulatedClock(), exchange_s=SLOW_LINE_EXCHANGE_S)
+    made.supply.enable("a")
+    try:
+        start = made.clock()
+        handle = made.supply.ramp_to("a", 2400.0, token=made.token)
+        cycles = [start]
+        while not handle.done:
+            made.supply.step()
+            cycles.append(made.clock())
+        assert handle.succeeded, handle.message
+        cycle = float(np.median(np.diff(cycles)))
+        assert cycle > 4 * PERIOD  # the line, not the loop rate, sets the pace here
+        duration = MIN_JERK_PEAK_RATE * 2400.0 / limits["slew_rate_v_per_s"]
+        assert made.clock() - start <= duration + 3 * cycle + EPSILON
+
+        made.inject("readback_drift", "a")
+        drifting = made.clock()
+        while Fault.READBACK_MISMATCH not in made.supply.snapshot().channel("a").faults:
+            made.supply.step()
+            assert made.clock() - drifting < 60.0
+        # Out of the band once the drift passes the tolerance, then the mismatch time, found by the next readback.
+        bound = LIMITS["mismatch_tolerance_v"] / 500.0 + LIMITS["mismatch_time_s"] + 2 * cycle
+        assert made.clock() - drifting <= bound + EPSILON
     finally:
         made.close()

@@ -40,7 +40,8 @@ def test_block_command_reports_angle_stroke_and_limit(capsys):
     args = ["block", "--length", "0.015", "--diameter", "0.00031", "--prestretch", "1.5"]
     assert main(args + ["--voltage", "2400"]) == 0
     out = capsys.readouterr().out
-    assert "32.2" in out and "stroke" in out and "BREAKDOWN" in out
+    assert f"({np.degrees(load_table().design(15).theta0):.2f} deg)" in out  # ID 15, as in the table
+    assert "stroke" in out and "BREAKDOWN" in out
     assert main(args + ["--voltage", "4000"]) == 1
     assert "no valid equilibrium (BREAKDOWN)" in capsys.readouterr().out
     assert main(["block", "--length", "0.015", "--diameter", "0.01", "--prestretch", "1.5"]) == 2

@@ -55,7 +55,9 @@ def test_gingerbread_fingers_are_stiff_and_near_identical(table):
         assert all(stiff(table, finger.design_ids)) and not finger.collision
         index = table.index_of(np.array(finger.design_ids))
         assert np.ptp(table.rod_diameter[index]) == 0
-        assert np.degrees(table.theta0[index]).sum() < 15  # a flat slab wants straight fingers
+        # a flat slab wants straight fingers: blocks from the straightest quarter of the stiff designs
+        straightest = np.percentile(table.theta0[stiff(table, table.ids)], 25)
+        assert np.all(table.theta0[index] <= straightest)
 
 
 @pytest.mark.parametrize("name, blocks", [("strawberry", 4), ("gingerbread", 3)])

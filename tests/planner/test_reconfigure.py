@@ -18,6 +18,7 @@ from planner.optimize import Status, design_costs, design_space
 from planner.optimize.front_search import solve_finger_front
 from planner.reconfigure import FingerSlot, TargetObject, plan_reconfiguration, swap_steps
 from planner.table import load_table
+from reconfigure_brute import generated_contours, plan_brute_force
 
 pytestmark = pytest.mark.fast
 
@@ -82,6 +83,37 @@ def test_swap_front_equals_brute_force(objects, blocks):
             assert costs[chosen[0]] == pytest.approx(expected, abs=1e-9)
 
 
+def test_a_stiff_block_at_a_free_position_gives_way_when_its_kind_is_needed():
+    """A shape with one stiff and one free block in stock: the free position holds the stiff one, and the
+    forced-stiff position wants that shape too. Keeping it leaves no stiff block for the other position; the
+    free position may take the free block of the same shape instead (one swap). Against brute force over the
+    shapes and both ways of filling the free position."""
+    space = design_space(TABLE, 2, stiff_positions=[0])
+    shape_of, _ = shape_stock(space, {})
+    twin, free = shape_of[57], shape_of[14]
+    stock, stiff_stock = np.zeros(len(space.theta), np.int64), np.zeros(len(space.theta), np.int64)
+    stock[twin], stiff_stock[twin], stock[free] = 2, 1, 1
+    current = np.array([shape_of[64], twin])
+    targets = [design.finger_problems(contours_of("generated", 5), base_offsets=OFFSETS)["left"][0]]
+    front = solve_finger_front(targets, [1.0], space, current=current, stock=stock, stiff_stock=stiff_stock,
+                               keeps_stiff=np.array([True, True]), releasable=np.array([False, True]))
+    best = np.full(3, np.inf)
+    for first, second in itertools.product([twin], [twin, free]):
+        for release in ((False, True) if second == current[1] else (False,)):
+            stiff_use = 1 + (second == twin and not release)
+            if stiff_use > stiff_stock[twin] or [first, second].count(twin) > stock[twin]:
+                continue
+            swaps = int(first != current[0]) + int(second != current[1] or release)
+            cost = weighted_costs(targets, [1.0], space, np.array([[first, second]]))[0]
+            if cost < COLLISION_PENALTY:
+                best[swaps:] = np.minimum(best[swaps:], cost)
+    assert np.isfinite(best[2]), "the scenario needs a collision-free finger"
+    assert front.status == Status.CERTIFIED
+    assert front.fun == pytest.approx(best, abs=1e-9)
+    if front.shapes[2].tolist() == [twin, twin]:
+        assert front.swapped[2].tolist() == [True, True]  # the stiff block gave way: two swaps
+
+
 PAIR_SHELF = {2: 1, 14: 1, 40: 2, 64: 1, 71: 1}
 PAIR_OBJECTS = [("strawberry", None), ("generated", 5)]
 
@@ -120,6 +152,129 @@ def test_pair_plan_equals_brute_force_and_its_steps_rebuild_it():
     assert len(steps) >= chosen.swaps and steps[-1].assembly == chosen.assembly
     assert Counter(d for c in chosen.assembly.chains for d in c.design_ids) <= pool
     assert "insert design" in steps[0].describe() or "remove design" in steps[0].describe()
+
+
+def replay(built, target, shelf, steps):
+    """Apply the steps one by one: each takes out the block the position holds and inserts one the shelf
+    holds at that moment; returns the layout at the end."""
+    layout = {c.name: [b.design_id for b in c.blocks] for c in built.chains}
+    stock = Counter({d: n for d, n in shelf.items() if n})
+    for step in steps:
+        assert layout[step.chain][step.position] == step.remove
+        if step.remove is not None:
+            stock[step.remove] += 1
+        if step.insert is not None:
+            assert stock[step.insert] > 0, f"over-drawn: {step.describe()}"
+            stock[step.insert] -= 1
+        layout[step.chain][step.position] = step.insert
+        assert {d: n for d, n in stock.items() if n} == step.shelf
+    assert layout == {c.name: list(c.design_ids) for c in target.chains}
+    return layout
+
+
+def assert_plan_is_brute_force(built, shelf, objects, slots, result):
+    """Every point against brute force: certified points equal to it, every bound at most it, "no gripper"
+    only where there is none; each point's steps rebuild its robot without over-drawing the shelf."""
+    expected = plan_brute_force(built, shelf, objects, slots)
+    assert len(result.points) == len(expected)
+    for point, best in zip(result.points, expected):
+        assert point.lower_bound <= best + 1e-9, (point.max_swaps, point.lower_bound, best)
+        assert point.objective >= best - 1e-9
+        if point.optimal:
+            assert point.objective == pytest.approx(best, abs=1e-9) or np.isinf(best) == np.isinf(point.objective)
+            assert np.isinf(best) == np.isinf(point.objective), (point.max_swaps, point.objective, best)
+        if point.assembly is None:
+            continue
+        steps = swap_steps(built, point.assembly, shelf)
+        replay(built, point.assembly, shelf, steps)
+        assert sum(s.insert is not None for s in steps) == point.swaps <= point.max_swaps
+        rotated = sum(a.rotation_steps != b.rotation_steps for slot in slots for a, b in
+                      zip(built.chain(slot.chain).blocks, point.assembly.chain(slot.chain).blocks))
+        assert rotated <= point.swaps
+    if result.status == Status.CERTIFIED:
+        assert all(p.optimal for p in result.points) and result.success
+    if not result.success:
+        assert result.status in (Status.INFEASIBLE, Status.TIME_BUDGET, Status.CANCELED)
+        assert result.status != Status.INFEASIBLE or np.isinf(expected).all()
+
+
+def test_fingers_that_want_the_same_shelf_blocks_still_get_the_best_gripper():
+    """Both fingers' own best fingers want the shelf's only 29 and 24: the gripper must share them out (it
+    was reported as "no gripper", certified)."""
+    slots = (FingerSlot("left", "left"), FingerSlot("right", "right"))
+    built, shelf = robot((18, 12), (17, 23)), {29: 1, 24: 1}
+    objects = [TargetObject("lumpy99", contours_of("generated", 99))]
+    result = plan_reconfiguration(built, shelf, objects, slots=slots)
+    assert result.success and result.status == Status.CERTIFIED
+    assert_plan_is_brute_force(built, shelf, objects, slots, result)
+
+
+@pytest.mark.parametrize("reports", [1, 4, 16, 32, 48])
+def test_a_plan_stopped_anywhere_keeps_bounds_below_the_optimum(reports):
+    """Canceled after a number of progress reports (in the fingers' own fronts, or while they are combined
+    over the contested shelf): every point's bound stays at or below brute force, every certified point is it."""
+    slots = (FingerSlot("left", "left"), FingerSlot("right", "right"))
+    built, shelf = robot((18, 12, 40), (17, 23, 40)), {29: 1, 24: 1, 3: 1}
+    objects = [TargetObject("lumpy99", contours_of("generated", 99))]
+    heard = []
+
+    def cancel_late(progress):
+        heard.append(progress)
+        if len(heard) >= reports:
+            raise StopIteration
+
+    result = plan_reconfiguration(built, shelf, objects, slots=slots, callback=cancel_late)
+    assert_plan_is_brute_force(built, shelf, objects, slots, result)
+
+
+CONTESTED = (3, 12, 18, 24, 29, 40, 45, 57, 64, 71)  # 45 and later stiff
+
+
+@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.data())
+def test_plans_equal_brute_force_on_scarce_shelves(data):
+    """Built robots (some blocks mirrored at snap-fit 6), scarce shelves the fingers compete for, and
+    objects the planner has not seen: every point as brute force finds it."""
+    blocks = data.draw(st.sampled_from((2, 2, 3)), label="blocks")
+    stiff_top = data.draw(st.integers(0, 1), label="stiff top")
+    slots = (FingerSlot("left", "left", stiff_top), FingerSlot("right", "right", stiff_top))
+
+    def finger():
+        return tuple(PlacedBlock(data.draw(st.sampled_from(CONTESTED[6:] if k < stiff_top else CONTESTED)),
+                                 data.draw(st.sampled_from((0, 0, 0, 6)))) for k in range(blocks))
+
+    built = Assembly("pair", (Chain("left", "main", finger()), Chain("right", "main", finger())))
+    shelf = {d: data.draw(st.integers(0, 1)) for d in data.draw(st.sets(st.sampled_from(CONTESTED), max_size=5))}
+    kinds = data.draw(st.lists(st.tuples(st.sampled_from(("ellipse", "polygon", "lumpy")), st.integers(0, 999)),
+                               min_size=1, max_size=2), label="objects")
+    objects = [TargetObject(f"{kind}{seed}", generated_contours(kind, seed), weight=1.0 / (1 + k))
+               for k, (kind, seed) in enumerate(kinds)]
+    result = plan_reconfiguration(built, shelf, objects, slots=slots)
+    assert_plan_is_brute_force(built, shelf, objects, slots, result)
+
+
+def test_a_mirrored_block_of_the_robot_counts_as_built():
+    """A block at snap-fit 6 bends to the other side, and every block after it too: the robot as built
+    (0 swaps) is that finger, kept with its rotation; re-seating the block upright is one swap. At any
+    other snap-fit the finger leaves the plane: no finger as built."""
+    slots = (FingerSlot("left", "left"), FingerSlot("right", "right"))
+    objects = [TargetObject("ellipse", generated_contours("ellipse", 5))]
+    upright = plan_reconfiguration(robot((64, 40), (64, 40)), {}, objects, slots=slots)
+    mirrored = Assembly("pair", (Chain("left", "main", (PlacedBlock(64), PlacedBlock(40, 6))),
+                                 Chain("right", "main", (PlacedBlock(64), PlacedBlock(40)))))
+    result = plan_reconfiguration(mirrored, {}, objects, slots=slots)
+    assert_plan_is_brute_force(mirrored, {}, objects, slots, result)
+    as_built = result.points[0]
+    assert as_built.optimal and as_built.swaps == 0
+    assert as_built.objective != pytest.approx(upright.points[0].objective, abs=1e-6)
+    assert [b.rotation_steps for b in as_built.assembly.chain("left").blocks] == [0, 6]
+    turned = Assembly("pair", (Chain("left", "main", (PlacedBlock(64), PlacedBlock(40, 3))),
+                               Chain("right", "main", (PlacedBlock(64), PlacedBlock(40)))))
+    out_of_plane = plan_reconfiguration(turned, {}, objects, slots=slots)
+    assert np.isinf(out_of_plane.points[0].objective) and out_of_plane.points[0].optimal
+    steps = swap_steps(turned, out_of_plane.points[1].assembly, {})
+    assert [s.describe() for s in steps] == ["finger left, position 1: remove design 40, insert design 40 at "
+                                             "rotation step 0"]
 
 
 def test_a_robot_that_already_fits_plans_zero_swaps():
@@ -168,6 +323,11 @@ def test_a_plans_progress_rises_from_0_to_1():
     _, _, result = pair_plan(callback=lambda progress: fractions.append(progress.fraction))
     assert result.success and fractions
     assert all(0.0 <= f <= 1.0 for f in fractions) and fractions == sorted(fractions), fractions
+    fractions.clear()  # fingers that compete for the shelf: their combined search reports too
+    built, shelf = robot((18, 12), (17, 23)), {29: 1, 24: 1}
+    result = plan_reconfiguration(built, shelf, [TargetObject("lumpy99", contours_of("generated", 99))], slots=SLOTS,
+                                  callback=lambda progress: fractions.append(progress.fraction))
+    assert result.success and fractions and fractions == sorted(fractions), fractions
 
 
 @pytest.mark.parametrize("change, match", [

@@ -10,6 +10,7 @@ import sys
 
 import pytest
 import rclpy
+from crafted_mcap import chunk, chunk_index_into_attachment, file_with, inflating_frame
 from mcap.opcode import Opcode
 from mcap.writer import Writer
 from rclpy.parameter import Parameter
@@ -101,6 +102,57 @@ def test_a_zstd_frame_claiming_more_than_the_limit_is_refused(tmp_path, capsys):
     path.write_bytes(bytes(data[:header_end]) + chunk + bytes(data[header_end:]))
     assert main(["recover", str(path), "-o", str(tmp_path / "fixed.mcap")]) == 0
     assert f"claims {MAX_CHUNK_BYTES + 1} bytes uncompressed, above the limit" in capsys.readouterr().out
+
+
+def nested_chunk_file(tmp_path) -> str:
+    path = tmp_path / "nested.mcap"
+    path.write_bytes(chunk_index_into_attachment("/hv/state", HV_STATE, full_definition(HV_STATE), [
+        serialize_message(hv_state({"front": float(i)})) for i in range(3)]))
+    return str(path)
+
+
+@pytest.mark.parametrize("command", ["info", "analyze", "export"])
+def test_a_chunk_index_pointing_into_an_attachment_is_refused_in_one_line(tmp_path, capsys, command):
+    """Old: the seeking reader followed the summary's chunk index to a chunk inside an attachment, which claims a
+    terabyte: analyze and export ended in a MemoryError traceback (zstd), info described the file."""
+    extra = {"analyze": ["--out-dir", str(tmp_path)], "export": ["--csv", str(tmp_path / "csv")]}.get(command, [])
+    assert main([command, nested_chunk_file(tmp_path), *extra]) == 1
+    assert re.fullmatch(r"error: .*nested.mcap: the summary's chunk index names a chunk of \d+ bytes at byte \d+; "
+                        r"the file has none there\n", one_line_error(capsys))
+
+
+def test_play_refuses_a_chunk_index_pointing_into_an_attachment_in_one_line(tmp_path):
+    result = subprocess.run([sys.executable, "-m", "softblock_ros.recording", "play", nested_chunk_file(tmp_path)],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 1 and re.fullmatch(r"error: .*the file has none there\n", result.stderr), result.stderr
+
+
+MEMORY_LIMIT = 512 << 20  # [bytes] of address space: the commands need at most half of it (analyze ~240 MB)
+
+
+def bounded_command(*argv) -> subprocess.CompletedProcess:
+    """A recording command in a child whose address space is limited to MEMORY_LIMIT."""
+    code = (f"import resource, sys; resource.setrlimit(resource.RLIMIT_AS, ({MEMORY_LIMIT}, {MEMORY_LIMIT})); "
+            "from recording.cli import main; sys.exit(main(sys.argv[1:]))")
+    return subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.parametrize("compression", ["lz4", "zstd"])
+def test_a_chunk_that_inflates_beyond_its_claim_is_refused_within_bounded_memory(tmp_path, compression):
+    """Old: an lz4 chunk claiming 16 bytes whose frame (declaring no size) inflates to 1 GiB, a 4.4 MB file, held
+    recover for more than 30 s at 2 GB; under a 512 MiB limit it ends in a MemoryError traceback. A zstd one ended
+    recover with an error instead of keeping what comes before it."""
+    path = tmp_path / "bomb.mcap"
+    path.write_bytes(file_with(chunk(compression, inflating_frame(compression, 1 << 30), 16)))
+    refusal = r"chunk at byte \d+ inflates beyond the 16 bytes it declares"
+    fixed = tmp_path / "fixed.mcap"
+    result = bounded_command("recover", str(path), "-o", str(fixed))
+    assert result.returncode == 0 and result.stderr == "", result.stderr[-2000:]
+    assert re.fullmatch(rf"recovered 0 messages into {fixed} \(stopped at what follows: {refusal}\)\n", result.stdout)
+    for command in (["info"], ["analyze", "--out-dir", str(tmp_path)], ["export", "--csv", str(tmp_path / "csv")]):
+        result = bounded_command(command[0], str(path), *command[1:])
+        assert result.returncode == 1 and re.fullmatch(rf"error: {path}: {refusal}\n", result.stderr), \
+            result.stderr[-2000:]
 
 
 def test_recover_and_info_refuse_a_fifo_without_blocking(tmp_path, capsys):

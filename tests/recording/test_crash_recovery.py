@@ -173,6 +173,41 @@ def test_recover_replaces_an_existing_target_only_when_done(crashed, tmp_path, m
 
     monkeypatch.setattr(mcap_file, "_readable_records", failing_records)
     with pytest.raises(OSError, match="No space left"):
-        recover(str(crashed), str(target))
+        recover(str(crashed), str(target), overwrite=True)
     assert target.read_bytes() == b"previous output"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["crashed.mcap", "out.mcap", "whole.mcap"]
+
+
+@pytest.mark.parametrize("through_link", [False, True])
+def test_recover_refuses_an_existing_output_unless_overwrite_and_never_writes_through_a_link(crashed, tmp_path,
+                                                                                            capsys, through_link):
+    """Old: `recover -o EXISTING` silently replaced the existing file."""
+    precious = tmp_path / "precious.mcap"
+    precious.write_bytes(b"a recording worth keeping")
+    target = tmp_path / "link.mcap" if through_link else precious
+    if through_link:
+        target.symlink_to(precious)
+    assert main(["recover", str(crashed), "-o", str(target)]) == 1
+    assert capsys.readouterr().err == (f"error: {target} exists; choose another output, or overwrite it on purpose "
+                                       "(--overwrite)\n")
+    assert precious.read_bytes() == b"a recording worth keeping" and target.is_symlink() == through_link
+    assert main(["recover", str(crashed), "-o", str(target), "--overwrite"]) == 0
+    assert "recovered 3 messages" in capsys.readouterr().out
+    assert not target.is_symlink() and target.read_bytes().startswith(b"\x89MCAP")
+    if through_link:
+        assert precious.read_bytes() == b"a recording worth keeping"  # the link was replaced, not its target
+
+
+def test_a_target_that_appears_during_recovery_is_kept(crashed, tmp_path, monkeypatch):
+    target = tmp_path / "out.mcap"
+    readable_records = mcap_file._readable_records
+
+    def another_writer_meanwhile(path):
+        yield from readable_records(path)
+        target.write_bytes(b"written meanwhile")
+
+    monkeypatch.setattr(mcap_file, "_readable_records", another_writer_meanwhile)
+    with pytest.raises(FileExistsError):
+        recover(str(crashed), str(target))
+    assert target.read_bytes() == b"written meanwhile"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["crashed.mcap", "out.mcap", "whole.mcap"]

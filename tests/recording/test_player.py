@@ -12,11 +12,18 @@ from rclpy.qos import QoSProfile
 from rclpy.serialization import serialize_message
 from recording_helpers import (Spinner, assembly, hv_state, sequence_event, stamp,
                                wait_for, write_recording)
+from geometry_msgs.msg import TransformStamped
 from rosgraph_msgs.msg import Clock
 from softblock_interfaces.msg import Assembly, HvHeartbeat, HvState
 from std_msgs.msg import Float64
+from tf2_msgs.msg import TFMessage
 
+from softblock_ros.assembly_state_node import AssemblyStateNode
+from softblock_ros.estimator_node import EstimatorNode
 from softblock_ros.hv_driver_node import HvDriverNode
+from softblock_ros.planner_node import PlannerNode
+from softblock_ros.sequencer_node import SequencerNode
+from softblock_ros.sim_camera_node import SimCameraNode
 from softblock_ros.qos import LATCHED
 from softblock_ros.recording.message_types import UnknownMessageTypeError
 from recording.mcap_file import RecordingWriter
@@ -248,7 +255,8 @@ def test_cli_says_where_the_state_topics_go(recording_with_commands, flag, logge
 
 @pytest.mark.parametrize("topic, state", [("/hv/state", True), ("/robot1/hv/state", True), ("/diagnostics", True),
                                           ("/rosout", True), ("/assembly/current", True), ("/assembly/state", False),
-                                          ("/sequencer/events", False), ("/hv/state_x", False)])
+                                          ("/sequencer/events", False), ("/hv/state_x", False), ("/tf", True),
+                                          ("/tf_static", True), ("/sim/assembly_built", True), ("/tf_x", False)])
 def test_which_topics_are_state_topics(topic, state):
     assert is_state_topic(topic) is state
     assert PlaybackOptions().published_name(topic) == ("/replay" + topic if state else topic)
@@ -292,6 +300,33 @@ def test_cli_says_which_command_topics_it_leaves_out_or_plays(recording_with_com
                             text=True, timeout=60)
     assert result.returncode == 0, result.stderr
     assert logged in result.stderr
+
+
+@pytest.mark.parametrize("make_node", [SimCameraNode, EstimatorNode, AssemblyStateNode, PlannerNode, SequencerNode])
+def test_whatever_the_stacks_nodes_watch_a_default_replay_keeps_from_them(ros_context, make_node):
+    """Old: the simulated camera's sim/assembly_built (latched: it draws what was built from it) went into the
+    live domain with a default replay."""
+    node = make_node(context=ros_context)
+    try:
+        topics = {subscription.topic_name for subscription in node.subscriptions}
+    finally:
+        node.destroy_node()
+    assert topics and all(is_state_topic(topic) or is_command_topic(topic) for topic in topics), topics
+    assert all(PlaybackOptions().published_name(topic).startswith("/replay/") for topic in topics
+               if not is_command_topic(topic))
+
+
+def test_a_default_replay_plays_tf_and_the_simulated_world_under_replay(ros_context, tmp_path):
+    """Old: /tf, /tf_static and sim/assembly_built were replayed under their own names, beside the live ones."""
+    tf = TFMessage(transforms=[TransformStamped(child_frame_id="a/block_1")])
+    entries = [("/tf_static", tf, START), ("/sim/assembly_built", assembly(), START), ("/tf", tf, START + STEP)]
+    path = write_recording(str(tmp_path / "tf.mcap"), entries, {"/tf_static": LATCHED, "/sim/assembly_built": LATCHED})
+    player = PlayerNode(path, PlaybackOptions(), context=ros_context)
+    try:
+        names = sorted(p.topic_name for p in player.publishers_by_channel.values())
+    finally:
+        player.destroy_node()
+    assert names == ["/replay/sim/assembly_built", "/replay/tf", "/replay/tf_static"]
 
 
 def test_the_hv_drivers_inputs_are_all_command_topics(ros_context):

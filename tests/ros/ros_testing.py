@@ -73,6 +73,9 @@ class Spinner:
             self.nodes.append(node)
 
     def close(self) -> None:
+        """Stop spinning and destroy the nodes (once: a second call does nothing)."""
+        if self._closing.is_set():
+            return
         self._closing.set()
         self.executor.shutdown(timeout_sec=5.0)
         self._thread.join(timeout=5.0)

@@ -134,15 +134,16 @@ def test_inventory_lists_become_a_mapping():
 
 
 def test_markers_draw_each_block_and_flag_blocks_beyond_their_safe_voltage():
-    beyond = float(TABLE.design(1).safe_voltage) + 100.0  # above block 1's, below block 57's safe voltage
-    assert beyond < TABLE.design(57).safe_voltage
+    # just above the lowest safe voltage of the front chain's blocks, below the highest
+    safe = [float(TABLE.design(i).safe_voltage) for i in GRIPPER.chains[0].design_ids]
+    beyond = min(safe) + 1.0
+    assert beyond < max(safe)
     shapes = assembly_centerlines(GRIPPER, TABLE, {"front": beyond})
     markers = assembly_markers(GRIPPER, shapes, TABLE, Header(frame_id="gripper_base")).markers
     assert markers[0].action == Marker.DELETEALL
     front_left = [m for m in markers if m.ns == "front_left"]
     assert [m.id for m in front_left] == [0, 1, 2, 3]
-    assert front_left[2].color == INVALID_COLOR  # ID 1 beyond its safe voltage
-    assert front_left[0].color != INVALID_COLOR
+    assert [m.color == INVALID_COLOR for m in front_left] == [limit < beyond for limit in safe]
     samples = shapes["front_left"].samples_per_block
     assert front_left[3].points[-1].z == pytest.approx(shapes["front_left"].points[-1][2])
     assert all(len(m.points) == samples + 1 for m in front_left)

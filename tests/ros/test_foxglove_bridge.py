@@ -1,6 +1,7 @@
 """The live view through a Foxglove WebSocket client (protocol foxglove.sdk.v1, on 127.0.0.1 only): the
 stack's topics advertised with the schemas a recording holds, a subscription receiving hv/state, the latched
-mounts reaching a late viewer, a taken port refused by name, and the shipped layout reading served topics."""
+mounts reaching a late viewer (the last sample of each publisher, to that viewer only), a taken port refused by
+name, and the shipped layout reading served topics."""
 import inspect
 import json
 import struct
@@ -11,7 +12,10 @@ import rclpy
 from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
 from ros_testing import wait_for
-from softblock_interfaces.msg import HvChannelState, HvHeartbeat, HvState
+from diagnostic_msgs.msg import DiagnosticArray
+from sensor_msgs.msg import Image
+from softblock_interfaces.msg import AssemblyState, HvChannelState, HvHeartbeat, HvState
+from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 from foxglove.websocket import ServerListener
 from websockets.sync.client import connect
@@ -20,6 +24,7 @@ from recording.message_definitions import full_definition
 from softblock_ros import foxglove_layout
 from softblock_ros.assembly_state_node import AssemblyStateNode
 from softblock_ros.foxglove_bridge_node import LIVE_TOPICS, FoxgloveBridgeNode, _Viewers, is_loopback
+from softblock_ros.qos import LATCHED
 
 pytestmark = pytest.mark.integration
 
@@ -39,6 +44,9 @@ def bridge(ros_context, spin):
     publisher = rclpy.create_node("hv_state_source", context=ros_context)
     hv = publisher.create_publisher(HvState, "hv/state", 10)
     publisher.create_publisher(HvHeartbeat, "hv/heartbeat", 10)  # a topic the live view does not serve
+    for msg_type, topic in ((DiagnosticArray, "/diagnostics"), (Image, "camera/silhouette"),
+                            (AssemblyState, "assembly/estimated")):  # the estimator's and the camera's
+        publisher.create_publisher(msg_type, topic, 10)
     state = HvState(backend="sim", channels=[HvChannelState(name="front", measured_voltage=1234.5)])
     publisher.create_timer(0.05, lambda: hv.publish(state))
     spin(node, assembly_state, publisher)
@@ -100,7 +108,9 @@ def viewer(bridge):
 @pytest.mark.parametrize("topic, type_name", [
     ("/hv/state", "softblock_interfaces/msg/HvState"), ("/assembly/state", "softblock_interfaces/msg/AssemblyState"),
     ("/assembly/markers", "visualization_msgs/msg/MarkerArray"), ("/tf", "tf2_msgs/msg/TFMessage"),
-    ("/tf_static", "tf2_msgs/msg/TFMessage"), ("/assembly/current", "softblock_interfaces/msg/Assembly")])
+    ("/tf_static", "tf2_msgs/msg/TFMessage"), ("/assembly/current", "softblock_interfaces/msg/Assembly"),
+    ("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray"), ("/camera/silhouette", "sensor_msgs/msg/Image"),
+    ("/assembly/estimated", "softblock_interfaces/msg/AssemblyState")])
 def test_channels_are_advertised_with_the_schemas_a_recording_holds(viewer, topic, type_name):
     channel = viewer.channel(topic)
     assert channel["schemaName"] == type_name
@@ -128,6 +138,48 @@ def test_a_late_viewer_receives_the_latched_mounts(bridge, viewer):
     assert {t.child_frame_id for t in mounts.transforms} >= {"front_left/base", "back_right/base"}
 
 
+@pytest.fixture
+def latched_topic(ros_context, spin):
+    """A bridge serving one latched topic, /latched_probe, with two publishers that keep their last sample."""
+    bridge = FoxgloveBridgeNode(context=ros_context, parameter_overrides=[
+        Parameter("port", value=0), Parameter("discovery_period_s", value=0.2),
+        Parameter("topics", value=["/latched_probe"])])
+    sources = rclpy.create_node("latched_sources", context=ros_context)
+    first, second = (sources.create_publisher(String, "/latched_probe", LATCHED) for _ in range(2))
+    spin(bridge, sources)
+    wait_for(lambda: "/latched_probe" in bridge.served_topics, what="/latched_probe served")
+    return bridge, first, second
+
+
+def texts(viewer: Viewer, subscription: int, until: str) -> list[str]:
+    """The samples a subscription receives up to and with ``until``."""
+    received = []
+    while not received or received[-1] != until:
+        received.append(deserialize_message(viewer.message(subscription), String).data)
+    return received
+
+
+def test_a_late_viewer_gets_the_last_sample_of_each_publisher_and_no_viewer_gets_one_twice(latched_topic):
+    bridge, first, second = latched_topic
+    with viewing(bridge.port) as early:
+        watching = early.subscribe("/latched_probe")
+        # the bridge follows the viewer's subscription with a ROS subscription matching both publishers
+        wait_for(lambda: first.get_subscription_count() >= 1 and second.get_subscription_count() >= 1,
+                 what="the bridge to subscribe for the viewer")
+        # one at a time: a publisher that keeps one sample may replace it before sending it on
+        for publisher, text in ((first, "mounts of the old assembly"), (first, "mounts of the new assembly"),
+                                (second, "the other publisher's")):
+            publisher.publish(String(data=text))
+            assert texts(early, watching, text) == [text]
+        with viewing(bridge.port) as late:
+            joined = late.subscribe("/latched_probe")
+            caught_up = [deserialize_message(late.message(joined), String).data for _ in range(2)]
+            assert sorted(caught_up) == ["mounts of the new assembly", "the other publisher's"]
+            first.publish(String(data="next"))
+            assert texts(late, joined, "next") == ["next"]  # nothing older came after the catch-up
+            assert texts(early, watching, "next") == ["next"]  # the early viewer got none of it again
+
+
 def test_a_taken_port_is_refused_by_name(ros_context, bridge):
     with pytest.raises(OSError, match=f"cannot serve the live view on {HOST}:{bridge.port}: .*in use"):
         FoxgloveBridgeNode(context=ros_context, parameter_overrides=[Parameter("port", value=bridge.port)])
@@ -139,9 +191,10 @@ def test_the_listener_answers_every_callback_of_the_servers_protocol():
     callbacks = [name for name, _ in inspect.getmembers(ServerListener, inspect.isfunction) if name.startswith("on_")]
     assert "on_unsubscribe" in callbacks
     assert all(callable(getattr(listener, name, None)) for name in callbacks)
-    listener.on_unsubscribe(None, None)
-    listener.on_subscribe(None, type("Channel", (), {"id": 7})())
-    assert listener.take() == {7} and listener.take() == set()
+    client, channel = type("Client", (), {"id": 3})(), type("Channel", (), {"id": 7})()
+    listener.on_subscribe(client, channel)
+    listener.on_unsubscribe(client, channel)
+    assert listener.take() == [(True, 3, 7), (False, 3, 7)] and listener.take() == []
 
 
 def test_only_loopback_hosts_count_as_this_machine():

@@ -20,7 +20,9 @@ from geometry_msgs.msg import Point, Pose, PoseStamped, Quaternion
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 from message_strategies import TEXT, messages
+from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.parameter import Parameter
+from rclpy.utilities import remove_ros_args
 from ros_testing import Inbox, call, wait_for
 from sensor_msgs.msg import Image
 from softblock_interfaces.action import MoveArm, RunSequence
@@ -29,6 +31,7 @@ from softblock_interfaces.srv import DesignFingers, DesignPath, SetAssembly
 from std_msgs.msg import Float64, Header
 
 from crafted_images import png_header
+from crafted_mcap import TERABYTE, chunk, chunk_index_into_attachment, file_with, inflating_frame
 from crafted_yaml import BILLION_LAUGHS, SELF_REFERENCE
 from planner.assembly import load_assembly
 from planner.contours import load_mask
@@ -47,6 +50,7 @@ from softblock_ros.stack import load_stack
 
 pytestmark = pytest.mark.integration
 
+RCLError = rclpy_implementation.RCLError
 FUZZ = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 ANSWER = 20.0  # [s] liveness bound on one answer; answers take milliseconds to a second
 TABLE = load_table()
@@ -84,12 +88,14 @@ def nodes(ros_context, spin, tmp_path_factory):
         Parameter("max_angular_acceleration_rad_per_s2", value=50.0)])
     client = rclpy.create_node("fuzz_client", context=ros_context)
     spin(planner, assembly_state, sequencer, arm, client)
+    run_sequence = ActionClient(client, RunSequence, "sequencer/run")
+    assert run_sequence.wait_for_server(timeout_sec=30.0)  # a sequencer serves after looking for another one
     return SimpleNamespace(
         bomb=str(bomb),
         design_fingers=client.create_client(DesignFingers, "planner/design_fingers"),
         design_path=client.create_client(DesignPath, "planner/design_path"),
         set_assembly=client.create_client(SetAssembly, "assembly/set"),
-        run_sequence=ActionClient(client, RunSequence, "sequencer/run"),
+        run_sequence=run_sequence,
         move_arm=ActionClient(client, MoveArm, "arm/move"),
         safe_voltage=Inbox(client, Float64, "assembly/safe_voltage", LATCHED),
         assembly_state=Inbox(client, AssemblyState, "assembly/state"),
@@ -299,15 +305,44 @@ def test_any_stack_file_loads_or_is_refused_in_one_line(tmp_path_factory, text):
         assert one_line_refusal(error), repr(error)
 
 
-@settings(FUZZ, max_examples=200)
-@given(text=YAML_TEXT | YAML_TEXT.map(lambda body: "node:\n  ros__parameters:\n    " + body))
-def test_any_parameter_file_passes_or_is_refused_in_one_line(tmp_path_factory, text):
+# Scalars where PyYAML and rcl differ (rcl types 09 and 1e5 as doubles, y as a bool; ~ and null are no value to
+# PyYAML), the shapes rcl refuses (no value, a value beside ros__parameters) and names it refuses.
+SCALARS = st.sampled_from(["1", "-2", "09", "0x10", "1e5", "1.5", "1.", ".5", ".inf", "nan", "inf", "y", "yes", "on",
+                           "true", "a", "b c", "'a'", '"1"', "''", "~", "null", "", "1:30", "-", ".", "1_000", "!!str 1",
+                           "99999999999999999999999", "1e999", "[]", "{}", "{b: 1}"])
+VALUES = SCALARS | st.lists(SCALARS, max_size=3).map(lambda items: f"[{', '.join(items)}]")
+NAMES = st.sampled_from(["node", "/node", "/ns/node", "ns/node", "/**", "/*/node", "1node", "no-de", "node/", "a.b",
+                         "'a b'", "ros__parameters"])
+PARAMETER_FILES = st.builds(
+    lambda node, key, value, extra: f"{node}:\n  {key}:\n    x: {value}\n{extra}",
+    NAMES, st.sampled_from(["ros__parameters"] * 4 + ["params", "ros__parameters: {}\n  other"]), VALUES,
+    st.sampled_from(["", "    y: {x: [1, 2]}\n", "  ros__parameters: 5\n", "other: {ros__parameters: {}}\n"]))
+
+
+def rcl_reads(path) -> bool:
+    """Whether rcl's own parser (rcl_parse_arguments, as rclpy.init calls it) reads the parameter file."""
+    try:
+        remove_ros_args(["node", "--ros-args", "--params-file", str(path)])
+    except RCLError:
+        return False
+    return True
+
+
+@settings(FUZZ, max_examples=300)
+@given(text=YAML_TEXT | YAML_TEXT.map(lambda body: "node:\n  ros__parameters:\n    " + body) | PARAMETER_FILES)
+def test_any_parameter_file_passes_or_is_refused_in_one_line_and_rcl_reads_what_passes(tmp_path_factory, text):
+    """Old: a file the check passed could still fail rclpy.init with rcl's traceback (a value left empty, a list of
+    mixed types, a key beside ros__parameters, ros__parameters: 5)."""
     path = tmp_path_factory.mktemp("params") / "params.yaml"
     path.write_text(text)
     try:
         check_parameter_file(path)
     except Exception as error:  # noqa: BLE001
+        event("refused")
         assert one_line_refusal(error), repr(error)
+    else:
+        event("passed")
+        assert rcl_reads(path), text
 
 
 @pytest.fixture(scope="module")
@@ -335,6 +370,51 @@ def lines_of_the_command(stderr: str) -> list[str]:
     return [line for line in stderr.splitlines() if not line.startswith(UNRETRIEVED_FUTURE)]
 
 
+def run_file_commands(path, folder) -> list[tuple[int, str]]:
+    """(status, the command's own stderr lines) of info, recover, analyze and export of ``path``."""
+    outcomes = []
+    for command in (["info", str(path)], ["recover", str(path), "-o", str(folder / "fixed.mcap")],
+                    ["analyze", str(path), "--out-dir", str(folder)], ["export", str(path), "--csv", str(folder)]):
+        errors = io.StringIO()
+        with contextlib.redirect_stderr(errors), contextlib.redirect_stdout(io.StringIO()):
+            status = recording_main(command)
+        event(f"{command[0]} -> {status}")
+        outcomes.append((status, "\n".join(lines_of_the_command(errors.getvalue()))))
+        assert status in (0, 1) and len(lines_of_the_command(errors.getvalue())) <= 1, (command, errors.getvalue())
+    return outcomes
+
+
+@settings(FUZZ, max_examples=40)
+@given(compression=st.sampled_from(["lz4", "zstd"]), inflated=st.sampled_from([0, 9, 1000, 1 << 20]),
+       claimed=st.sampled_from([0, 9, 1000, 1 << 20, TERABYTE]))
+def test_any_chunk_that_inflates_beyond_its_claim_is_refused_in_one_line(tmp_path_factory, compression, inflated,
+                                                                         claimed):
+    """Chunks whose frames declare no size and inflate to more, as much or less than they claim."""
+    folder = tmp_path_factory.mktemp("inflating")
+    path = folder / "inflating.mcap"
+    path.write_bytes(file_with(chunk(compression, inflating_frame(compression, inflated), claimed)))
+    (_, info), (recovered, _), *_ = run_file_commands(path, folder)
+    if claimed < inflated:
+        assert "inflates beyond the" in info and recovered == 0
+
+
+@settings(FUZZ, max_examples=40)
+@given(offset=st.none() | st.integers(0, 6000))
+def test_any_chunk_index_is_followed_only_to_a_checked_chunk(tmp_path_factory, offset):
+    """The summary's chunk index pointed at any byte, by default at a chunk inside an attachment (claiming 2^40)."""
+    from rclpy.serialization import serialize_message
+    from softblock_interfaces.msg import HvChannelState, HvState
+
+    from recording.message_definitions import full_definition
+    folder = tmp_path_factory.mktemp("index")
+    path = folder / "index.mcap"
+    name = "softblock_interfaces/msg/HvState"
+    path.write_bytes(chunk_index_into_attachment("/hv/state", name, full_definition(name), [
+        serialize_message(HvState(channels=[HvChannelState(name="front", setpoint=1.0)]))], offset))
+    outcomes = run_file_commands(path, folder)
+    assert all("the summary's chunk index names" in errors for status, errors in outcomes if status)
+
+
 @settings(FUZZ, max_examples=150)
 @given(data=st.data())
 def test_any_damage_to_an_mcap_file_is_read_or_refused_in_one_line(small_recording, tmp_path_factory, data):
@@ -349,10 +429,4 @@ def test_any_damage_to_an_mcap_file_is_read_or_refused_in_one_line(small_recordi
     folder = tmp_path_factory.mktemp("damaged")
     path = folder / "damaged.mcap"
     path.write_bytes(bytes(damaged))
-    for command in (["info", str(path)], ["recover", str(path), "-o", str(folder / "fixed.mcap")],
-                    ["analyze", str(path), "--out-dir", str(folder)], ["export", str(path), "--csv", str(folder)]):
-        errors = io.StringIO()
-        with contextlib.redirect_stderr(errors), contextlib.redirect_stdout(io.StringIO()):
-            status = recording_main(command)
-        event(f"{command[0]} -> {status}")
-        assert status in (0, 1) and len(lines_of_the_command(errors.getvalue())) <= 1, (command, errors.getvalue())
+    run_file_commands(path, folder)

@@ -6,6 +6,7 @@ silent owner loses control and its outputs ramp down; neither a replayed recordi
 nor a node that copies them can keep an output energised, ramp or release; of two clients claiming at once
 one gets control."""
 import threading
+import time
 
 import pytest
 import rclpy
@@ -22,6 +23,7 @@ from softblock_interfaces.srv import ClaimControl, InjectFault, ReleaseControl
 from std_srvs.srv import Trigger
 
 from hv_driver.control import session_id
+from hv_driver.supervisor import DEFAULT_HEARTBEAT_TIMEOUT_S
 from recording.playback import PlaybackOptions
 from softblock_ros.client import ActionClient, ClientError, run_action
 from softblock_ros.hv_control import HvControl
@@ -31,7 +33,9 @@ from softblock_ros.recording.recorder_node import RecorderNode
 
 pytestmark = pytest.mark.integration
 
-HEARTBEAT_TIMEOUT = 1.0  # [s]
+# The product's default: the driver runs in this process, whose stalls on a loaded host must not lapse the positive
+# tests' control; the lapse tests only wait for it (how long it takes is tested in simulated time: tests/hv_driver).
+HEARTBEAT_TIMEOUT = DEFAULT_HEARTBEAT_TIMEOUT_S  # [s]
 RAMP_TIMEOUT = 20.0  # [s] for a ramp's result on two loaded cores
 
 
@@ -112,10 +116,13 @@ def test_a_ramp_not_signed_for_the_live_session_is_refused_naming_the_owner(read
 
 def test_diagnostics_show_the_owner_and_its_heartbeat_age(ready):
     status, values = ready.control_status(lambda s: "no client" in s.message)
-    assert values["controller"] == "" and values["heartbeat_timeout_s"] == "1.0"
+    assert values["controller"] == "" and float(values["heartbeat_timeout_s"]) == HEARTBEAT_TIMEOUT
+    claimed = time.monotonic()
     ready.owner.claim()
     status, values = ready.control_status(lambda s: "held by" in s.message)
-    assert values["controller"] == "sequencer" and 0.0 <= float(values["heartbeat_age_s"]) < HEARTBEAT_TIMEOUT
+    # The age of a heartbeat of this session: none is older than the claim.
+    assert values["controller"] == "sequencer"
+    assert 0.0 <= float(values["heartbeat_age_s"]) <= time.monotonic() - claimed + 0.01  # + its rounding
     assert status.message.startswith("held by 'sequencer', last heartbeat")
 
 

@@ -50,6 +50,8 @@ class Fuzz:
     """The node under test and one client handle per input."""
 
     def __init__(self, ros_context, spin):
+        # A short heartbeat timeout on purpose: a session lapsing between two inputs is one of the states the fuzz
+        # explores, and every check holds whether or not it did (a lapsed session refuses even a fresh signature).
         self.driver = HvDriverNode(context=ros_context, parameter_overrides=[
             Parameter("slew_rate_v_per_s", value=8000.0), Parameter("link_timeout_s", value=1.0),
             Parameter("heartbeat_timeout_s", value=1.0)])

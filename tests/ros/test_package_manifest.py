@@ -1,15 +1,22 @@
 """The ROS package's conventions: `ros2 run` finds every command the docs name (console scripts installed into
 lib/softblock_ros), and package.xml declares what the nodes need at run time (every ROS package they import, and
-the rosdep keys of the Python libraries they and the core import)."""
+the rosdep keys of the Python libraries they and the core import). The pip install of the core brings every
+library the core imports, and its `nodes` extra what the nodes import beyond it, within the versions pinned in
+constraints.txt (the README's apt install path)."""
 import ast
 import configparser
 import importlib
+import importlib.metadata
 import os
+import re
 import sys
+import tomllib
 import xml.etree.ElementTree as ElementTree
 from pathlib import Path
 
 import pytest
+from packaging.requirements import Requirement
+from packaging.utils import canonicalize_name
 
 pytestmark = pytest.mark.fast
 
@@ -87,3 +94,71 @@ def test_every_library_the_nodes_and_the_core_import_is_declared_or_named_as_pip
     assert not libraries - set(ROSDEP_KEYS) - PIP_ONLY, f"no rosdep key listed for {libraries - set(ROSDEP_KEYS) - PIP_ONLY}"
     missing = {ROSDEP_KEYS[name] for name in libraries & set(ROSDEP_KEYS)} - exec_depends()
     assert not missing, f"package.xml lacks {missing}"
+
+
+def pyproject() -> dict:
+    return tomllib.loads((ROOT / "pyproject.toml").read_text())
+
+
+def installed_folders() -> list[Path]:
+    """The folders of the packages pyproject.toml installs (config/ as softblock_config)."""
+    settings = pyproject()["tool"]["setuptools"]
+    tops = {name.split(".")[0] for name in settings["packages"]}
+    return sorted(ROOT / settings["package-dir"].get(name, name) for name in tops)
+
+
+def requirements(*extras: str) -> dict[str, Requirement]:
+    project = pyproject()["project"]
+    optional = project.get("optional-dependencies", {})
+    listed = [*project["dependencies"], *(r for extra in extras for r in optional.get(extra, []))]
+    return {canonicalize_name(requirement.name): requirement for requirement in map(Requirement, listed)}
+
+
+def distributions(modules: set[str]) -> dict[str, str]:
+    """Distribution (canonical name) -> the imported module it provides, for third-party modules."""
+    provided = importlib.metadata.packages_distributions()
+    return {canonicalize_name(dist): module for module in modules for dist in provided.get(module, [])}
+
+
+def third_party_imports(*folders: Path) -> set[str]:
+    return {name for name in imported_modules(*folders) - OWN if not is_ros_package(name)}
+
+
+def test_the_pip_install_of_the_core_brings_every_library_the_core_imports():
+    imported = distributions(third_party_imports(*installed_folders()))
+    missing = {dist: module for dist, module in imported.items() if dist not in requirements()}
+    assert not missing, f"imported by the core but not in pyproject.toml's dependencies: {missing}"
+
+
+def test_the_nodes_extra_brings_every_library_the_nodes_import():
+    imported = distributions(third_party_imports(*NODE_SOURCES))
+    missing = {dist: module for dist, module in imported.items() if dist not in requirements("nodes")}
+    assert not missing, f"imported by the nodes but in neither the dependencies nor the nodes extra: {missing}"
+
+
+def test_every_requirement_of_pyproject_admits_the_version_the_suite_runs():
+    pinned = {canonicalize_name(name): version for line in (ROOT / "constraints.txt").read_text().splitlines()
+              if "==" in line and not line.startswith("#") for name, version in [line.split("#")[0].strip().split("==")]}
+    for name, requirement in requirements(*pyproject()["project"].get("optional-dependencies", {})).items():
+        assert name in pinned, f"pyproject.toml requires {name}, which constraints.txt does not pin"
+        assert requirement.specifier.contains(pinned[name]), (
+            f"pyproject.toml requires {requirement}, constraints.txt pins {name}=={pinned[name]}")
+
+
+def test_the_ros_package_installs_every_data_file_of_the_core_config():
+    """share/softblock_ros/config holds what softblock_config holds (it lacked the sequences and the layout)."""
+    config = ROOT / "config"
+    patterns = pyproject()["tool"]["setuptools"]["package-data"]["softblock_config"]
+    core = {str(path.relative_to(config)) for pattern in patterns for path in config.glob(pattern) if path.is_file()}
+    share = ROOT / "ros_ws" / "install" / "softblock_ros" / "share" / "softblock_ros" / "config"
+    installed = {str(path.relative_to(share)) for path in share.rglob("*") if path.is_file()}
+    assert core <= installed, f"not in {share} (rerun scripts/setup_env.sh): {sorted(core - installed)}"
+    assert installed <= core, f"in {share} but not in the core's package data: {sorted(installed - core)}"
+
+
+def test_the_readme_names_every_command_ros2_run_offers():
+    text = (ROOT / "README.md").read_text()
+    listed = re.search(r"`ros2 run softblock_ros <node>` works for (.*?)\.(?:\s|$)", text, re.S)
+    assert listed, "README.md: the sentence listing what `ros2 run softblock_ros <node>` offers is gone"
+    missing = sorted(set(console_scripts()) - set(re.findall(r"`(\w+)`", listed.group(1))))
+    assert not missing, f"README.md's `ros2 run` list lacks {missing}"

@@ -40,6 +40,14 @@ def test_the_docs_table_of_each_node_is_its_declared_schema(node):
         f"regenerate the table with `python -m softblock_ros.parameters` and paste it after the {node} marker")
 
 
+@pytest.mark.parametrize("node", NODE_SCHEMAS)
+def test_a_description_that_names_another_parameter_names_one_of_its_node(node):
+    names = {param.name for param in node_schema(node)}
+    named = {(param.name, other) for param in node_schema(node)
+             for other in re.findall(r"\bthe ([a-z_]+) parameter\b", param.description)}
+    assert not {pair for pair in named if pair[1] not in names}, f"{node}: descriptions name unknown parameters {named}"
+
+
 def check_parameter_sections(document: dict, where: str) -> int:
     """Check every node section of a parameter file against the node's schema; returns how many there were."""
     sections = {node: body["ros__parameters"] for node, body in document.items()

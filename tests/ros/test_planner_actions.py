@@ -1,6 +1,7 @@
 """The planner's long work as actions, through real rclpy action clients: finger design with progress (the
 same fingers as the service) and cancel; a reconfiguration plan from the robot on assembly/current with its
-Pareto set and operator steps; a canceled plan; a bad goal refused with the reason (the node carries on)."""
+Pareto set and operator steps; per-object settings; a trunk along a path; a canceled plan; a bad goal refused
+with the reason (the node carries on)."""
 import math
 import threading
 
@@ -8,12 +9,15 @@ import numpy as np
 import pytest
 import rclpy
 from action_msgs.msg import GoalStatus
+from geometry_msgs.msg import Point
 from rclpy.parameter import Parameter
 from ros_testing import call
 from softblock_interfaces.action import DesignFingers, PlanReconfiguration
 from softblock_interfaces.srv import DesignFingers as DesignFingersService
 
 from planner.assembly import Assembly, Chain, PlacedBlock
+from planner.contours import load_catalog_object
+from planner.reconfigure import FingerSlot, TargetObject, plan_reconfiguration
 from planner.table import load_table
 from softblock_ros.client import ActionClient, run_action
 from softblock_ros.conversions import assembly_msg, image_msg
@@ -114,6 +118,45 @@ def test_plan_from_the_built_robot_gives_the_pareto_set_and_steps(client):
     assert layout == {c.name: [b.design.id for b in c.blocks] for c in result.target.chains}
 
 
+def test_each_object_of_a_plan_keeps_its_own_settings(client):
+    """Contact tolerance, contour spacing and base offsets per object [m]: the action's plan is the library's
+    plan with the same settings."""
+    settings = dict(contact_tolerances=[0.0, 3e-4], contour_spacings=[1e-3, 1.5e-3],
+                    base_offsets=[0.0, 2e-3, 4e-3, 1e-3], base_offset_counts=[3, 1])
+    goal = plan_goal(object_image_paths=["config/objects/strawberry.png", "config/objects/strawberry.png"],
+                     pixel_sizes=[2.5e-4, 2.5e-4], weights=[1.0, 0.5], **settings)
+    status, result = run_action(ActionClient(client, PlanReconfiguration, "planner/plan_reconfiguration"), goal,
+                                600.0)
+    assert status == GoalStatus.STATUS_SUCCEEDED and result.success, result.message
+    objects = [TargetObject(name, load_catalog_object(name), weight=weight, base_offsets=np.array(offsets),
+                            contour_spacing=spacing, contact_tolerance_m=tolerance)
+               for name, weight, offsets, spacing, tolerance in zip(
+                   ("strawberry", "strawberry"), (1.0, 0.5), ([0.0, 2e-3, 4e-3], [1e-3]), (1e-3, 1.5e-3), (0.0, 3e-4))]
+    plan = plan_reconfiguration(ROBOT, {2: 1, 14: 1, 40: 2, 71: 1}, objects,
+                                slots=(FingerSlot("left", "left"), FingerSlot("right", "right")))
+    assert list(result.objectives) == pytest.approx([p.objective for p in plan.points], abs=1e-9)
+
+
+def test_a_trunk_plan_follows_its_path(client):
+    """A path target [m] for one chain: its Pareto set from the chain as built (rotations included) and the
+    steps that rebuild the chosen chain."""
+    t = np.linspace(0.0, 1.0, 10)
+    path = [Point(x=0.012 * (1 - math.cos(2 * s)), y=0.012 * math.sin(2 * s), z=0.06 * s) for s in t]
+    goal = plan_goal(object_image_paths=[], pixel_sizes=[], finger_chains=[], finger_sides=[], finger_stiff_top=[],
+                     path=path, path_chain="left", max_swaps=2)
+    status, result = run_action(ActionClient(client, PlanReconfiguration, "planner/plan_reconfiguration"), goal,
+                                600.0)
+    assert status == GoalStatus.STATUS_SUCCEEDED and result.success, result.message
+    assert list(result.max_swaps) == [0, 1, 2, 3] and all(result.optimal)
+    assert all(b <= a + 1e-12 for a, b in zip(result.objectives, result.objectives[1:]))
+    left = [b for c in result.target.chains if c.name == "left" for b in c.blocks]
+    assert result.swaps[2] <= 2 and len(result.steps) >= result.swaps[2]
+    layout = {c.name: list(c.design_ids) for c in ROBOT.chains}
+    for chain, position, insert in zip(result.step_chains, result.step_positions, result.step_insert):
+        layout[chain][position] = None if insert < 0 else insert
+    assert layout["left"] == [b.design.id for b in left] and layout["right"] == list(ROBOT.chain("right").design_ids)
+
+
 def test_a_canceled_plan_keeps_its_bounds(client):
     goal = plan_goal(object_image_paths=["config/objects/strawberry.png", "config/objects/gingerbread.png"],
                      pixel_sizes=[2.5e-4, 2.5e-4], weights=[1.0, 1.0])
@@ -127,6 +170,13 @@ def test_a_bad_plan_goal_is_refused_with_the_reason(client):
                                 plan_goal(finger_sides=["left", "up"]), 60.0)
     assert status == GoalStatus.STATUS_ABORTED and not result.success
     assert "side must be one of" in result.message
-    status, result = run_action(ActionClient(client, PlanReconfiguration, "planner/plan_reconfiguration"),
-                                plan_goal(pixel_sizes=[]), 60.0)
-    assert status == GoalStatus.STATUS_ABORTED and "pixel_sizes" in result.message
+    for fields, reason in ((dict(pixel_sizes=[]), "pixel_sizes"),
+                           (dict(contact_tolerances=[0.0, 0.0]), "contact_tolerances must have one entry per object"),
+                           (dict(base_offsets=[0.0, 1e-3]), "base_offsets need base_offset_counts"),
+                           (dict(base_offsets=[0.0], base_offset_counts=[2]), "add up to the 1 base_offsets"),
+                           (dict(path=[Point(z=0.01), Point(z=0.02)], path_chain="left"), "not both"),
+                           (dict(object_image_paths=[], pixel_sizes=[], finger_chains=[], path_chain="left",
+                                 path=[Point(z=0.01)]), "path must be an (n, 3) array")):
+        status, result = run_action(ActionClient(client, PlanReconfiguration, "planner/plan_reconfiguration"),
+                                    plan_goal(**fields), 60.0)
+        assert status == GoalStatus.STATUS_ABORTED and reason in result.message, (fields, result.message)

@@ -100,7 +100,7 @@ def test_gripper_designs_arrive_within_their_timeout(client):
         request = fingers_request(image_path="config/objects/asymmetric.png", pixel_size=0.00025, num_blocks=blocks,
                                   num_stiff_top=stiff, min_stiff_rod_diameter=0.00062, time_budget=2.0)
         request.image = image_msg(np.zeros((0, 0), dtype=np.uint8))
-        reply = call(client.create_client(DesignFingers, "planner/design_fingers"), request, timeout=10.0)
+        reply = call(client.create_client(DesignFingers, "planner/design_fingers"), request, timeout=120.0)
         assert reply.success, reply.message
         for side in ("left", "right"):
             assert_blocks_from_table(getattr(reply, side), blocks)

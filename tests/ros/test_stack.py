@@ -64,6 +64,26 @@ def test_a_bad_stack_file_is_refused_naming_the_field(tmp_path, node, message):
         load_stack(write_stack(tmp_path, **node))
 
 
+@pytest.mark.parametrize("namespace", ["a b", "robot1", "/a/", "/a//b", "/a__b", "/1a", "/a-b", 5])
+def test_a_namespace_rcl_refuses_is_refused_with_the_stack_file_and_the_launcher_option(tmp_path, namespace):
+    """Old: load_stack took namespace 'a b', and every node of the stack then ended in rcl's traceback."""
+    path = tmp_path / "stack.yaml"
+    path.write_text(yaml.safe_dump({"namespace": namespace, "nodes": [{"name": "a", "module": "m", "executable": "e"}]}))
+    with pytest.raises(ValueError, match=rf"stack.yaml: namespace={namespace!r}: expected \"\" \(none\) or a "
+                                         r"namespace such as /robot1"):
+        load_stack(path)
+    if isinstance(namespace, str):
+        with pytest.raises(ValueError, match=rf"^namespace={namespace!r}: expected"):
+            Stack(nodes=["planner"], namespace=namespace)
+
+
+@pytest.mark.parametrize("namespace", ["", "/robot1", "/lab/robot_1"])
+def test_a_namespace_rcl_takes_is_kept(tmp_path, namespace):
+    path = tmp_path / "stack.yaml"
+    path.write_text(yaml.safe_dump({"namespace": namespace, "nodes": [{"name": "a", "module": "m", "executable": "e"}]}))
+    assert load_stack(path).namespace == namespace == Stack(nodes=["planner"], namespace=namespace).namespace
+
+
 def test_an_oversized_or_malformed_stack_file_is_refused_before_use(tmp_path):
     path = tmp_path / "stack.yaml"
     path.write_text("nodes: []\n" + "#" * 70000)

@@ -33,7 +33,9 @@ TARGET = 1000.0  # [V]
 @pytest.fixture(scope="module")
 def stack(tmp_path_factory):
     params = tmp_path_factory.mktemp("slice") / "params.yaml"
-    params.write_text("/**/hv_driver:\n  ros__parameters:\n    backend: sim\n    slew_rate_v_per_s: 5000.0\n    link_timeout_s: 2.0\n")
+    # a hard maximum above every design's safe voltage (3.2-3.4 kV), so that the assembly's is the ceiling
+    params.write_text("/**/hv_driver:\n  ros__parameters:\n    backend: sim\n    slew_rate_v_per_s: 5000.0\n"
+                      "    link_timeout_s: 2.0\n    max_voltage_v: 5000.0\n")
     output = io.StringIO()
     with Stack(nodes=["hv_driver", "assembly_state"], params=params, namespace=NAMESPACE, output=output) as stack:
         yield stack

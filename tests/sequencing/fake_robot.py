@@ -1,4 +1,5 @@
-"""A fake `Robot` for engine tests: motions finish at once unless told to hang; faults injected on cue."""
+"""A fake `Robot` for engine tests: motions finish at once unless told to hang; faults injected on cue (the engine's
+n-th reading of the channels, never a thread's timing); `TickingClock`, the engine's time in these tests."""
 from __future__ import annotations
 
 import threading
@@ -8,6 +9,17 @@ from collections.abc import Callable
 from sequencing.ports import AssemblyVerdict, ChannelReading, Outcome, RobotError
 
 OVER_CURRENT = 1
+
+
+class TickingClock:
+    """Each reading is ``tick`` seconds after the one before: a run's timing depends only on its polls."""
+
+    def __init__(self, tick: float = 1.0):
+        self.now, self.tick = 0.0, tick
+
+    def __call__(self) -> float:
+        self.now += self.tick
+        return self.now
 
 
 class FakeMotion:
@@ -70,6 +82,12 @@ class FakeRobot:
         self.outputs_active = True  # the driver active: hv_outputs(False) switches every output off
         self.refuse_outputs: str | None = None  # hv_outputs answers this failure
         self._lock = threading.Lock()
+        self._on_reading: list[list] = []  # [readings to go, change]
+
+    def after_readings(self, count: int, change: Callable[[FakeRobot], None]) -> None:
+        """``change(robot)`` once the engine has read the channels ``count`` more times: a change that comes while
+        the engine polls (a voltage that settles, a fault), placed by its polls."""
+        self._on_reading.append([count, change])
 
     def _record(self, call: tuple):
         with self._lock:
@@ -120,6 +138,11 @@ class FakeRobot:
         return [call for call in self.calls if call[0] == "pulse"]
 
     def channel_states(self):
+        for pending in list(self._on_reading):
+            pending[0] -= 1
+            if pending[0] <= 0:
+                self._on_reading.remove(pending)
+                pending[1](self)
         return dict(self.states)
 
     def stop_arm(self):

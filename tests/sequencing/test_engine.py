@@ -1,9 +1,10 @@
-"""Sequence engine against a fake robot: order, preconditions, timeouts, faults, cancel, safe reactions."""
+"""Sequence engine against a fake robot: order, preconditions, timeouts, faults, cancel, safe reactions. The engine
+runs on a clock that ticks with its polls (no thread races it): every outcome follows from the order of events."""
 import threading
 from pathlib import Path
 
 import pytest
-from fake_robot import FakeMotion, FakeRobot
+from fake_robot import FakeMotion, FakeRobot, TickingClock
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -21,7 +22,7 @@ LINK = 4  # a fault bit; the engine knows none by name
 
 def run(sequence, robot, cancel=None, options=FAST):
     events = []
-    result = SequenceEngine(robot, options, events.append).run(sequence, cancel)
+    result = SequenceEngine(robot, options, events.append, clock=TickingClock(1e-3)).run(sequence, cancel)
     return result, events
 
 
@@ -239,7 +240,7 @@ def test_ramp_waits_for_the_measured_voltage_to_settle():
     def lagging(robot, call):
         if call[:3] == ("ramp", "front", 2000.0):
             robot.states["front"] = ChannelReading(1700.0, 0, "", True)
-            threading.Timer(0.005, lambda: robot.states.update(front=ChannelReading(1990.0, 0, "", True))).start()
+            robot.after_readings(3, lambda r: r.states.update(front=ChannelReading(1990.0, 0, "", True)))
             return FakeMotion(Outcome(True, "", 1700.0))
 
     sequence = parse_sequence({"name": "t", "channels": ["front"], "steps": [
@@ -280,7 +281,7 @@ def test_a_fault_during_a_train_cancels_it_and_ends_safe():
     def fault_while_pulsing(robot, call):
         if call[0] == "pulse":
             robot.states["front"] = ChannelReading(600.0, 0, "", True)
-            threading.Timer(0.05, robot.inject_fault, ("front",)).start()
+            robot.after_readings(5, lambda r: r.inject_fault("front"))
             return robot.hang()
 
     robot = FakeRobot(["front"], fault_while_pulsing)

@@ -3,7 +3,7 @@ injected clock (confirmation, timeout, a mismatch naming the block, a match)."""
 import threading
 
 import pytest
-from fake_robot import FakeOperator, FakeRobot
+from fake_robot import FakeOperator, FakeRobot, TickingClock
 from softblock_config import config_file
 
 from planner.assembly import Chain, PlacedBlock, load_assembly
@@ -22,17 +22,6 @@ OLD = AssemblyVerdict("strawberry_gripper", "front_left", False, "assembly mista
                       ("block 3: design 15 instead of 57 (candidates [15])",))
 WRONG = AssemblyVerdict("asymmetric_gripper", "front_left", False, "assembly mistakes found",
                         ("block 3: design 57 instead of 15 (candidates [57, 12])",))
-
-
-class TickingClock:
-    """Each reading is ``tick`` seconds after the one before: a run's timing depends only on its polls."""
-
-    def __init__(self, tick: float = 1.0):
-        self.now, self.tick = 0.0, tick
-
-    def __call__(self) -> float:
-        self.now += self.tick
-        return self.now
 
 
 def document(swap_spec=None, timeout=None, after_ramp=True):

@@ -1,30 +1,32 @@
-"""Simulated EDCP supply: wire behaviour on the pty, load dynamics against closed forms, CLI."""
-import math
+"""Simulated EDCP supply on a real pty: framing and echo, error replies, reply faults, that its loop applies the
+host watchdog, and the CLI. No outcome here depends on how fast the host runs: replies are read up to a marker
+line's answer rather than for a time, and the watchdog is either waited for or played on the device's own clock.
+Load dynamics, ramps and the watchdog's timing are tested in simulated time (test_hv_supply_sim.py)."""
 import os
+import select
 import subprocess
 import sys
-import time
+import threading
+from types import SimpleNamespace
 
 import pytest
 import serial
-from hypothesis import example, given, settings
-from hypothesis import strategies as st
+from waiting import GENEROUS_S, wait_until
 
 from hv_driver.clock import SimulatedClock
-from hv_driver.dialects.iseg_edcp import ChannelStatus
-from sim_fallback.hv_plant import ChannelDefaults, DeaLoad, PlantChannel
-from sim_fallback.hv_supply import ERROR_REPLY, SimulatedSupply, channel_status
-from sim_fallback.memory_port import MemoryPort
+from sim_fallback import pty_device
+from sim_fallback.hv_supply import ERROR_REPLY, IDENTITY, SimulatedSupply
 
 pytestmark = pytest.mark.integration
 
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+MARKER, MARKER_REPLY = b"*OPC?\r\n", b"*OPC?\r\n1\r\n"  # a line, its echo and answer
 
 
 @pytest.fixture
 def port():
     with SimulatedSupply(channels=2, watchdog_s=None) as sim:
-        with serial.serial_for_url(sim.port, timeout=1.0) as link:
+        with serial.serial_for_url(sim.port, timeout=GENEROUS_S) as link:
             yield sim, link
 
 
@@ -33,17 +35,26 @@ def exchange(link, line: str) -> tuple[str, str]:
     return link.readline().decode().rstrip("\r\n"), link.readline().decode().rstrip("\r\n")
 
 
+def sent_for(sim, link, line: str) -> bytes:
+    """All the device sends back for ``line`` under an injected fault, however late: once its log shows the line
+    taken (its reply, if any, is then on the wire) the faults are cleared and a marker line follows; what arrives
+    before the marker's answer belongs to ``line``."""
+    taken = len(sim.command_log) + 1
+    link.write(line.encode() + b"\r\n")
+    wait_until(lambda: len(sim.command_log) >= taken, f"{line!r} taken by the device")
+    sim.clear_faults()
+    link.write(MARKER)
+    received = link.read_until(MARKER_REPLY)
+    assert received.endswith(MARKER_REPLY), received
+    return received[:-len(MARKER_REPLY)]
+
+
 def test_every_line_is_echoed_then_answered(port):
     sim, link = port
-    assert exchange(link, "*IDN?") == ("*IDN?", sim_identity())
+    assert exchange(link, "*IDN?") == ("*IDN?", IDENTITY)
     assert exchange(link, ":VOLT 1.500000E+03,(@1);*OPC?") == (":VOLT 1.500000E+03,(@1);*OPC?", "1")
     assert sim.plant[1].voltage_set == 1500.0
     assert exchange(link, ":MEAS:VOLT? (@0-1)")[1] == "0.00000E+00V,0.00000E+00V"
-
-
-def sim_identity():
-    from sim_fallback.hv_supply import IDENTITY
-    return IDENTITY
 
 
 @pytest.mark.parametrize("line", [":VOLT 9.9E+03,(@0);*OPC?", ":MEAS:VOLT? (@7)", ":FOO? (@0)", ":VOLT 1,(@0",
@@ -54,161 +65,65 @@ def test_lines_the_device_cannot_execute_get_the_error_reply(port, line):
     assert sim.plant[0].voltage_set == 0.0
 
 
-def test_output_follows_the_device_ramp_and_draws_charging_current():
-    load = DeaLoad(capacitance=2e-9, leakage_resistance=1e12)
-    ch = PlantChannel(ChannelDefaults(ramp_speed=1000.0), load)
-    ch.voltage_set = 1000.0
-    assert ch.switch_on()
-    ch.step(0.1, 0.1)
-    assert ch.voltage == pytest.approx(100.0)
-    assert ch.current == pytest.approx(2e-9 * 1000.0 + 100.0 / 1e12)  # C dV/dt + V / R_leak
-    assert ChannelStatus.IS_VOLTAGE_RAMP in channel_status(ch) and ChannelStatus.IS_ON in channel_status(ch)
-
-
-def test_switched_off_the_load_discharges_through_the_bleeder():
-    ch = PlantChannel(load=DeaLoad(capacitance=2e-9, discharge_resistance=10e6))
-    ch.voltage = 2000.0
-    ch.step(0.02, 0.02)
-    assert ch.voltage == pytest.approx(2000.0 * math.exp(-1.0))
-
-
-@settings(max_examples=60, deadline=None)
-@given(start=st.floats(1e3, 1e7), cycles=st.integers(1, 6), frequency=st.sampled_from([5.0, 20.0, 50.0]))
-@example(start=102920.99090649255, cycles=4, frequency=20.0)  # a host up for 29 h: the old count ran a fifth cycle
-def test_device_switching_runs_exactly_the_counted_cycles_at_any_clock_value(start, cycles, frequency):
-    """The device's clock is this host's monotonic time, which can be large; the count must not depend on it."""
-    ch = PlantChannel(ChannelDefaults(ramp_speed=None))
-    ch.voltage_set, ch.watch_level = 200.0, 100.0
-    assert ch.start_switching(start, frequency, 0.5, cycles)
-    t, end = start, start + (cycles + 2) / frequency
-    while t < end:
-        ch.step(t + 0.01, 0.01)
-        t += 0.01
-    assert len(ch.rising_edges) == cycles and ch.switching is None and not ch.output_on
-
-
-def switched_on_at(voltage: float, ramp: float) -> PlantChannel:
-    ch = PlantChannel(ChannelDefaults(ramp_speed=ramp))
-    ch.voltage_set = ch.voltage = voltage
-    assert ch.switch_on()
-    return ch
-
-
-def test_volt_off_ramps_the_output_down_at_the_device_ramp():
-    """As the iseg manual says: `:VOLT OFF` switches off with the configured ramp-down speed."""
-    ch = switched_on_at(2400.0, ramp=1200.0)
-    ch.switch_off(0.0, emergency=False)
-    ch.step(0.5, 0.5)
-    assert ch.voltage == pytest.approx(1800.0)
-    assert ChannelStatus.IS_VOLTAGE_RAMP in channel_status(ch) and ChannelStatus.IS_ON not in channel_status(ch)
-    ch.step(2.5, 2.0)
-    assert ch.voltage == 0.0 and ChannelStatus.IS_VOLTAGE_RAMP not in channel_status(ch)
-    ch.step(3.0, 0.5)
-    assert ch.voltage == 0.0
-
-
-def test_emergency_off_cuts_the_output_without_ramp():
-    ch = switched_on_at(2400.0, ramp=1200.0)
-    ch.switch_off(0.0, emergency=True)
-    ch.step(0.1, 0.1)  # discharged through the bleeder, tau = 20 ms
-    assert ch.voltage == pytest.approx(2400.0 * math.exp(-5.0))
-
-
-def test_volt_off_on_the_wire_ramps_and_the_channel_count_is_reported(port):
-    sim, link = port
-    for line in (":CONF:RAMP:VOLT:DOWN 1.000000E+02,(@0);*OPC?", ":VOLT 2.400000E+03,(@0);*OPC?",
-                 ":VOLT ON,(@0);*OPC?"):
-        assert exchange(link, line)[1] == "1"
-    with sim._lock:
-        sim.plant[0].voltage = 2400.0
-    assert exchange(link, ":VOLT OFF,(@0);*OPC?")[1] == "1"
-    assert sim.plant[0].ramping_down and not sim.plant[0].output_on and sim.plant[0].voltage > 2000.0
-    assert exchange(link, ":READ:MOD:CHAN?") == (":READ:MOD:CHAN?", "2")
-
-
-def test_device_current_trip_switches_off_after_the_trip_time():
-    ch = PlantChannel(ChannelDefaults(ramp_speed=1e6))
-    ch.current_limit, ch.trip_time_ms, ch.trip_action = 1e-4, 50.0, 2
-    ch.voltage_set = 1000.0
-    ch.switch_on()
-    ch.step(0.01, 0.01)
-    ch.arcing = True
-    ch.step(0.02, 0.01)
-    ch.step(0.06, 0.04)
-    assert ch.output_on
-    ch.step(0.075, 0.015)
-    assert not ch.output_on and ChannelStatus.IS_CURRENT_TRIP in channel_status(ch)
-    assert not ch.switch_on()  # refused until the events are cleared
-
-
-def test_watchdog_cuts_the_outputs_without_traffic_on_a_real_pty():
+def test_the_watchdog_of_the_device_on_a_pty_cuts_the_outputs_without_traffic():
+    """Its loop applies the watchdog: the output it switched on is cut (emergency off, which only an output that
+    was on gets) once the host is silent. When, is the simulated-time test's subject."""
     with SimulatedSupply(channels=1, watchdog_s=0.05) as sim:
-        with serial.serial_for_url(sim.port, timeout=1.0) as link:
-            exchange(link, ":VOLT ON,(@0);*OPC?")
-            assert sim.plant[0].output_on
-            deadline = time.monotonic() + 2.0
-            while sim.plant[0].output_on and time.monotonic() < deadline:
-                time.sleep(0.01)
-    assert not sim.plant[0].output_on and sim.plant[0].emergency
+        with serial.serial_for_url(sim.port, timeout=GENEROUS_S) as link:
+            assert exchange(link, ":VOLT ON,(@0);*OPC?") == (":VOLT ON,(@0);*OPC?", "1")
+            wait_until(lambda: sim.plant[0].emergency, "emergency off by the watchdog")
+    assert not sim.plant[0].output_on
 
 
-def test_watchdog_cuts_the_outputs_once_its_time_without_traffic_has_passed():
-    """In simulated time: on while lines keep arriving, off (emergency) the moment the watchdog time has passed."""
+def test_a_descheduled_simulator_does_not_read_its_own_delay_as_host_silence(monkeypatch):
+    """Commands that waited in the pty while the simulator could not run count as traffic. The device runs on the
+    test's clock; its loop is descheduled right after a wait that found no bytes, and while it is, three watchdog
+    periods pass on that clock, the host writing a line every 3/4 period."""
     clock = SimulatedClock()
-    sim = SimulatedSupply(channels=1, watchdog_s=0.05, clock=clock)
-    link = MemoryPort(sim)
-    for _ in range(10):  # traffic every 40 ms keeps it on
-        link.write(b":VOLT ON,(@0);*OPC?\r\n")
-        clock.advance(0.04)
-        sim.poll()
-        assert sim.plant[0].output_on
-    clock.advance(0.0101)
-    sim.poll()
-    assert not sim.plant[0].output_on and sim.plant[0].emergency
+    descheduled, resumed = threading.Event(), threading.Event()
 
+    def wait_then_descheduled(*args):
+        ready = select.select(*args)
+        if threading.current_thread() is sim._thread and not ready[0] and not resumed.is_set():
+            descheduled.set()
+            resumed.wait(GENEROUS_S)
+        return ready
 
-def test_a_descheduled_simulator_does_not_read_its_own_delay_as_host_silence():
-    """Commands that waited in the pty while the simulator could not run count as traffic."""
-    with SimulatedSupply(channels=1, watchdog_s=0.2) as sim:
-        with serial.serial_for_url(sim.port, timeout=2.0) as link:
-            exchange(link, ":VOLT ON,(@0);*OPC?")
-            with sim._lock:  # the simulator's loop stalls here, as on a starved host
-                stalled, sent = time.monotonic(), 0
-                while time.monotonic() - stalled < 0.6:  # three watchdog periods of host traffic
-                    link.write(b"*IDN?\r\n")
-                    sent += 1
-                    time.sleep(0.05)
-            replies = [link.readline().decode().rstrip("\r\n") for _ in range(2 * sent)]
-            assert replies == ["*IDN?", sim_identity()] * sent
+    with SimulatedSupply(channels=1, watchdog_s=0.2, clock=clock) as sim:
+        with serial.serial_for_url(sim.port, timeout=GENEROUS_S) as link:
+            assert exchange(link, ":VOLT ON,(@0);*OPC?")[1] == "1"
+            monkeypatch.setattr(pty_device, "select", SimpleNamespace(select=wait_then_descheduled))
+            assert descheduled.wait(GENEROUS_S)
+            for _ in range(4):
+                link.write(b"*IDN?\r\n")
+                clock.advance(0.15)
+            resumed.set()
+            replies = [link.readline().decode().rstrip("\r\n") for _ in range(2 * 4)]
+            assert replies == ["*IDN?", IDENTITY] * 4
             assert sim.plant[0].output_on and not sim.plant[0].emergency
 
 
+FULL_REPLY = b"*IDN?\r\n" + IDENTITY.encode() + b"\r\n"
+
+
 @pytest.mark.parametrize("fault, check", [
-    ("no_reply", lambda link, echo, answer: (echo, answer) == ("", "")),
-    ("partial", lambda link, echo, answer: echo == "*IDN?" and not answer.endswith("\n")),
-    ("garbled", lambda link, echo, answer: (echo, answer) != ("*IDN?", sim_identity())),
+    ("no_reply", lambda sent: sent == b""),
+    ("partial", lambda sent: sent == FULL_REPLY[:len(FULL_REPLY) // 2]),
+    ("garbled", lambda sent: len(sent) == len(FULL_REPLY) and sent != FULL_REPLY and sent.endswith(b"\r\n")),
 ])
 def test_reply_faults_and_clear(port, fault, check):
     sim, link = port
-    link.timeout = 0.1
     sim.inject(fault)
-    link.write(b"*IDN?\r\n")
-    echo, answer = (link.readline().decode("ascii", "replace").rstrip("\r\n") for _ in range(2))
-    assert check(link, echo, answer)
-    sim.clear_faults()
-    link.reset_input_buffer()
-    assert exchange(link, "*OPC?") == ("*OPC?", "1")
+    assert check(sent_for(sim, link, "*IDN?"))
+    assert exchange(link, "*IDN?") == ("*IDN?", IDENTITY)  # cleared
 
 
 def test_a_fault_injected_after_a_command_starts_once_that_command_is_answered(port):
     sim, link = port
-    link.timeout = 0.1
     sim.inject_after("*IDN?", "no_reply")
     assert exchange(link, "*OPC?") == ("*OPC?", "1")  # another line: not yet
-    assert exchange(link, "*IDN?") == ("*IDN?", sim_identity())  # answered, then silent
-    link.write(b"*OPC?\r\n")
-    assert link.readline() == b""
-    sim.clear_faults()
+    assert exchange(link, "*IDN?") == ("*IDN?", IDENTITY)  # answered, then silent
+    assert sent_for(sim, link, "*OPC?") == b""
     assert exchange(link, "*OPC?") == ("*OPC?", "1")
 
 
@@ -225,7 +140,7 @@ def test_cli_prints_the_port_and_takes_fault_commands():
     try:
         path = cli.stdout.readline().strip()
         assert os.path.exists(path)
-        with serial.serial_for_url(path, timeout=1.0) as link:
+        with serial.serial_for_url(path, timeout=GENEROUS_S) as link:
             assert exchange(link, "*OPC?") == ("*OPC?", "1")
         replies = []
         for command in ("over_current 0", "status", "lightning", "clear"):
@@ -235,7 +150,7 @@ def test_cli_prints_the_port_and_takes_fault_commands():
         assert replies[0] == "ok" and replies[1].startswith("ch0: off") and replies[2].startswith("error: fault=")
         cli.stdin.write("quit\n")
         cli.stdin.flush()
-        assert cli.wait(timeout=10) == 0
+        assert cli.wait(timeout=GENEROUS_S) == 0
     finally:
         cli.kill()
         cli.stdout.close()

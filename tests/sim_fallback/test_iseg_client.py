@@ -3,12 +3,11 @@ NHR. Every operation of it the simulator supports, through the client's own seri
 ``cmd\\r\\n``, expects the echo, reads one more line for a query and only the echo for a setting). Its emergency
 off sends ``EMCY_OFF`` with an underscore, a bug of that client: emergency off is tested with the documented
 spelling ``:VOLT EMCY OFF``."""
-import time
-
 import pytest
 from iseg_nhr import NHR
 from iseg_nhr.register import ChannelEventRegister, ChannelStatusRegister
 from iseg_nhr.transport import SerialTransport
+from waiting import GENEROUS_S, wait_until
 
 from sim_fallback.hv_supply import FIRMWARE_NAME, FIRMWARE_RELEASE, IDENTITY, NOMINAL_CURRENT, SimulatedSupply
 
@@ -23,15 +22,8 @@ def sim():
 
 @pytest.fixture
 def nhr(sim):
-    with NHR(sim.port, timeout=2.0) as client:  # asks :READ:MOD:CHAN? at construction
+    with NHR(sim.port, timeout=GENEROUS_S) as client:  # asks :READ:MOD:CHAN? at construction
         yield client
-
-
-def wait_until(predicate, deadline_s=5.0):
-    end = time.monotonic() + deadline_s
-    while not (result := predicate()) and time.monotonic() < end:
-        time.sleep(0.01)
-    return result
 
 
 def test_module_identity_and_common_commands(nhr, sim):
@@ -59,12 +51,12 @@ def test_setpoint_ramp_and_output(nhr, sim):
     assert not channel.on_state
     channel.on()
     assert channel.on_state and ChannelStatusRegister.IsOn in channel.status_register
-    assert wait_until(lambda: abs(channel.voltage.measured - 100.0) < 1.0)
+    wait_until(lambda: abs(channel.voltage.measured - 100.0) < 1.0, "the output at 100 V")
     assert sim.plant[1].voltage == pytest.approx(100.0, abs=1.0) and sim.plant[0].voltage == 0.0
     assert nhr.voltages[1] == pytest.approx(100.0, abs=1.0)
     channel.off()  # :VOLT OFF ramps down at the configured ramp-down speed
     assert not channel.on_state
-    assert wait_until(lambda: channel.voltage.measured < 1.0)
+    wait_until(lambda: channel.voltage.measured < 1.0, "the output ramped down")
 
 
 def test_limits_and_nominal_values(nhr):
@@ -81,7 +73,7 @@ def test_emergency_off_and_clear_with_the_documented_spelling(nhr, sim):
     channel = nhr.channel2
     channel.voltage.setpoint = 200.0
     channel.on()
-    assert wait_until(lambda: channel.voltage.measured > 150.0)
+    wait_until(lambda: channel.voltage.measured > 150.0, "the output above 150 V")
     channel._write(":VOLT EMCY OFF")
     assert channel.emergency and not channel.on_state
     assert ChannelStatusRegister.IsEmergencyOff in channel.status_register
@@ -96,7 +88,7 @@ def test_emergency_off_and_clear_with_the_documented_spelling(nhr, sim):
 
 
 def test_a_setting_leaves_no_extra_line_for_a_client_that_does_not_flush(sim):
-    transport = SerialTransport(sim.port, timeout=2.0, clear_input_before_write=False)
+    transport = SerialTransport(sim.port, timeout=GENEROUS_S, clear_input_before_write=False)
     try:
         for _ in range(3):
             assert transport.query(":VOLT 50,(@0)") == ":VOLT 50,(@0)"  # the echo is the whole answer
@@ -107,7 +99,7 @@ def test_a_setting_leaves_no_extra_line_for_a_client_that_does_not_flush(sim):
 
 
 def test_long_and_short_keyword_forms_reach_the_same_command(sim):
-    transport = SerialTransport(sim.port, timeout=2.0)
+    transport = SerialTransport(sim.port, timeout=GENEROUS_S)
     try:
         for long, short in ((":READ:CHAN:STATUS? (@0)", ":READ:CHAN:STAT? (@0)"),
                             (":READ:CHAN:EVENT:STATUS? (@0)", ":READ:CHAN:EV:STAT? (@0)")):

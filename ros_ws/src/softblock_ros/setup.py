@@ -1,11 +1,23 @@
-from glob import glob
+import os
+from pathlib import Path
 
 from setuptools import find_packages, setup
 
 package_name = "softblock_ros"
-# The stack's parameter files and description live in the repository's config/ (also the core's package data);
-# installed into share/ too, where the launch file finds them through the ament index.
-CONFIG_FILES = sorted(glob("../../../config/*.yaml"))
+# The repository's config/ (the core's package data, softblock_config) is installed into share/ too, every data
+# file of it (parameter files, the stack description, sequences, assemblies, objects, the Foxglove layout): the
+# launch file finds them there through the ament index.
+CONFIG = Path("../../../config")
+
+
+def config_data_files() -> list[tuple[str, list[str]]]:
+    folders: dict[str, list[str]] = {}
+    for path in sorted(CONFIG.rglob("*")):
+        if path.is_file() and path.suffix not in (".py", ".pyc") and "__pycache__" not in path.parts:
+            folder = Path("share", package_name, "config", path.parent.relative_to(CONFIG))
+            folders.setdefault(os.path.normpath(folder), []).append(str(path))
+    return sorted(folders.items())
+
 
 setup(
     name=package_name,
@@ -15,7 +27,7 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/launch", ["launch/softblock.launch.py"]),
-        ("share/" + package_name + "/config", CONFIG_FILES),
+        *config_data_files(),
     ],
     install_requires=["setuptools"],
     zip_safe=True,

@@ -1,10 +1,12 @@
 """End-to-end demo: the whole stack on the simulated HV supply and the simulated arm.
 
     python -m softblock_ros.demo --out out/demo          (what `make demo` runs)
+    python -m softblock_ros.demo --live-view-port 8766   (the live view elsewhere; 0: a free port, --no-live-view: none)
 
 1. starts hv_driver (sim backend), assembly_state, planner, sim_arm, sim_camera (a side view of the front left
    finger, its blocks slightly off their design), estimator (angles and mistakes from that view), sequencer,
-   the MCAP recorder and the live view for Foxglove (foxglove_bridge, ws://127.0.0.1:8765) (config/stack.yaml);
+   the MCAP recorder and the live view for Foxglove (foxglove_bridge, ws://127.0.0.1:8765 unless
+   --live-view-port or --no-live-view) (config/stack.yaml); the hint to open it is printed once it serves;
 2. asks the planner for the paper's gripper fingers for the asymmetric sample object: front fingers of
    4 blocks with the top 2 stiff, back fingers of 5 blocks with the top 3 stiff (Figure 5);
 3. loads them into the gripper assembly (assembly/set);
@@ -21,6 +23,7 @@ import argparse
 import json
 import math
 import os
+import re
 import sys
 import threading
 import time
@@ -50,7 +53,8 @@ from softblock_config import config_file
 from .client import ActionClient, ClientError, call_service, run_action, status_name, wait_until
 from .conversions import assembly_msg, chain_from_msg
 from .hv_control import HvControl
-from .launcher import Stack
+from .foxglove_bridge_node import SERVING
+from .launcher import OutputWatch, Stack
 from .stack import load_stack
 
 DEMO_ASSEMBLY = "assemblies/gripper.yaml"
@@ -62,6 +66,7 @@ SERVICE_TIMEOUT = 60.0  # [s] first calls wait for the nodes to start on a loade
 FINGER_TIME_BUDGET = 1.0  # [s] per finger pair: the best design found by then, certified if the search ended
 FAULT_CHANNEL, FAULT = "front", "over_current"
 LIVE_VIEW = "foxglove_bridge"  # optional in the stack: the demo runs it, to watch in Foxglove
+LIVE_VIEW_PORT = 8765  # the bridge's default port (its `port` parameter)
 RESET_CURRENT = 1e-6  # [A] the fault drill resets only once the readback shows no arc current
 
 
@@ -233,20 +238,43 @@ def analyse(recording: Path, out: Path, title: str = "finger grasp on the simula
     return summary
 
 
+def live_view_url(stack: Stack, serving: OutputWatch, timeout: float = SERVICE_TIMEOUT) -> str | None:
+    """The address the live view serves on once its node says it listens; None if the node ended first (a port
+    that is taken) or said nothing within ``timeout``."""
+    deadline = time.monotonic() + timeout
+    while serving.line is None and LIVE_VIEW not in stack.dead() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    found = re.search(r"ws://\S+", serving.line or "")
+    return found.group(0) if found else None
+
+
+def announce_live_view(stack: Stack, serving: OutputWatch, report: dict) -> None:
+    url = report["live_view"] = live_view_url(stack, serving)
+    if url:
+        say(f"live view: open {url} in Foxglove with config/foxglove/softblock_layout.json")
+    else:
+        ended = stack.dead().get(LIVE_VIEW)
+        why = f"foxglove_bridge ended with code {ended}" if ended is not None else "no word from foxglove_bridge"
+        say(f"live view: not serving ({why}; see stack.log); the demo goes on without it")
+
+
 def run_stack(out: Path, params: Path, scenario, report: dict, nodes=(LIVE_VIEW,), client_class=None) -> None:
     """Start the stack (its default nodes and ``nodes``) with the parameter files ``params``, wait for hv/state,
     run ``scenario(client)`` with a ``client_class`` (default DemoClient) and stop the stack. A ClientError is
-    recorded as ``report["error"]``; the nodes' exit codes go to ``report["exit_codes"]``."""
+    recorded as ``report["error"]``; the nodes' exit codes go to ``report["exit_codes"]``, the live view's
+    address (when ``nodes`` has it) to ``report["live_view"]`` (None: not serving)."""
     with open(out / "stack.log", "w") as log:
         say(f"starting the stack on the simulated backend (node output: {out / 'stack.log'})")
-        stack = Stack(nodes=[*load_stack().default_names, *nodes], params=params, output=log).start()
-        if LIVE_VIEW in nodes:
-            say("live view: open ws://127.0.0.1:8765 in Foxglove with config/foxglove/softblock_layout.json")
+        stack = Stack(nodes=[*load_stack().default_names, *nodes], params=params, output=log)
+        serving = stack.watch(LIVE_VIEW, SERVING)
+        stack.start()
         os.environ.update(stack.network.variables(os.environ))  # the demo's client joins the nodes' network
         rclpy.init()
         client = (client_class or DemoClient)()
         try:
             wait_until(lambda: (s := client.hv_state) and len(s.channels) == 2, SERVICE_TIMEOUT, "hv/state")
+            if LIVE_VIEW in nodes:
+                announce_live_view(stack, serving, report)
             scenario(client)
         except ClientError as error:
             say(f"FAILED: {error}")
@@ -258,11 +286,13 @@ def run_stack(out: Path, params: Path, scenario, report: dict, nodes=(LIVE_VIEW,
             report["exit_codes"] = stack.stop()
 
 
-def run(out: Path, object_name: str) -> int:
+def run(out: Path, object_name: str, live_view_port: int | None = LIVE_VIEW_PORT) -> int:
+    """The demo; ``live_view_port`` None runs it without the live view (0: on a free port)."""
     out.mkdir(parents=True, exist_ok=True)
     recording = out / "run.mcap"
     recording.unlink(missing_ok=True)
-    params = write_parameters(out, recording)
+    live_view = {} if live_view_port is None else {LIVE_VIEW: {"port": live_view_port}}
+    params = write_parameters(out, recording, live_view)
     started = time.monotonic()
     report: dict = {"object": object_name}
 
@@ -274,7 +304,7 @@ def run(out: Path, object_name: str) -> int:
         report["grasp"] = run_grasp(client)
         report["fault_drill"] = fault_drill(client)
 
-    run_stack(out, params, scenario, report)
+    run_stack(out, params, scenario, report, nodes=tuple(live_view))
     report["recording"] = analyse(recording, out)
     report["duration_s"] = time.monotonic() - started
     (out / "summary.json").write_text(json.dumps(report, indent=2, default=float))
@@ -320,8 +350,14 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m softblock_ros.demo", description=__doc__.split("\n")[0])
     parser.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder (default out/demo)")
     parser.add_argument("--object", default="asymmetric", help="sample object (config/objects/objects.yaml)")
+    view = parser.add_mutually_exclusive_group()
+    view.add_argument("--live-view-port", type=int, default=LIVE_VIEW_PORT, metavar="PORT",
+                      help=f"port of the live view for Foxglove (default {LIVE_VIEW_PORT}; 0: a free port, printed)")
+    view.add_argument("--no-live-view", action="store_true", help="run without the live view (foxglove_bridge)")
     args = parser.parse_args(argv)
-    return run(args.out.resolve(), args.object)
+    if not 0 <= args.live_view_port <= 65535:
+        parser.error(f"--live-view-port {args.live_view_port}: a port is 0..65535")
+    return run(args.out.resolve(), args.object, None if args.no_live_view else args.live_view_port)
 
 
 if __name__ == "__main__":

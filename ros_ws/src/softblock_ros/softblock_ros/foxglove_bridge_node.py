@@ -4,8 +4,13 @@ Each of ``topics`` that has a publisher becomes a channel named by its full topi
 recording holds for it (name ``pkg/msg/Type``, encoding ``ros2msg``, the full definition; messages in ``cdr``),
 so one Foxglove layout (config/foxglove/softblock_layout.json) opens the live stream and an MCAP recording
 alike. The node subscribes raw and forwards the CDR bytes unchanged. Topics are looked for every
-``discovery_period_s``, so nodes started later appear. A latched topic's last samples go again to each client
-that subscribes to it (a late viewer still gets the mounts on ``/tf_static`` and ``assembly/current``).
+``discovery_period_s``, so nodes started later appear.
+
+A latched (transient-local) topic is served to each viewer through a ROS subscription of its own, made when the
+viewer subscribes and ended when it unsubscribes or leaves: like any late joiner, the viewer gets what each
+publisher keeps for late joiners (the stack's latched publishers keep their last sample: the mounts on
+``/tf_static`` of the assembly as it is now, not of one it replaced), then every new sample, and no other viewer
+gets those samples again.
 
 The server binds to ``host`` (127.0.0.1: this machine only; another address is warned about at start) on
 ``port`` (0: a free port, logged). Clients only watch: the server offers no publishing, services or parameters.
@@ -15,7 +20,6 @@ from __future__ import annotations
 import ipaddress
 import sys
 import threading
-from collections import deque
 
 import foxglove
 from foxglove.websocket import ServerListener
@@ -30,10 +34,10 @@ from .recording.qos_metadata import recording_qos
 from .runner import run_node
 
 MESSAGE_ENCODING = "cdr"
-LATCHED_KEPT = 10  # samples of a latched topic kept for late viewers: the last of each of its publishers
-RESEND_PERIOD = 0.1  # [s] how often new subscribers of a latched channel are served its kept samples
+VIEWER_PERIOD = 0.1  # [s] how often viewers' new and ended subscriptions of latched channels are taken up
 LIVE_TOPICS = ["hv/state", "assembly/state", "assembly/estimated", "assembly/markers", "assembly/current",
                "camera/silhouette", "/diagnostics", "sequencer/events", "arm/pose", "/tf", "/tf_static"]
+SERVING = "live view on ws://"  # the start of the line the node logs once its server listens (the demo waits for it)
 
 PARAMETERS = (
     Param("host", "127.0.0.1", "address the WebSocket server binds to; 127.0.0.1 serves this machine only",
@@ -54,22 +58,25 @@ def is_loopback(host: str) -> bool:
 
 
 class _Viewers(ServerListener):
-    """The server's listener: remembers which channels clients subscribed to (called on the server's thread).
-    The protocol's other callbacks keep its defaults (the server calls each, e.g. on_unsubscribe when a viewer
-    leaves)."""
+    """The server's listener: the (client, channel) subscriptions viewers made and ended since the last take()
+    (called on the server's thread). The protocol's other callbacks keep its defaults."""
 
     def __init__(self):
         self._lock = threading.Lock()
-        self._new: set[int] = set()
+        self._changes: list[tuple[bool, int, int]] = []  # (subscribed, client id, channel id), in order
 
     def on_subscribe(self, client, channel) -> None:
         with self._lock:
-            self._new.add(channel.id)
+            self._changes.append((True, client.id, channel.id))
 
-    def take(self) -> set[int]:
+    def on_unsubscribe(self, client, channel) -> None:
         with self._lock:
-            new, self._new = self._new, set()
-        return new
+            self._changes.append((False, client.id, channel.id))
+
+    def take(self) -> list[tuple[bool, int, int]]:
+        with self._lock:
+            changes, self._changes = self._changes, []
+        return changes
 
 
 class FoxgloveBridgeNode(Node):
@@ -86,14 +93,17 @@ class FoxgloveBridgeNode(Node):
         except RuntimeError as error:
             raise OSError(f"cannot serve the live view on {host}:{port}: {error}") from None
         self.port = self._server.port
-        self._bridged: dict[str, tuple] = {}  # topic -> (channel, subscription, kept samples or None)
+        self._bridged: dict[str, foxglove.Channel] = {}  # topic -> its channel
+        self._latched: dict[int, tuple[str, type, object]] = {}  # channel id -> (topic, message type, QoS)
+        self._forwarding = []  # the subscriptions of the volatile topics, shared by every viewer
+        self._per_viewer: dict[tuple[int, int], object] = {}  # (client id, latched channel id) -> its subscription
         self._skipped: set[str] = set()
         if not is_loopback(host):
             self.get_logger().warning(f"serving the live view beyond this machine (host {host}): whoever reaches "
                                       f"port {self.port} sees the stack's topics")
-        self.get_logger().info(f"live view on ws://{host}:{self.port} (open it in Foxglove)")
+        self.get_logger().info(f"{SERVING}{host}:{self.port} (open it in Foxglove)")
         self.create_timer(value["discovery_period_s"], self._discover)
-        self.create_timer(RESEND_PERIOD, self._serve_latched)
+        self.create_timer(VIEWER_PERIOD, self._follow_viewers)
         self._discover()
 
     def _discover(self) -> None:
@@ -120,24 +130,33 @@ class FoxgloveBridgeNode(Node):
             return
         channel = foxglove.Channel(topic, schema=schema, message_encoding=MESSAGE_ENCODING, context=self._live)
         qos = recording_qos(offered)
-        kept = deque(maxlen=LATCHED_KEPT) if qos.durability == DurabilityPolicy.TRANSIENT_LOCAL else None
-
-        def forward(data: bytes) -> None:
-            log_time = self.get_clock().now().nanoseconds
-            if kept is not None:
-                kept.append((data, log_time))
-            channel.log(data, log_time=log_time)
-
-        subscription = self.create_subscription(msg_type, topic, forward, qos, raw=True)
-        self._bridged[topic] = (channel, subscription, kept)
+        self._bridged[topic] = channel
+        if qos.durability == DurabilityPolicy.TRANSIENT_LOCAL:
+            self._latched[channel.id()] = (topic, msg_type, qos)
+        else:
+            self._forwarding.append(self.create_subscription(msg_type, topic, self._forward(channel), qos, raw=True))
         self.get_logger().info(f"serving {topic} ({type_name})")
 
-    def _serve_latched(self) -> None:
-        new = self._viewers.take()
-        for channel, _, kept in self._bridged.values():
-            if kept is not None and channel.id() in new:
-                for data, log_time in list(kept):
-                    channel.log(data, log_time=log_time)
+    def _forward(self, channel: foxglove.Channel, sink: int | None = None):
+        """The callback that logs each raw sample on ``channel``: to every subscribed viewer, or to ``sink``."""
+        def forward(data: bytes) -> None:
+            channel.log(data, log_time=self.get_clock().now().nanoseconds, sink_id=sink)
+        return forward
+
+    def _follow_viewers(self) -> None:
+        """A viewer's subscription of a latched channel gets a ROS subscription of its own, which DDS first hands
+        what each publisher keeps for late joiners; it ends with the viewer's."""
+        for subscribed, client, channel_id in self._viewers.take():
+            key = (client, channel_id)
+            if not subscribed and key in self._per_viewer:
+                self.destroy_subscription(self._per_viewer.pop(key))
+            elif subscribed and channel_id in self._latched and key not in self._per_viewer:
+                topic, msg_type, qos = self._latched[channel_id]
+                # foxglove-sdk 0.30 numbers each connected viewer's sink alike with its client id (both counters
+                # advance only with connected viewers: the node opens no other sink), and offers no other way
+                # to log to one viewer; tests/ros/test_foxglove_bridge.py checks that only that viewer gets it.
+                forward = self._forward(self._bridged[topic], sink=client)
+                self._per_viewer[key] = self.create_subscription(msg_type, topic, forward, qos, raw=True)
 
     @property
     def served_topics(self) -> list[str]:

@@ -15,6 +15,8 @@ Commands, one per line, each answered with one line (a JSON object with --json):
     claim <client name>       hv/claim_control; heartbeats follow while the console holds control
     ramp <channel> <volts>    hv/ramp signed for the console's session, waits for the result
     release                   hv/release_control
+    activate | deactivate     the driver's lifecycle (hv_driver/change_state): outputs on at 0 V | all off (as
+                              `ros2 lifecycle set /hv_driver activate`, for the wheel set-up without the ros2 CLI)
     quit                      (also end of input): control still held is released first (after Ctrl-C the
                               driver's heartbeat watchdog ends it)
 """
@@ -28,6 +30,8 @@ import time
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -47,6 +51,7 @@ from .runner import init
 # Best effort: a sample the link drops shows as lost instead of holding up the newer ones.
 STATE_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
 SERVICE_TIMEOUT = 10.0  # [s]
+TRANSITIONS = {"activate": Transition.TRANSITION_ACTIVATE, "deactivate": Transition.TRANSITION_DEACTIVATE}
 RAMP_TIMEOUT = 600.0    # [s] the driver's slowest allowed ramp
 MAX_COMMAND = 256       # [characters] of one command line
 
@@ -67,6 +72,7 @@ class HvConsole:
         self._reset = node.create_client(Trigger, "hv/reset_faults")
         self._estop = node.create_client(Trigger, "hv/estop")
         self._ramp = ActionClient(node, RampChannel, "hv/ramp")
+        self._change_state = node.create_client(ChangeState, "hv_driver/change_state")
         self.control = HvControl(node, "hv_console", timeout_s=SERVICE_TIMEOUT)
 
     def _on_state(self, data: bytes, info: dict) -> None:
@@ -133,12 +139,17 @@ class HvConsole:
             return True, f"control held, session {self.control.claim()}"
         if command == "release" and not arguments:
             return True, self.control.release()
+        if command in TRANSITIONS and not arguments:
+            reply = call_service(self._change_state, ChangeState.Request(transition=Transition(
+                id=TRANSITIONS[command])), SERVICE_TIMEOUT)
+            return reply.success, (f"hv_driver {command}d" if reply.success else
+                                   f"hv_driver refused to {command} (is it {command}d already? see its log)")
         if command == "ramp" and len(arguments) == 2:
             goal = self.control.ramp_goal(arguments[0], float(arguments[1]))
             status, result = run_action(self._ramp, goal, RAMP_TIMEOUT, server_timeout=SERVICE_TIMEOUT)
             return result.success, f"{status_name(status)}: {result.message}"
         raise ValueError(f"unknown command {' '.join([command, *arguments])!r}; "
-                         "known: reset, estop, claim <client>, ramp <channel> <volts>, release, quit")
+                         "known: reset, estop, claim <client>, ramp <channel> <volts>, release, activate, deactivate, quit")
 
 
 def read_commands(console: HvConsole, emit, stop: threading.Event) -> None:
@@ -204,6 +215,7 @@ def main(argv=None) -> int:
             except ClientError as error:
                 print(f"release of control failed: {error}", file=sys.stderr)
         executor.shutdown(timeout_sec=5.0)
+        spinner.join(timeout=5.0)  # a thread left inside rclpy at exit aborts the process (std::terminate)
         node.destroy_node()
         rclpy.try_shutdown()
     return 0

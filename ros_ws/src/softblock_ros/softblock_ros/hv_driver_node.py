@@ -17,10 +17,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import os
-import shutil
 import sys
-import tempfile
-from pathlib import Path
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.action import ActionServer, CancelResponse
@@ -34,9 +31,9 @@ from softblock_interfaces.srv import ClaimControl, InjectFault, ReleaseControl
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
-from hv_driver import HvError, RemoteSupply
+from hv_driver import HvError, RemoteSupply, SupervisorLostError
 from hv_driver.control import session_id, signed
-from hv_driver.events import snapshot_events
+from hv_driver.socket_path import node_socket_path
 
 from . import PUBLICATION_MODE, PUBLICATION_MODE_VARIABLE
 from .hv_conversions import diagnostics_msg, hv_state_msg
@@ -70,7 +67,6 @@ class HvDriverNode(LifecycleNode):
             raise ParameterError(f"parameter ports={ports} refused: backend 'serial' needs one port per supply the "
                                  f"channels are on ({self._devices}), e.g. [/dev/ttyUSB0]")
         self._supply = None
-        self._socket_dir: str | None = None
         self._entities = []
         self._active = False
         self._group = ReentrantCallbackGroup()
@@ -98,7 +94,7 @@ class HvDriverNode(LifecycleNode):
             return FAILURE
         ports = [port for port in self._supply.snapshot().port.split(", ") if port]
         self._index = {c.name: (c.index, c.device) for c in channels}
-        self._published, self._diag_time, self._logged = None, 0, None
+        self._published, self._diag_time = None, 0
         self._state_pub = self.create_publisher(HvState, "hv/state", stream_qos(self._param("publish_rate_hz")))
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         g = self._group
@@ -135,12 +131,11 @@ class HvDriverNode(LifecycleNode):
         return spec
 
     def _socket_path(self) -> str:
-        """The supervisor_socket parameter (a fixed path: a restarted node takes its supervisor over), else one of
-        this node's own."""
+        """The supervisor_socket parameter, else the path fixed by this node's name, domain and ports: either way a
+        node started again (a respawn after its death) takes over the supervisor that still holds its supplies."""
         if self._param("supervisor_socket"):
             return self._param("supervisor_socket")
-        self._socket_dir = tempfile.mkdtemp(prefix="softblock-hv-")
-        return str(Path(self._socket_dir) / "supervisor.sock")
+        return node_socket_path(self.get_fully_qualified_name(), self.context.get_domain_id(), self._param("ports"))
 
     def _on_supervisor_lost(self, reason: str) -> None:
         self.get_logger().fatal(f"HV supervisor process lost ({reason}): hv/state reports SUPERVISOR_LOST on every "
@@ -165,10 +160,14 @@ class HvDriverNode(LifecycleNode):
 
     def on_deactivate(self, state) -> TransitionCallbackReturn:
         self._active = False
-        for name in self._index:
-            self._supply.disable(name)
-        if not self._supply.wait_outputs_off(timeout=30.0):
-            self.get_logger().error("deactivate: outputs still on after 30 s")
+        try:
+            for name in self._index:
+                self._supply.disable(name)
+            if not self._supply.wait_outputs_off(timeout=30.0):
+                self.get_logger().error("deactivate: outputs still on after 30 s")
+                return FAILURE
+        except HvError as error:  # the supervisor process lost
+            self.get_logger().error(f"deactivate refused: {error}")
             return FAILURE
         self.get_logger().info("inactive: outputs ramped to 0 V and off")
         return super().on_deactivate(state)
@@ -198,9 +197,7 @@ class HvDriverNode(LifecycleNode):
         self._entities = []
         if self._supply is not None:
             self._supply.close()
-        if self._socket_dir is not None:
-            shutil.rmtree(self._socket_dir, ignore_errors=True)
-        self._supply, self._socket_dir = None, None
+        self._supply = None
 
     def _destroy(self, entity) -> None:
         for destroy in (self.destroy_publisher, self.destroy_timer, self.destroy_service, self.destroy_subscription):
@@ -214,10 +211,10 @@ class HvDriverNode(LifecycleNode):
 
     # --- topics, services, action ----------------------------------------------------------------
     def _publish(self) -> None:
+        events = self._supply.drain_events()  # faults latched or cleared, control lapsed, even between snapshots
         snapshot, stamp = self._supply.snapshot(), self.get_clock().now().to_msg()
-        for level, line in snapshot_events(self._logged, snapshot):  # faults latched, control lapsed
-            self._log(level, line)
-        self._logged = snapshot
+        for event in events:
+            self._log(event.level, f"{event.text} ({max(snapshot.stamp - event.time, 0.0):.3f} s ago)")
         self._state_pub.publish(hv_state_msg(snapshot, self._param("backend"), stamp))
         shown = (snapshot.controller, tuple(int(c.faults) for c in snapshot.channels))
         now = self.get_clock().now().nanoseconds
@@ -235,12 +232,20 @@ class HvDriverNode(LifecycleNode):
             self.get_logger().info(line)
 
     def _on_estop(self, request, response):
-        self._supply.estop()
+        try:
+            self._supply.estop()
+        except HvError as error:  # the supervisor process lost: the refusal names the fault
+            response.success, response.message = False, f"emergency stop refused: {error}"
+            return response
         response.success, response.message = True, "emergency stop latched: every output 0 V and off"
         return response
 
     def _on_reset(self, request, response):
-        names = self._supply.reset_faults()  # only the faulted channels: healthy outputs keep their voltage
+        try:
+            names = self._supply.reset_faults()  # only the faulted channels: healthy outputs keep their voltage
+        except HvError as error:  # the supervisor process lost
+            response.success, response.message = False, f"reset refused: {error}"
+            return response
         response.success, response.message = True, f"faults cleared on {names}; those outputs off"
         if self._active:
             try:
@@ -274,10 +279,16 @@ class HvDriverNode(LifecycleNode):
         return response
 
     def _on_heartbeat(self, msg: HvHeartbeat) -> None:
+        """Forwarded at once, without waiting for the supervisor's answer: it counts from now even while the
+        supervisor stalls."""
         try:
-            self._supply.heartbeat(signed(msg.session, msg.counter, msg.mac))
-        except HvError as error:  # another client, an ended session, a copied heartbeat, a replayed recording
-            self.get_logger().warning(f"hv/heartbeat ignored: {error}", throttle_duration_sec=REFUSAL_LOG_PERIOD)
+            self._supply.forward_heartbeat(signed(msg.session, msg.counter, msg.mac), self._heartbeat_refused)
+        except HvError as error:  # the supervisor process lost
+            self._heartbeat_refused(error)
+
+    def _heartbeat_refused(self, error: Exception) -> None:
+        """Another client, an ended session, a copied heartbeat, a replayed recording, a lost supervisor."""
+        self.get_logger().warning(f"hv/heartbeat ignored: {error}", throttle_duration_sec=REFUSAL_LOG_PERIOD)
 
     def _on_inject(self, request, response):
         try:
@@ -298,6 +309,8 @@ class HvDriverNode(LifecycleNode):
     def _on_safe_voltage(self, msg: Float64) -> None:
         try:
             self._supply.set_safe_voltage(msg.data)
+        except SupervisorLostError as error:
+            self.get_logger().error(f"assembly/safe_voltage refused: {error}")
         except HvError as error:  # an unusable ceiling blocks all voltage rather than none
             self.get_logger().error(f"assembly/safe_voltage: {error}; ceiling set to 0 V")
             self._supply.set_safe_voltage(0.0)

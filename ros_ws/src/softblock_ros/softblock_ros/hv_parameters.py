@@ -11,7 +11,7 @@ from hv_driver.server import ORPHAN_TIMEOUT_S
 from .parameters import Param, ParameterError
 
 PARAMETERS = (
-    Param("backend", "sim", "'sim' (simulated supply on a pty) or 'serial' (the port parameter); never swapped",
+    Param("backend", "sim", "'sim' (simulated supply on a pty) or 'serial' (the ports parameter); never swapped",
           kind=str, choices=("sim", "serial")),
     Param("dialect", IsegEdcp.name, "the supply's command set and capabilities", kind=str, choices=tuple(DIALECTS)),
     Param("ports", [], "serial devices or pyserial URLs, one per supply (backend 'serial'; 'sim' makes its own)",
@@ -50,8 +50,9 @@ PARAMETERS = (
     Param("orphan_timeout_s", ORPHAN_TIMEOUT_S, "a supervisor process without its node this long switches every "
           "output off, closes the ports and exits; a node restarted within it takes it over, faults latched", "s",
           1.0, 3600.0),
-    Param("supervisor_socket", "", "Unix socket of the supervisor process; empty = a new one for this node "
-          "process; a fixed path lets a restarted node take its supervisor over", kind=str),
+    Param("supervisor_socket", "", "Unix socket of the supervisor process; empty = a path fixed by the node's "
+          "name, ROS domain and ports in a directory of the user's own: either way a restarted node takes its "
+          "supervisor over", kind=str),
     Param("autostart", True, "configure and activate at start (console script / python -m)", kind=bool),
 )
 

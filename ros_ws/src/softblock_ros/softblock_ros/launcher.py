@@ -30,7 +30,7 @@ from typing import TextIO
 
 from .network import NetworkSettings, describe, parse_discovery_range, parse_domain_id, parse_static_peers
 from .parameter_files import check_parameter_file
-from .stack import StackDescription, load_stack
+from .stack import StackDescription, check_namespace, load_stack
 
 DEFAULT_STOP_TIMEOUT = 10.0  # [s] per node, before SIGKILL
 PUMP_DRAIN_TIMEOUT = 10.0  # [s] to copy a stopped node's last output (bounded: a grandchild may hold the pipe)
@@ -57,6 +57,14 @@ class NodeDied(RuntimeError):
     """A node process exited while the stack was running."""
 
 
+class OutputWatch:
+    """The first line of one node's output that contains a text (``line``: None until it came)."""
+
+    def __init__(self, node: str, text: str):
+        self.node, self.text = node, text
+        self.line: str | None = None
+
+
 class Stack:
     """The node processes of one stack; a context manager that stops them in reverse order on exit."""
 
@@ -75,7 +83,7 @@ class Stack:
             check_parameter_file(params)
         self.params = params
         # e.g. "/robot1": every node's relative names move under it
-        self.namespace = self.description.namespace if namespace is None else namespace
+        self.namespace = self.description.namespace if namespace is None else check_namespace(namespace, "namespace")
         # DDS discovery: the options' network settings over the stack file's over the environment's
         self.network = network.over(self.description.network)
         self.env = self.network.environment({**os.environ, **(env or {}), "PYTHONUNBUFFERED": "1"})
@@ -85,6 +93,13 @@ class Stack:
         self._stop_requested = False  # a plain flag: request_stop() runs in signal handlers
         self._output_lock = threading.Lock()
         self._pumps: list[threading.Thread] = []
+        self._watches: list[OutputWatch] = []
+
+    def watch(self, node: str, text: str) -> OutputWatch:
+        """Note the first line of ``node``'s output that contains ``text`` (call before start())."""
+        watch = OutputWatch(node, text)
+        self._watches.append(watch)
+        return watch
 
     def command(self, name: str) -> list[str]:
         spec = self.description.node(name)
@@ -111,6 +126,9 @@ class Stack:
 
     def _pump(self, name: str, process: subprocess.Popen) -> None:
         for line in process.stdout:
+            for watch in self._watches:
+                if watch.node == name and watch.line is None and watch.text in line:
+                    watch.line = line.rstrip("\n")
             with self._output_lock:
                 self.output.write(f"[{name}] {line}")
                 self.output.flush()

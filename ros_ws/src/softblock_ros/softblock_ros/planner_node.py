@@ -13,6 +13,8 @@ import threading
 import time
 from functools import partial
 
+import numpy as np
+
 from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
@@ -21,7 +23,7 @@ from softblock_interfaces import action
 from softblock_interfaces.msg import Assembly as AssemblyMsg
 from softblock_interfaces.srv import DesignFingers, DesignPath
 
-from planner import design, reconfigure
+from planner import design, reconfigure, reconfigure_path
 from planner.contours import extract_contours, load_mask
 from planner.table import load_table
 
@@ -34,6 +36,8 @@ from .paths import resolve_path
 from .runner import run_node, where
 
 DEFAULT_METHOD = "exact"
+MAX_PLAN_OBJECTS = 16  # objects of one plan goal
+MAX_BASE_OFFSETS = 64  # candidate base offsets of one object
 # Finger base frames in the object frame (x right, z up): the finger grows downward (+z -> -z) and
 # bends toward the object (+x -> +x for the left finger, -x for the right one).
 FINGER_BASE_ORIENTATION = {"left": (1.0, 0.0, 0.0, 0.0), "right": (0.0, 1.0, 0.0, 0.0)}
@@ -165,29 +169,37 @@ class PlannerNode(Node):
         self.get_logger().info(f"design_fingers: {result.message} ({result.solve_time:.2f} s)")
 
     def _plan(self, goal, result, callback) -> None:
-        """planner/plan_reconfiguration: the Pareto set of swaps against the objective, the chosen point's steps."""
+        """planner/plan_reconfiguration: the Pareto set of swaps against the objective (a gripper for objects,
+        or a trunk for a path), the chosen point's steps."""
         robot = goal.robot if goal.robot.chains else self._built
         if robot is None:
             raise ValueError("no robot given and no assembly/current received yet")
         built, _ = assembly_from_msg(robot, self._table)
         shelf = inventory_from_lists(goal.shelf_ids, goal.shelf_counts) or {}
-        objects = self._plan_objects(goal)
-        slots = reconfigure.GRIPPER_SLOTS
-        if goal.finger_chains:
-            if not len(goal.finger_chains) == len(goal.finger_sides) == len(goal.finger_stiff_top):
-                raise ValueError("finger_chains, finger_sides and finger_stiff_top must have the same length")
-            slots = tuple(reconfigure.FingerSlot(c, s, int(n))
-                          for c, s, n in zip(goal.finger_chains, goal.finger_sides, goal.finger_stiff_top))
         budget = goal.time_budget or self._settings["default_time_budget_s"]
         if not budget >= 0.0:
             raise ValueError(f"time_budget must be >= 0 s, got {goal.time_budget}")
-        swaps_possible = sum(len(built.chain(slot.chain).blocks) for slot in slots if slot.chain in
-                             {c.name for c in built.chains})
-        if not -1 <= goal.max_swaps <= swaps_possible:
-            raise ValueError(f"max_swaps must be -1..{swaps_possible}, got {goal.max_swaps}")
-        self.get_logger().info(f"plan_reconfiguration: {len(objects)} objects, {len(slots)} fingers")
-        plan = reconfigure.plan_reconfiguration(built, shelf, objects, slots=slots, table=self._table,
-                                                time_budget=budget or None, callback=callback)
+        if goal.path:
+            if goal.object_image_paths or goal.finger_chains:
+                raise ValueError("give either a path (and path_chain) or objects (and finger chains), not both")
+            chains = [goal.path_chain]
+            self._check_max_swaps(goal, built, chains)
+            self.get_logger().info(f"plan_reconfiguration: chain {goal.path_chain!r} along {len(goal.path)} points")
+            plan = reconfigure_path.plan_path_reconfiguration(
+                built, goal.path_chain, shelf, path_from_points(goal.path), table=self._table,
+                time_budget=budget or None, callback=callback)
+        else:
+            objects = self._plan_objects(goal)
+            slots = reconfigure.GRIPPER_SLOTS
+            if goal.finger_chains:
+                if not len(goal.finger_chains) == len(goal.finger_sides) == len(goal.finger_stiff_top):
+                    raise ValueError("finger_chains, finger_sides and finger_stiff_top must have the same length")
+                slots = tuple(reconfigure.FingerSlot(c, s, int(n))
+                              for c, s, n in zip(goal.finger_chains, goal.finger_sides, goal.finger_stiff_top))
+            self._check_max_swaps(goal, built, [slot.chain for slot in slots])
+            self.get_logger().info(f"plan_reconfiguration: {len(objects)} objects, {len(slots)} fingers")
+            plan = reconfigure.plan_reconfiguration(built, shelf, objects, slots=slots, table=self._table,
+                                                    time_budget=budget or None, callback=callback)
         result.success, result.message, result.solve_time = plan.success, plan.message, plan.solve_time
         points = plan.points
         result.max_swaps = [p.max_swaps for p in points]
@@ -198,7 +210,7 @@ class PlannerNode(Node):
         chosen = points[goal.max_swaps]
         if chosen.assembly is None:
             result.success = False
-            result.message += f"; no gripper within the shelf with at most {chosen.max_swaps} swaps"
+            result.message += f"; no robot within the shelf with at most {chosen.max_swaps} swaps"
             return
         result.target = assembly_msg(chosen.assembly, self._table)
         steps = reconfigure.swap_steps(built, chosen.assembly, shelf)
@@ -210,14 +222,46 @@ class PlannerNode(Node):
         result.step_rotation_steps = [step.rotation_steps for step in steps]
         self.get_logger().info(f"plan_reconfiguration: {plan.message} ({plan.solve_time:.2f} s)")
 
+    @staticmethod
+    def _check_max_swaps(goal, built, chains) -> None:
+        names = {c.name for c in built.chains}
+        swaps_possible = sum(len(built.chain(name).blocks) for name in chains if name in names)
+        if not -1 <= goal.max_swaps <= swaps_possible:
+            raise ValueError(f"max_swaps must be -1..{swaps_possible}, got {goal.max_swaps}")
+
     def _plan_objects(self, goal) -> list:
-        paths, sizes = goal.object_image_paths, goal.pixel_sizes
-        weights = list(goal.weights) or [1.0] * len(paths)
-        if not paths or not len(paths) == len(sizes) == len(weights):
-            raise ValueError("give one or more object_image_paths, with as many pixel_sizes (and weights, if any)")
+        """The goal's objects with their own settings (parallel lists; an empty list: the default for all)."""
+        paths, count = goal.object_image_paths, len(goal.object_image_paths)
+        if not 1 <= count <= MAX_PLAN_OBJECTS:
+            raise ValueError(f"give 1..{MAX_PLAN_OBJECTS} object_image_paths (or a path), got {count}")
+
+        def per_object(name, values, default):
+            if not len(values):
+                return [default] * count
+            if len(values) != count:
+                raise ValueError(f"{name} must have one entry per object ({count}) or none, got {len(values)}")
+            return list(values)
+
+        sizes = per_object("pixel_sizes", goal.pixel_sizes, None)
+        if None in sizes:
+            raise ValueError(f"give one pixel_sizes entry per object ({count})")
+        weights = per_object("weights", goal.weights, 1.0)
+        tolerances = per_object("contact_tolerances", goal.contact_tolerances, 0.0)
+        spacings = per_object("contour_spacings", goal.contour_spacings, design.DEFAULT_CONTOUR_SPACING)
+        counts = per_object("base_offset_counts", goal.base_offset_counts, None)
+        if None in counts:
+            if len(goal.base_offsets):
+                raise ValueError("base_offsets need base_offset_counts (how many belong to each object)")
+            offsets = [design.DEFAULT_BASE_OFFSETS] * count
+        else:
+            if sum(counts) != len(goal.base_offsets) or not all(1 <= n <= MAX_BASE_OFFSETS for n in counts):
+                raise ValueError(f"base_offset_counts must be 1..{MAX_BASE_OFFSETS} per object and add up to the "
+                                 f"{len(goal.base_offsets)} base_offsets")
+            ends = np.cumsum([0] + counts)
+            offsets = [np.array(goal.base_offsets[a:b]) for a, b in zip(ends[:-1], ends[1:])]
         return [reconfigure.TargetObject(path, extract_contours(load_mask(resolve_path(path)), size), weight=w,
-                                         contact_tolerance_m=goal.contact_tolerance)
-                for path, size, w in zip(paths, sizes, weights)]
+                                         base_offsets=o, contour_spacing=spacing, contact_tolerance_m=tolerance)
+                for path, size, w, o, spacing, tolerance in zip(paths, sizes, weights, offsets, spacings, tolerances)]
 
     def _design_path(self, request, response) -> None:
         options = self._options(request)

@@ -112,6 +112,11 @@ class RosRobot:
         node.create_subscription(HvState, "hv/state", self._on_state, qos_profile_sensor_data,
                                  callback_group=callback_group)
 
+    def destroy(self) -> None:
+        """Destroy the action clients, which the node's destroy_node leaves (and with them the node in the graph)."""
+        for client in (self._ramp, self._pulse, self._move):
+            client.destroy()
+
     def _on_state(self, msg: HvState) -> None:
         with self._lock:
             self._state, self._state_time = msg, time.monotonic()

@@ -4,7 +4,9 @@
     python -m softblock_ros.run_sequence legged_gait --ros-args -r __ns:=/robot1
 
 Prints each step transition, then the result with the per-step durations. Ctrl-C (or --timeout)
-cancels the sequence (the sequencer ramps every channel down) and waits for the canceled result.
+cancels the sequence (the sequencer ramps every channel down) and waits for the canceled result. When an
+operator_swap step waits for the operator, Enter typed here confirms the swap (sequencer/operator_done, as
+``ros2 service call /sequencer/operator_done std_srvs/srv/Trigger`` does where the ros2 CLI is installed).
 Exit status: 0 succeeded, 1 failed or refused, 2 canceled, 3 no sequencer (or no reply).
 """
 from __future__ import annotations
@@ -16,17 +18,56 @@ import time
 
 import rclpy
 from action_msgs.msg import GoalStatus
-from .client import ActionClient
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 from softblock_interfaces.action import RunSequence
+from std_srvs.srv import Trigger
+
+from .client import ActionClient, ClientError, call_service
+
+SERVICE_TIMEOUT = 10.0  # [s] for the sequencer's answer to a confirmation
 
 
-def print_feedback(message) -> None:
-    feedback = message.feedback
-    print(f"[{feedback.step_index + 1}/{feedback.step_count}] {feedback.step_name}: {feedback.phase}"
-          + (f"  ({feedback.description})" if feedback.phase == "running" and feedback.description else ""),
-          flush=True)
+class Operator:
+    """The operator at this terminal: a line typed while an operator_swap step waits confirms the swap."""
+
+    def __init__(self, node, keyboard=sys.stdin):
+        self._done = node.create_client(Trigger, "sequencer/operator_done")
+        self._keyboard = keyboard
+        self._asked = threading.Event()
+        self._keyboard_lost = threading.Event()  # standard input cannot be read (closed, or not a terminal's)
+
+    def print_feedback(self, message) -> None:
+        feedback = message.feedback
+        print(f"[{feedback.step_index + 1}/{feedback.step_count}] {feedback.step_name}: {feedback.phase}"
+              + (f"  ({feedback.description})" if feedback.phase == "running" and feedback.description else ""),
+              flush=True)
+        if feedback.phase == "awaiting_operator" and not self._asked.is_set():
+            self._asked.set()  # before the prompt: a line typed in answer to it confirms
+            confirm = ("call the service sequencer/operator_done to confirm" if self._keyboard_lost.is_set()
+                       else "press Enter here to confirm")
+            print(f"operator: {feedback.description}\nevery channel is at 0 V; make the swaps, then {confirm} "
+                  "(Ctrl-C cancels the sequence)", flush=True)
+
+    def listen(self) -> None:
+        """Confirm a swap for each line typed while one is asked for (run in a daemon thread)."""
+        try:
+            self._confirm_each_line()
+        except (OSError, ValueError):  # no readable standard input: confirmations come through the service
+            self._keyboard_lost.set()
+
+    def _confirm_each_line(self) -> None:
+        for _ in self._keyboard:
+            if not self._asked.is_set():
+                print("operator: no swap is asked for now", flush=True)
+                continue
+            self._asked.clear()
+            try:
+                reply = call_service(self._done, Trigger.Request(), SERVICE_TIMEOUT)
+                print(f"operator: {reply.message}", flush=True)
+            except ClientError as error:
+                print(f"operator: confirmation not delivered: {error}", file=sys.stderr, flush=True)
+                self._asked.set()
 
 
 def run(sequence: str, server_timeout: float, timeout: float = 0.0) -> int:
@@ -35,15 +76,18 @@ def run(sequence: str, server_timeout: float, timeout: float = 0.0) -> int:
     executor.add_node(node)
     spinner = threading.Thread(target=executor.spin, daemon=True)
     spinner.start()
+    operator = Operator(node)
+    threading.Thread(target=operator.listen, daemon=True).start()
     try:
-        return send(ActionClient(node, RunSequence, "sequencer/run"), sequence, server_timeout, timeout)
+        return send(ActionClient(node, RunSequence, "sequencer/run"), sequence, server_timeout, timeout,
+                    operator.print_feedback)
     finally:
         executor.shutdown(timeout_sec=5.0)
         spinner.join(timeout=5.0)
         node.destroy_node()
 
 
-def send(client: ActionClient, sequence: str, server_timeout: float, timeout: float) -> int:
+def send(client: ActionClient, sequence: str, server_timeout: float, timeout: float, print_feedback) -> int:
     if not client.wait_for_server(timeout_sec=server_timeout):
         print(f"no sequencer/run server within {server_timeout:g} s", file=sys.stderr)
         return 3

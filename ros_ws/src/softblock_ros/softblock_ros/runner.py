@@ -4,22 +4,26 @@ A callback that raises (a timer, a subscription, a service) is logged and the no
 bad message or one failing computation must not end the node, and with it (under the launcher) the stack.
 ``--help`` / ``-h`` prints the node's parameters (its schema) and exits 0 without starting it. The
 ``--params-file`` files are checked (softblock_ros.parameter_files) before rclpy parses them, so a bad file
-ends the start with one line instead of rcl's traceback.
+ends the start with one line instead of rcl's traceback; what rcl refuses all the same (a file the check has not
+foreseen, a remap such as ``-r __ns:=a b``) is one line too.
 """
 from __future__ import annotations
 
 import os
+import re
 import signal
 import sys
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import rclpy
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 
-from .parameter_files import check_parameter_files
+from .parameter_files import check_parameter_file
 from .parameters import NODE_SCHEMAS, node_schema
+from .stack import check_namespace
 
 
 def _stop_quietly(signum, frame) -> None:
@@ -32,23 +36,56 @@ def _stop_quietly(signum, frame) -> None:
     """
 
 
+RCLError = rclpy_implementation.RCLError
+_RCL_SOURCE = re.compile(r",? at /\S+:\d+")  # rcl's ", at /project/src/parse.c:258" after each cause
+
+
+def rcl_problem(error: RuntimeError) -> str:
+    """rcl's message in one line, without its source locations."""
+    return " ".join(_RCL_SOURCE.sub("", str(error)).split())[:300]
+
+
+_NAMESPACE_REMAP = re.compile(r"(?:[^:]*:)?__ns:=(.*)")  # -r [node:]__ns:=/robot1
+
+
+def check_arguments(args: Sequence[str]) -> None:
+    """ValueError (one line) for a ``--params-file`` (softblock_ros.parameter_files) or a namespace remap that rcl
+    would refuse from inside rclpy.init (rcl reads them after --ros-args)."""
+    args = list(args)
+    args = args[args.index("--ros-args") + 1:] if "--ros-args" in args else []
+    for flag, value in zip(args, args[1:]):
+        if flag == "--params-file":
+            check_parameter_file(value)
+        elif flag in ("-r", "--remap") and (remap := _NAMESPACE_REMAP.fullmatch(value)):
+            check_namespace(remap[1], f"-r {value.partition(':=')[0]}:", optional=False)
+
+
 def init(args=None) -> None:
     """rclpy.init for a node process, with Ctrl-C / SIGTERM ending spin instead of raising anywhere.
-    ValueError (one line) for a bad ``--params-file``, before rclpy is initialized."""
-    check_parameter_files(sys.argv if args is None else args)
+    ValueError (one line) for a bad ``--params-file`` or namespace (check_arguments), before rclpy is initialized,
+    and for anything else rcl refuses."""
+    check_arguments(sys.argv if args is None else args)
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, _stop_quietly)
-    rclpy.init(args=args)
+    try:
+        rclpy.init(args=args)
+    except RCLError as error:
+        raise ValueError(f"rcl refused the arguments: {rcl_problem(error)}") from None
+
+
+def parameter_list(name: str) -> str:
+    """The node's parameters, from its schema (softblock_ros.parameters), one a line."""
+    return "\n".join([f"parameters of node {name}:", *(
+        f"  {param.name} (default {param.default!r}; {param._range_text()}): {param.text()}"
+        for param in node_schema(name))])
 
 
 def usage(name: str) -> str:
-    """The node's command line and its parameters, from its schema (softblock_ros.parameters)."""
+    """The node's command line and its parameters."""
     lines = [f"usage: {os.path.basename(sys.argv[0]) or name} [--ros-args [-p NAME:=VALUE]... "
              "[--params-file FILE]... [-r __ns:=/NAMESPACE]]", ""]
     if name in NODE_SCHEMAS:
-        lines.append(f"parameters of node {name}:")
-        for param in node_schema(name):
-            lines.append(f"  {param.name} (default {param.default!r}; {param._range_text()}): {param.text()}")
+        lines.append(parameter_list(name))
     return "\n".join(lines)
 
 
@@ -113,9 +150,10 @@ def run_node(make_node: Callable[[], Node], name: str, executor: Callable[[], Ex
             # anything more on the shut-down context. That is the stop that was asked for, not a failure.
             rclpy.logging.get_logger(name).info(f"stopped while starting ({type(error).__name__} on shutdown)")
             return 0
-        if node is not None or not isinstance(error, (ValueError, OSError)):
+        if node is not None or not isinstance(error, (ValueError, OSError, RCLError)):
             raise
-        rclpy.logging.get_logger(name).fatal(f"cannot start: {error}")
+        problem = rcl_problem(error) if isinstance(error, RCLError) else error  # e.g. a namespace rcl refuses
+        rclpy.logging.get_logger(name).fatal(f"cannot start: {problem}")
         return 1
     finally:
         if node is not None:

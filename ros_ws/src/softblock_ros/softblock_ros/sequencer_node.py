@@ -4,8 +4,13 @@ Loads <sequences_dir>/<name>.yaml (a goal names a sequence, never a path), runs 
 engine against the arm (`arm/move`) and the HV driver (`hv/ramp`, `hv/state`, `hv/estop`), publishes
 feedback and a `sequencer/events` message per step transition. It holds control of the HV driver while a sequence runs
 (`hv/claim_control`, then `hv/heartbeat` at `heartbeat_rate_hz`, `hv/release_control` at the end).
-One goal at a time: a second goal is rejected while one runs, and every goal while another node serves
-sequencer/run as well (each would take it). SIGINT / SIGTERM cancel a running sequence first: its safe stop ramps
+One goal at a time: a second goal is rejected while one runs. One sequencer at a time: a goal goes to every node that
+serves sequencer/run, and its caller takes whichever answer comes first, so of two that both accepted it one could run
+the sequence while the caller got the other's abort. A sequencer therefore serves only once it has looked for another
+for `discovery_period_s` and found none (no server of sequencer/run, no other node of its name and namespace); while
+there is one it stands by (logged) and serves once it is alone: of two, the first serves, two started together both
+stand by. Should two serve all the same (other names, discovery slower than the period), both reject every goal.
+SIGINT / SIGTERM cancel a running sequence first: its safe stop ramps
 every channel to 0 V and control is released, then the node shuts down (a second signal shuts it down at once).
 See docs/sequences.md.
 """
@@ -14,7 +19,7 @@ import threading
 import time
 
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
-from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from softblock_interfaces.action import RunSequence
@@ -55,6 +60,8 @@ PARAMETERS = (
     # is resent only at the writer's next periodic heartbeat (3 s, docs/two_machines.md).
     Param("server_timeout_s", 10.0, "wait for the arm/move, hv/ramp, hv/estop servers", "s", 0.1, 60.0),
     Param("state_timeout_s", 2.0, "hv/state older than this counts as a link fault", "s", 0.05, 10.0),
+    Param("discovery_period_s", 2.0, "how long a starting sequencer looks for another one before it serves "
+          "sequencer/run, and how often it looks again while there is one", "s", 0.1, 60.0),
     Param("hv_driver_node", "hv_driver", "the HV driver's lifecycle node, deactivated (every output off) while an "
           "operator swaps blocks", kind=str),
 )
@@ -81,14 +88,44 @@ class SequencerNode(Node):
         self._stop_asked, self._stop_now = threading.Event(), threading.Event()
         # The longest a safe stop may take: the ramp-down, then the release of control.
         self._stop_timeout_s = value["safe_stop_timeout_s"] + value["server_timeout_s"]
+        self._server_name = self.resolve_topic_name("sequencer/run")
+        self._server: ActionServer | None = None
+        self.serving, self.standing_by = threading.Event(), threading.Event()
+        self._other = ""  # why it stands by, as last logged
+        self._look = self.create_timer(value["discovery_period_s"], lambda: self._serve_when_alone(group),
+                                       callback_group=MutuallyExclusiveCallbackGroup())
+
+    def destroy_node(self):
+        if self._server is not None:
+            self._server.destroy()  # rclpy's destroy_node leaves action servers serving, and clients
+        self._robot.destroy()
+        return super().destroy_node()
+
+    def _other_sequencer(self) -> str:
+        """What would take this node's goals too, or "" when nothing does."""
+        servers = self.count_publishers(f"{self._server_name}/_action/status")  # one per action server
+        if servers:
+            return f"{servers} other node(s) serve {self._server_name}"
+        namesakes = self.get_node_names_and_namespaces().count((self.get_name(), self.get_namespace()))
+        return f"{namesakes} nodes are named {self.get_fully_qualified_name()}" if namesakes > 1 else ""
+
+    def _serve_when_alone(self, group) -> None:
+        """Each discovery period until it serves: serve sequencer/run once no other sequencer is there."""
+        other = self._other_sequencer()
+        if other:
+            if other != self._other:
+                self.get_logger().warning(f"not serving {self._server_name}: {other}, and a goal would go to each; "
+                                          "standing by until this node is the only one (stop all but one)")
+            self._other = other
+            self.standing_by.set()
+            return
+        self.destroy_timer(self._look)
         self._server = ActionServer(self, RunSequence, "sequencer/run", execute_callback=self._execute,
                                     goal_callback=self._on_goal, cancel_callback=self._on_cancel,
                                     callback_group=group)
-        self._server_name = self.resolve_topic_name("sequencer/run")
-
-    def destroy_node(self):
-        self._server.destroy()  # rclpy's destroy_node leaves action servers serving
-        return super().destroy_node()
+        self.standing_by.clear()
+        self.serving.set()
+        self.get_logger().info(f"serving {self._server_name}")
 
     def stop_safely_on_signals(self) -> None:
         """SIGINT / SIGTERM: the running sequence's safe stop first, then shutdown (call from the main thread).

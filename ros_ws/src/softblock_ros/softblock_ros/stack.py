@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from planner.bounded_yaml import load_yaml_file
+from recording.topics import is_namespace
 from softblock_config import config_file
 
 from .network import NetworkSettings, parse_network
@@ -54,6 +55,16 @@ def _fail(source, where: str, value, expectation: str):
     raise ValueError(f"{source}: {where}={value!r}: {expectation}")
 
 
+def check_namespace(namespace, where: str, optional: bool = True) -> str:
+    """``namespace`` if it is one rcl takes (recording.topics.is_namespace), or "" (none) where ``optional``;
+    ValueError otherwise (rcl would end every node's start)."""
+    if not isinstance(namespace, str) or (namespace or not optional) and not is_namespace(namespace):
+        none = "\"\" (none) or " if optional else ""
+        raise ValueError(f"{where}={namespace!r}: expected {none}a namespace such as /robot1 (letters, digits and '_' "
+                         "after each '/')")
+    return namespace
+
+
 def _strings(source, where: str, value) -> tuple[str, ...]:
     if not isinstance(value, list) or not all(isinstance(item, str) and item for item in value):
         _fail(source, where, value, "a list of non-empty strings")
@@ -93,9 +104,7 @@ def load_stack(path: str | Path = DEFAULT_STACK_FILE) -> StackDescription:
     if not isinstance(document, dict) or set(document) - {"namespace", "nodes", "network"}:
         _fail(path, "top level", document if not isinstance(document, dict) else sorted(document),
               "a mapping with the keys namespace, nodes and network")
-    namespace = document.get("namespace", "")
-    if not isinstance(namespace, str):
-        _fail(path, "namespace", namespace, "a string, e.g. \"\" or /robot1")
+    namespace = check_namespace(document.get("namespace", ""), f"{path}: namespace")
     entries = document.get("nodes")
     if not isinstance(entries, list) or not entries:
         _fail(path, "nodes", entries, "a non-empty list of nodes")

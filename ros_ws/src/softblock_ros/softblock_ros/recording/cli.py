@@ -13,12 +13,19 @@ from recording.cli import add_file_commands, run_file_command
 from recording.mcap_file import COMPRESSIONS, DEFAULT_CHUNK_SIZE
 
 
-def _parser() -> argparse.ArgumentParser:
+def _recorder_parameters() -> str:
+    """The recorder node's parameters, for its --help (the options set them; the others come after --ros-args)."""
+    from ..runner import parameter_list  # rclpy, which record imports anyway
+    return parameter_list("recorder")
+
+
+def _parser(record_epilog: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m softblock_ros.recording",
                                      description=__doc__.split("\n\n")[0])
     commands = parser.add_subparsers(dest="command", required=True)
 
-    record = commands.add_parser("record", help="record topics to an MCAP file until Ctrl-C")
+    record = commands.add_parser("record", help="record topics to an MCAP file until Ctrl-C",
+                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=record_epilog)
     # Options left out keep the node's parameters (defaults, or a --params-file after --ros-args).
     record.add_argument("-o", "--output", help="MCAP file to write (default: recording.mcap); it must not exist")
     record.add_argument("--overwrite", action="store_true", default=None,
@@ -93,7 +100,7 @@ def main(argv=None) -> int:
     if "--ros-args" in argv:
         split = argv.index("--ros-args")
         argv, ros_args = argv[:split], argv[split + 1:]
-    args = _parser().parse_args(argv)
+    args = _parser(_recorder_parameters() if argv[:1] == ["record"] else None).parse_args(argv)
     if args.command not in ("record", "play"):
         return run_file_command(args)
     try:
