@@ -1,18 +1,21 @@
 """Estimate a chain's block angles from a side-view silhouette and judge whether it was built as believed.
 
-``estimate_chain`` fits the believed chain (``estimation.fit``). If part of the outline stays unexplained
-or a block's angle lies implausibly far from its design's, it compares the believed chain with every
-chain that has one assembly mistake more (``estimation.hypotheses.alternatives``), each fitted the same
-way, and keeps the one with the lowest penalised score (robust outline cost both ways + angle priors +
-``mistake_penalty`` per mistake); this repeats up to ``max_mistakes`` times. A mistake further along the
-chain than the first misfitting block cannot cause that misfit, so such candidates are not tried.
+``estimate_chain`` measures the believed chain's angles (a free fit, ``estimation.fit``) and fits it again
+with every angle held within its design's manufacturing tolerance (a bounded fit: the chain as built as
+believed). Hypotheses are compared by how well their bounded fits explain the silhouette (robust outline
+cost both ways, in pixels): if the tolerance costs more than ``mistake_penalty`` (some block needs an angle
+no offset within the tolerance gives) or part of the outline stays unexplained, every chain with one
+assembly mistake more (``estimation.hypotheses.alternatives``) is fitted the same way, and the one with the
+lowest penalised score (``mistake_penalty`` per mistake) wins if it beats the believed chain; this repeats up
+to ``max_mistakes`` times. A mistake further along the chain than the first misfitting block cannot cause
+that misfit, so such candidates are not tried. The reported angles are the winner's free fit.
 """
 from __future__ import annotations
 
 import math
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, fields
 from enum import IntEnum
 
 import numpy as np
@@ -24,9 +27,10 @@ from estimation.fit import (
     TrackingTables,
     block_residuals,
     fit,
+    held_within_bounds,
     inherited_start,
-    newton_refit,
     quick_cost,
+    refit,
     track,
 )
 from estimation.hypotheses import DesignBook, Hypothesis, MistakeKind, alternatives, believed_hypothesis
@@ -41,16 +45,12 @@ from planner.table import load_table
 
 @dataclass(frozen=True)
 class EstimateOptions(FitOptions):
-    mistake_penalty: float = 5.0  # score a mistake must save to be reported
+    mistake_penalty: float = 5.0  # score (outline cost, see docs/estimation.md) a mistake must save to be reported
     max_mistakes: int = 2
     out_of_plane: bool = True  # also consider rotation steps that take a block out of the image plane
-    search_trigger: float = 8.0  # [pixels] of unexplained or hidden outline that start the search for mistakes
+    search_trigger: float = 8.0  # [pixels] of outline beyond misfit_distance at one block that start the search for mistakes
     max_unexplained: float = 0.1  # fraction of the image outline that may stay unexplained for success
     refine_candidates: int = 5  # candidates refined by least squares after tracking
-    # Prior width of the reported angles: the chain that explains the image is refitted with this wider
-    # prior, so the angles (and the offsets a calibration derives from them) are the image's, not pulled
-    # toward the table; the verdict keeps ``angle_sigma``, the spread of real blocks.
-    measure_angle_sigma: float = math.radians(10.0)
 
 
 BASE_SHIFT_LIMIT = 3.0  # base corrections beyond this many prior sigmas mean a wrong base pose
@@ -220,16 +220,6 @@ def calibration_offsets(chain: Chain, calibration) -> dict[str, float]:
     raise ValueError(f"calibration must be a BlockCalibration or a mapping serial -> offset [rad], got {type(calibration).__name__}")
 
 
-@dataclass(frozen=True)
-class Measurement:
-    """The reported angles: the verdict's chain refitted with the wider prior ``measure_angle_sigma``."""
-
-    x: np.ndarray
-    theta: np.ndarray  # (N,) [rad]
-    theta_std: np.ndarray  # (N,) [rad]
-    block_residual: np.ndarray  # (N,) RMS outline distance of each block after the refit [m]
-
-
 class _Search:
     """The fits of one image: the believed chain, then chains with more mistakes."""
 
@@ -242,62 +232,87 @@ class _Search:
     def penalised(self, candidate: Fit) -> float:
         return candidate.score.total + self.options.mistake_penalty * len(candidate.hypothesis.changes)
 
-    def fit(self, hypothesis: Hypothesis, start: np.ndarray | None = None, first: int = 0) -> Fit:
-        result = fit(hypothesis, self.silhouette, self.pose, self.options, start, first, self.tables)
+    def fit(self, hypothesis: Hypothesis, start: np.ndarray | None = None, first: int = 0,
+            within_tolerance: bool = True) -> Fit:
+        result = fit(hypothesis, self.silhouette, self.pose, self.options, start, first, self.tables, within_tolerance)
+        return self._counted(result)
+
+    def _counted(self, result: Fit) -> Fit:
         self.hypotheses += 1
         self.nfev += result.nfev
         return result
 
-    def measure(self, verdict: Fit) -> Measurement:
-        """The verdict's chain refitted from its angles with the prior ``measure_angle_sigma`` (see there)."""
-        sigma = max(self.options.measure_angle_sigma, self.options.angle_sigma)
-        options = replace(self.options, angle_sigma=sigma, unknown_angle_sigma=max(sigma, self.options.unknown_angle_sigma))
-        model = ChainModel(verdict.hypothesis, self.silhouette, self.pose, options)
-        x, theta_std = newton_refit(model, verdict.x)
-        return Measurement(x=x, theta=x[: model.blocks], theta_std=theta_std, block_residual=block_residuals(model, x))
+    def free(self, bounded: Fit) -> Fit:
+        """The bounded fit's chain measured: its angles free (weak prior only)."""
+        return self._counted(refit(bounded, self.silhouette, self.pose, self.options, within_tolerance=False))
+
+    def bounded(self, free: Fit) -> Fit:
+        """The free fit's chain with every angle within the tolerance: the same fit if they all are; else its
+        angles held at the tolerance if that explains the image (costs less than a mistake more than the free
+        fit, no outline misfit: then the optimum within the bounds could only be better), else refitted."""
+        lower, upper = free.hypothesis.bounds(self.options.angle_tolerance)
+        if np.all((free.theta >= lower) & (free.theta <= upper)):
+            return free
+        held = held_within_bounds(free, self.silhouette, self.pose, self.options)
+        if self.first_misfit(held, free) is None:
+            return held
+        return self._counted(refit(free, self.silhouette, self.pose, self.options, within_tolerance=True))
 
     def tracked(self, hypothesis: Hypothesis, parent: Fit) -> tuple[float, Hypothesis, np.ndarray]:
-        """Quick look at a candidate: track its changed blocks from the parent's fit, coarse cost only."""
+        """Quick look at a candidate: track its changed blocks, and the block before (the parent's angle there
+        may make up for the mistake), from the parent's free fit; coarse cost only."""
         model = ChainModel(hypothesis, self.silhouette, self.pose, self.options)
-        x, evaluations = track(model, inherited_start(model, parent.x, hypothesis.start), hypothesis.start, self.tables)
+        first = max(hypothesis.start - 1, 0)
+        x, evaluations = track(model, inherited_start(model, parent.x, first), first, self.tables)
         self.hypotheses += 1
         self.nfev += evaluations
         return quick_cost(model, x) + self.options.mistake_penalty * len(hypothesis.changes), hypothesis, x
 
-    def first_misfit(self, current: Fit) -> int | None:
-        """Believed index of the first block whose outline or angle is implausible; None if all fit."""
-        limit = math.sqrt(2.0 * self.options.mistake_penalty)
+    def first_misfit(self, current: Fit, free: Fit) -> int | None:
+        """Believed index of the block a mistake must lie at or before, or None if the bounded fit explains the
+        image: no block's outline strays beyond ``misfit_distance`` from the image's for more than
+        ``search_trigger``, and holding the angles within the tolerance costs less than a mistake.
+
+        Where either fit's outline strays beyond ``unexplained_distance``, the first such block, of either
+        fit, whichever lies further along (a bounded fit may turn the base or bend earlier blocks to make up
+        for a mistake, and so misfit before it); where holding the angles costs more than a mistake, the
+        last block whose free angle lies beyond its tolerance; else (a subtle misfit) the last block."""
         trigger = self.options.search_trigger * self.silhouette.pixel_size
-        z = np.abs(current.theta - current.hypothesis.prior(self.options.unknown_angle_sigma, self.options.angle_sigma)[0])
-        z = z / self.options.angle_sigma
         blocks = current.hypothesis.blocks
-        misfit = (current.score.block_misfit > trigger) | ((z > limit) & np.array([len(b.designs) == 1 for b in blocks]))
-        if current.score.unexplained_length + current.score.hidden_length <= trigger and not misfit.any():
+        lower, upper = current.hypothesis.bounds(self.options.angle_tolerance)
+        tolerance_costs = current.score.total - free.score.total > self.options.mistake_penalty
+        beyond = tolerance_costs & ((free.theta < lower) | (free.theta > upper))
+        if not beyond.any() and not (current.score.block_misfit > trigger).any():
             return None
-        index = int(np.argmax(misfit)) if misfit.any() else len(blocks) - 1
+        firsts = [int(np.argmax(far)) for far in (current.score.block_unexplained > trigger, free.score.block_unexplained > trigger)
+                  if far.any()]
+        if beyond.any():
+            firsts.append(int(np.flatnonzero(beyond)[-1]))
+        index = max(firsts) if firsts else len(blocks) - 1
         positions = [b.believed for b in blocks[: index + 1] if b.believed is not None]
         return positions[-1] if positions else 0
 
-    def improve(self, current: Fit) -> Fit | None:
+    def improve(self, current: Fit, free: Fit) -> Fit | None:
         """The best chain with one mistake more than ``current`` if it scores better, else None.
 
-        Every candidate is tracked from its first changed block (its changed block with a wide prior when its
-        design is open) and ranked by a coarse cost; the best few are refined and scored. Rotations out of
-        the image plane are tried only if no in-plane candidate explains the image.
+        Every candidate is tracked from the block before its first change (within the tolerance; a block whose
+        design is open within its designs' angles +- the tolerance) and ranked by a coarse cost; the best few
+        are refined and scored. Rotations out of the image plane are tried only if no in-plane candidate
+        explains the image.
         """
-        misfit = self.first_misfit(current)
+        misfit = self.first_misfit(current, free)
         if misfit is None:
             return None
         candidates = alternatives(current.hypothesis, len(self.believed.blocks), self.book,
                                   out_of_plane=self.options.out_of_plane, last_position=misfit + 1)
         in_plane = [h for h in candidates if is_planar(h.phi) or not is_planar(current.hypothesis.phi)]
-        best = self._best_of(current, in_plane)
-        if len(in_plane) < len(candidates) and self.first_misfit(best) is not None:
-            best = min(best, self._best_of(current, [h for h in candidates if h not in in_plane]), key=self.penalised)
+        best = self._best_of(free, in_plane)
+        if len(in_plane) < len(candidates) and self.first_misfit(best, self.free(best)) is not None:
+            best = min(best, self._best_of(free, [h for h in candidates if h not in in_plane]), key=self.penalised)
         return best if self.penalised(best) < self.penalised(current) else None
 
-    def _best_of(self, current: Fit, candidates: list[Hypothesis]) -> Fit:
-        ranked = sorted((self.tracked(h, current) for h in candidates), key=lambda item: item[0])
+    def _best_of(self, parent: Fit, candidates: list[Hypothesis]) -> Fit:
+        ranked = sorted((self.tracked(h, parent) for h in candidates), key=lambda item: item[0])
         return min((self.fit(h, x, len(h.blocks)) for _, h, x in ranked[: self.options.refine_candidates]), key=self.penalised)
 
 
@@ -327,15 +342,15 @@ def estimate_chain(image, chain: Chain, pixel_size: float, pose: ImagePose, *, v
     silhouette = silhouette_from_image(image, pixel_size, threshold, occlusion=occlusion)
     check_base(silhouette, pose, BLOCK_RADIUS, CAP_LENGTH)
     search = _Search(silhouette, pose, book, chain, options)
-    current = search.fit(believed)
-    _check_base_correction(current, options, silhouette.pixel_size)
-    first = current
+    free = search.fit(believed, within_tolerance=False)
+    _check_base_correction(free, options, silhouette.pixel_size)
+    current = first = search.bounded(free)
     for _ in range(options.max_mistakes):
-        better = search.improve(current)
+        better = search.improve(current, free)
         if better is None:
             break
-        current = better
-    return _result(search, believed, first, current, search.measure(current), time.perf_counter() - started)
+        current, free = better, search.free(better)
+    return _result(search, first, current, free, time.perf_counter() - started)
 
 
 def _check_base_correction(first: Fit, options: EstimateOptions, pixel_size: float) -> None:
@@ -353,12 +368,12 @@ def _check_base_correction(first: Fit, options: EstimateOptions, pixel_size: flo
         )
 
 
-def _mistakes(search: _Search, current: Fit, first: Fit) -> tuple[Mistake, ...]:
+def _mistakes(search: _Search, current: Fit, first: Fit, measured: Fit) -> tuple[Mistake, ...]:
     believed = search.believed.blocks
     gain = search.penalised(first) - search.penalised(current)
     mistakes = []
     for change in current.hypothesis.changes:
-        designs = () if change.block is None else current.hypothesis.ranked_designs(change.block, current.theta[change.block])
+        designs = () if change.block is None else _likely_designs(search, measured, change.block)
         known = change.position < len(believed)
         mistakes.append(Mistake(
             kind=change.kind,
@@ -372,10 +387,18 @@ def _mistakes(search: _Search, current: Fit, first: Fit) -> tuple[Mistake, ...]:
     return tuple(sorted(mistakes, key=lambda m: m.position))
 
 
-def _result(search: _Search, believed: Hypothesis, first: Fit, current: Fit, measured: Measurement, elapsed: float) -> ChainEstimate:
-    """The verdict (status, mistakes, designs) from ``current``; angles, residuals and base from ``measured``."""
+def _likely_designs(search: _Search, measured: Fit, block: int) -> tuple[int, ...]:
+    """The designs a block's measured angle allows: within the tolerance plus three times the angle's
+    uncertainty, nearest first (designs closer than that cannot be told apart by the image)."""
+    reach = search.options.angle_tolerance + 3.0 * float(measured.theta_std[block])
+    return measured.hypothesis.ranked_designs(block, float(measured.theta[block]), reach)
+
+
+def _result(search: _Search, first: Fit, current: Fit, measured: Fit, elapsed: float) -> ChainEstimate:
+    """The verdict (status, mistakes) from ``current``; designs, angles, residuals and base from ``measured``
+    (the same chain's free fit)."""
     hypothesis = current.hypothesis
-    _, designs = hypothesis.prior_cost(current.theta, search.options.angle_sigma)
+    designs = hypothesis.nearest_designs(measured.theta)
     predicted_fit = _predicted_residuals(search, hypothesis, designs)
     blocks = []
     for k, spec in enumerate(hypothesis.blocks):
@@ -384,11 +407,11 @@ def _result(search: _Search, believed: Hypothesis, first: Fit, current: Fit, mea
             position=k, design_id=int(designs[k]), rotation_steps=spec.rotation_steps, serial=spec.serial,
             believed_position=spec.believed, theta=float(measured.theta[k]), theta_std=float(measured.theta_std[k]),
             predicted_theta=float(predicted), residual_predicted=float(predicted_fit[k]),
-            residual=float(measured.block_residual[k]),
+            residual=float(measured.score.block_residual[k]),
         ))
     outline_length = float(search.silhouette.lengths.sum())
     explained = current.score.unexplained_length <= search.options.max_unexplained * outline_length
-    mistakes = _mistakes(search, current, first) if hypothesis.changes else ()
+    mistakes = _mistakes(search, current, first, measured) if hypothesis.changes else ()
     status = Status.UNEXPLAINED if not explained else (Status.MISTAKES_FOUND if mistakes else Status.AS_BUILT)
     message = MESSAGES[status]
     if mistakes:
@@ -402,10 +425,10 @@ def _result(search: _Search, believed: Hypothesis, first: Fit, current: Fit, mea
         message=message,
         mistakes=mistakes,
         blocks=tuple(blocks),
-        chain=hypothesis.to_chain(search.believed, current.theta),
+        chain=hypothesis.to_chain(search.believed, measured.theta),
         base_shift=(float(shift[0]), float(shift[1])),
         base_turn=float(measured.x[len(blocks) + 2]) if search.options.fit_base else 0.0,
-        residual=float(np.sqrt(np.nanmean(measured.block_residual**2))),
+        residual=float(np.sqrt(np.nanmean(measured.score.block_residual**2))),
         unexplained_length=current.score.unexplained_length,
         hidden_length=current.score.hidden_length,
         outline_length=outline_length,

@@ -97,34 +97,38 @@ class Hypothesis:
         """What fixes the outline's shape function: lengths and rotation steps."""
         return tuple((round(b.length, 9), b.rotation_steps) for b in self.blocks)
 
-    def prior(self, unknown_sigma: float, angle_sigma: float) -> tuple[np.ndarray, np.ndarray]:
-        """Prior mean and width of each block's angle for the fit: a known design's angle, or the middle
-        of the candidate designs' angles with a wide ``unknown_sigma`` when the design is open."""
+    def prior(self, angle_sigma: float, unknown_sigma: float) -> tuple[np.ndarray, np.ndarray]:
+        """Mean and width of each block's weak Gaussian prior in the fits: a known design's angle with
+        ``angle_sigma``, or the middle of the candidate designs' angles with ``unknown_sigma`` when the design
+        is open. It only keeps a fit well posed; the verdict is the tolerance's (``bounds``)."""
         mean = np.array([b.angles[0] if len(b.designs) == 1 else 0.5 * (min(b.angles) + max(b.angles)) for b in self.blocks])
         sigma = np.array([angle_sigma if len(b.designs) == 1 else unknown_sigma for b in self.blocks])
         return mean, sigma
 
-    def prior_cost(self, theta, angle_sigma: float) -> tuple[float, tuple[int, ...]]:
-        """0.5 sum ((theta - expected) / sigma)^2 with each block's best-fitting design, and those designs."""
-        total, best = 0.0, []
-        for block, angle in zip(self.blocks, theta):
-            costs = 0.5 * ((angle - np.array(block.angles)) / angle_sigma) ** 2
-            total += float(costs.min())
-            best.append(block.designs[int(np.argmin(costs))])
-        return total, tuple(best)
+    def bounds(self, tolerance: float) -> tuple[np.ndarray, np.ndarray]:
+        """Lowest and highest angle [rad] each block may take as built: its designs' angles +- ``tolerance``
+        (the manufacturing spread of a block about its design)."""
+        lower = np.array([min(b.angles) - tolerance for b in self.blocks])
+        upper = np.array([max(b.angles) + tolerance for b in self.blocks])
+        return lower, upper
 
-    def ranked_designs(self, block: int, theta: float, count: int = 3) -> tuple[int, ...]:
-        """The ``count`` designs of a block closest to the angle ``theta``, best first."""
+    def nearest_designs(self, theta) -> tuple[int, ...]:
+        """Each block's design whose angle lies nearest to ``theta``."""
+        return tuple(b.designs[int(np.argmin(np.abs(np.array(b.angles) - angle)))] for b, angle in zip(self.blocks, theta))
+
+    def ranked_designs(self, block: int, theta: float, reach: float) -> tuple[int, ...]:
+        """The designs of a block whose angle lies within ``reach`` [rad] of ``theta`` (at least the nearest),
+        nearest first: the designs the measured angle cannot tell apart."""
         spec = self.blocks[block]
-        order = np.argsort(np.abs(np.array(spec.angles) - theta), kind="stable")
-        return tuple(spec.designs[i] for i in order[:count])
+        distance = np.abs(np.array(spec.angles) - theta)
+        order = np.argsort(distance, kind="stable")
+        return tuple(spec.designs[i] for i in order if i == order[0] or distance[i] <= reach)
 
     def to_chain(self, believed: Chain, theta) -> Chain:
-        """The chain this hypothesis says was built (each open design resolved to its best fit)."""
-        _, designs = self.prior_cost(theta, 1.0)
+        """The chain this hypothesis says was built (each open design resolved to the nearest in angle)."""
         blocks = tuple(
             PlacedBlock(design_id=int(design), rotation_steps=int(b.rotation_steps), serial=b.serial if len(b.designs) == 1 else "")
-            for b, design in zip(self.blocks, designs)
+            for b, design in zip(self.blocks, self.nearest_designs(theta))
         )
         return Chain(believed.name, believed.hv_channel, blocks, believed.base_position, believed.base_orientation)
 

@@ -9,19 +9,22 @@ chain frame (x, z) [m], one pair per kinematics centreline sample:
 
     [+r side along the centreline | -r side | base face | tip face]
 
-Planar chains (every phi 0 or pi) use ``planner.kinematics.planar_chain``; others ``chain_shape``. The
-sampling depends on the block structure only, so one ``OutlineLayout`` serves every set of angles. A
-layout of blocks k.. of a chain, placed at block k's start frame, gives those blocks' samples alone.
+Planar chains (every phi 0 or pi) are sampled in closed form (``planar_centreline``: the samples of
+``planner.kinematics.planar_chain``, cheaper for the estimator's many small batches); others by
+``planner.kinematics.chain_shape``. The sampling depends on the block structure only, so one
+``OutlineLayout`` serves every set of angles. A layout of blocks k.. of a chain, placed at block k's start
+frame, gives those blocks' samples alone.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from planner.kinematics import BLOCK_RADIUS, chain_frames, chain_shape, planar_chain
+from planner.kinematics import BLOCK_RADIUS, CAP_LENGTH, chain_frames, chain_shape
 
 HIDDEN_TOLERANCE = 0.02  # a side sample closer than (1 - this) r to another part of the centreline is hidden
 UNCROSSABLE_BEND = math.radians(150.0)  # a planar chain bending less than this in all cannot reach itself
@@ -39,6 +42,7 @@ class OutlineLayout:
     block: np.ndarray  # (M,) block index of each outline sample, M = 2 P + 2 F
     fraction: np.ndarray  # (M,) how far along its block a sample lies, 0..1
     radius: float
+    cap_length: float = CAP_LENGTH
 
     @property
     def blocks(self) -> int:
@@ -98,13 +102,67 @@ def centreline(layout: OutlineLayout, theta) -> tuple[np.ndarray, np.ndarray]:
     """Centreline samples (..., P, 3) [m] and unit tangents (..., P, 3) in the chain's base frame."""
     theta = np.asarray(theta, dtype=float)
     if layout.planar:
-        shape = planar_chain(theta, layout.length, layout.phi, samples_per_block=layout.samples_per_block)
-        flat, heading = shape.points, shape.headings
+        flat, heading = planar_centreline(layout, theta)
         points = np.stack([flat[..., 0], np.zeros_like(heading), flat[..., 1]], axis=-1)
         tangent = np.stack([np.sin(heading), np.zeros_like(heading), np.cos(heading)], axis=-1)
         return points, tangent
-    shape = chain_shape(theta, layout.length, layout.phi, samples_per_block=layout.samples_per_block)
+    shape = chain_shape(theta, layout.length, layout.phi, samples_per_block=layout.samples_per_block,
+                        cap_length=layout.cap_length)
     return shape.points, shape.sample_rotations()[..., :, 2]
+
+
+@dataclass(frozen=True)
+class _PlanarSteps:
+    """The steps between consecutive centreline samples of a planar layout (the same as
+    ``planner.kinematics.planar_chain`` samples): each runs along its block's arc from fraction ``begin`` to
+    ``end`` (a cap: begin = end, 0 or 1, plus the cap's straight length)."""
+
+    block: np.ndarray  # (P - 1,) block of each step
+    begin: np.ndarray  # (P - 1,) arc fraction at the step's start
+    end: np.ndarray  # (P - 1,) arc fraction at its end
+    straight: np.ndarray  # (P - 1,) straight length added [m] (caps)
+    side: np.ndarray  # (N,) bending side of each block in the base frame (+1: toward +x)
+
+
+def _planar_steps(layout: OutlineLayout) -> _PlanarSteps:
+    flips = tuple(int(turns) % 2 for turns in np.round(layout.phi / np.pi))
+    return _steps_of(layout.samples_per_block, float(layout.cap_length), flips)
+
+
+@functools.lru_cache(maxsize=256)
+def _steps_of(per_block: int, cap_length: float, flips: tuple[int, ...]) -> _PlanarSteps:
+    arc = per_block - 2
+    begin = np.concatenate([[0.0], np.arange(arc) / arc, [1.0]])
+    end = np.concatenate([[0.0], np.arange(1, arc + 1) / arc, [1.0]])
+    straight = np.zeros(per_block)
+    straight[[0, -1]] = cap_length
+    blocks = len(flips)
+    return _PlanarSteps(
+        block=np.repeat(np.arange(blocks), per_block), begin=np.tile(begin, blocks), end=np.tile(end, blocks),
+        straight=np.tile(straight, blocks), side=np.cumprod(np.where(np.array(flips) == 0, 1.0, -1.0)),
+    )
+
+
+def planar_centreline(layout: OutlineLayout, theta) -> tuple[np.ndarray, np.ndarray]:
+    """Planar chain (every phi 0 or pi): centreline samples (..., P, 2) = (x, z) [m] and headings (..., P)
+    [rad, from +z toward +x], in closed form: each step between samples is a cap (straight) or a piece of
+    arc, whose chord is its length x sin(a) / a along the mean heading (a: half its turn)."""
+    steps = _planar_steps(layout)
+    signed = np.asarray(theta, dtype=float) * steps.side
+    start = np.cumsum(signed, axis=-1) - signed  # heading at each block's start
+    bend = signed[..., steps.block]
+    begin = start[..., steps.block] + bend * steps.begin
+    turn = bend * (steps.end - steps.begin)
+    length = steps.straight + layout.length[steps.block] * (steps.end - steps.begin)
+    chord = length * np.sinc(turn / (2.0 * np.pi))  # numpy's sinc(x) = sin(pi x) / (pi x)
+    middle = begin + 0.5 * turn
+    shape = signed.shape[:-1] + (layout.centreline_samples,)
+    points = np.zeros(shape + (2,))
+    np.cumsum(chord * np.sin(middle), axis=-1, out=points[..., 1:, 0])
+    np.cumsum(chord * np.cos(middle), axis=-1, out=points[..., 1:, 1])
+    heading = np.zeros(shape)
+    heading[..., 1:] = begin + turn
+    return points, heading
 
 
 def outline_from_centreline(layout: OutlineLayout, points: np.ndarray, tangent: np.ndarray, frame=None,
@@ -136,9 +194,29 @@ def outline_from_centreline(layout: OutlineLayout, points: np.ndarray, tangent: 
     return outline, np.concatenate([across, -across] + ends, axis=-2)
 
 
-def outline_points(layout: OutlineLayout, theta, frame=None) -> np.ndarray:
-    """Outline samples (..., M, 2) [m] in the chain frame for bending angles ``theta`` (..., N) [rad]."""
-    return outline_from_centreline(layout, *centreline(layout, theta), frame)
+def planar_outline(layout: OutlineLayout, theta, normals: bool = False):
+    """``outline_from_centreline`` for a planar layout, straight from the planar centreline (the end faces
+    are segments across the end tangent)."""
+    points, heading = planar_centreline(layout, theta)
+    cos, sin = np.cos(heading), np.sin(heading)
+    across = np.stack([cos, -sin], axis=-1)  # the half-width direction, the tangent (sin, cos) turned
+    r, s = layout.radius, layout.face[:, None]
+    ends = [points[..., end, None, :] + r * s * across[..., end, None, :] for end in (0, -1)]
+    outline = np.concatenate([points + r * across, points - r * across, *ends], axis=-2)
+    if not normals:
+        return outline
+    count = len(layout.face)
+    along = np.stack([sin, cos], axis=-1)
+    faces = [np.repeat(-along[..., :1, :], count, axis=-2), np.repeat(along[..., -1:, :], count, axis=-2)]
+    return outline, np.concatenate([across, -across] + faces, axis=-2)
+
+
+def outline_points(layout: OutlineLayout, theta, frame=None, normals: bool = False):
+    """Outline samples (..., M, 2) [m] in the chain frame for bending angles ``theta`` (..., N) [rad]
+    (``frame``, ``normals``: see ``outline_from_centreline``)."""
+    if layout.planar and frame is None:
+        return planar_outline(layout, theta, normals)
+    return outline_from_centreline(layout, *centreline(layout, theta), frame, normals)
 
 
 def visible(layout: OutlineLayout, theta) -> np.ndarray:

@@ -25,9 +25,10 @@ from planner.image_file import open_image
 MAX_IMAGE_PIXELS = 25_000_000  # 5000 x 5000: far beyond any useful side view; bounds memory and time
 MIN_IMAGE_SIDE = 8
 COARSE_CELLS = 40_000  # the coarse distance map has at most about this many cells
-BINARY_SMOOTHING = 0.7
+BINARY_SMOOTHING = 0.7  # [pixels] Gaussian blur before tracing a binary mask: sub-pixel edges from the staircase
 CROP_MARGIN = 4  # [pixels] kept around the objects' bounding box
-OCCLUSION_MARGIN = 2  # [pixels] image outline this close to an occluder is its edge, not the chain's  # [pixels] Gaussian blur before tracing a binary mask: sub-pixel edges from the staircase
+COARSE_MARGIN = 4  # [cells] of the coarse distance map around the crop
+OCCLUSION_MARGIN = 2  # [pixels] image outline this close to an occluder is its edge, not the chain's
 
 
 def read_image(source) -> np.ndarray:
@@ -73,6 +74,7 @@ class Silhouette:
     tree: cKDTree
     coarse: np.ndarray  # signed distance map [m] on cells of coarse_factor x coarse_factor pixels
     coarse_factor: int
+    coarse_origin: np.ndarray  # (2,) image point [m] of the coarse map's first cell's corner
     occlusion: np.ndarray | None = None  # (rows, cols) bool: pixels where something may hide the chain
     outline_occluded: np.ndarray | None = None  # (K,) outline vertices at the edge of the occlusion
 
@@ -98,7 +100,7 @@ class Silhouette:
         """Signed distance [m] of image points (..., 2) from the coarse map: fast, accurate to about a cell."""
         points = np.asarray(points, dtype=float)
         cell = self.coarse_factor * self.pixel_size
-        index = points.reshape(-1, 2)[:, ::-1].T / cell - 0.5  # (row, column) of cell centres at integers
+        index = (points.reshape(-1, 2) - self.coarse_origin)[:, ::-1].T / cell - 0.5  # (row, column), cell centres at integers
         return ndimage.map_coordinates(self.coarse, index, order=1, mode="nearest").reshape(points.shape[:-1])
 
     def inside(self, points) -> np.ndarray:
@@ -166,7 +168,7 @@ def silhouette_from_image(image, pixel_size: float, threshold: float | None = No
         normals.append(np.column_stack([tangent[:, 1], -tangent[:, 0]]) / np.maximum(size, 1e-12)[:, None])
         lengths.append(0.5 * size * pixel_size)
     outline = np.concatenate(outline)
-    factor, coarse = _coarse_distance_map(raw, pixel_size)
+    factor, coarse, origin = _coarse_distance_map(raw, crop, pixel_size)
     outline_occluded = None
     if occlusion is not None:
         near = ndimage.binary_dilation(occlusion, iterations=OCCLUSION_MARGIN)  # the occluder's edge is no outline
@@ -180,21 +182,29 @@ def silhouette_from_image(image, pixel_size: float, threshold: float | None = No
         tree=cKDTree(outline),
         coarse=coarse,
         coarse_factor=factor,
+        coarse_origin=origin,
         occlusion=occlusion,
         outline_occluded=outline_occluded,
     )
 
 
-def _coarse_distance_map(mask: np.ndarray, pixel_size: float) -> tuple[int, np.ndarray]:
-    """Signed Euclidean distance map [m] (positive outside) of the mask on coarse cells (scipy.ndimage)."""
+def _coarse_distance_map(mask: np.ndarray, crop: tuple[slice, slice], pixel_size: float) -> tuple[int, np.ndarray, np.ndarray]:
+    """Signed Euclidean distance map [m] (positive outside) of the mask on coarse cells (scipy.ndimage), over
+    the crop and COARSE_MARGIN cells around it (model outline farther out costs the same as there: its
+    residual saturates a few pixels outside), and the image point [m] of its corner."""
     rows, columns = mask.shape
-    factor = max(2, math.ceil(math.sqrt(rows * columns / COARSE_CELLS)))
-    padded = np.zeros((-(-rows // factor) * factor, -(-columns // factor) * factor))
-    padded[:rows, :columns] = mask
+    size = (min(crop[0].stop, rows) - crop[0].start) * (min(crop[1].stop, columns) - crop[1].start)
+    factor = max(2, math.ceil(math.sqrt(size / COARSE_CELLS)))
+    margin = COARSE_MARGIN * factor
+    top, left = max(crop[0].start - margin, 0), max(crop[1].start - margin, 0)
+    window = mask[top : min(crop[0].stop + margin, rows), left : min(crop[1].stop + margin, columns)]
+    padded = np.zeros((-(-window.shape[0] // factor) * factor, -(-window.shape[1] // factor) * factor))
+    padded[: window.shape[0], : window.shape[1]] = window
     cells = padded.reshape(padded.shape[0] // factor, factor, padded.shape[1] // factor, factor).mean(axis=(1, 3)) >= 0.5
     outside = ndimage.distance_transform_edt(~cells) - 0.5
     inside = ndimage.distance_transform_edt(cells) - 0.5
-    return factor, (np.where(cells, -inside, outside) * factor * pixel_size).astype(np.float32)
+    distance = (np.where(cells, -inside, outside) * factor * pixel_size).astype(np.float32)
+    return factor, distance, np.array([left, top], dtype=float) * pixel_size
 
 
 def check_base(silhouette: Silhouette, pose: ImagePose, radius: float, cap_length: float) -> None:

@@ -56,12 +56,13 @@ def load_mask(source, threshold: float | None = None) -> np.ndarray:
         return grey.copy()
     if threshold is not None:
         return grey > threshold
-    levels = np.unique(grey)
-    if levels.size > 2:
+    low, high = grey.min(), grey.max()
+    bright = grey == high
+    if not np.all(bright | (grey == low)):  # a third level (counted only for the message)
         raise ValueError(
-            f"object image is not binary ({levels.size} grey levels); pass threshold= to binarise it"
+            f"object image is not binary ({np.unique(grey).size} grey levels); pass threshold= to binarise it"
         )
-    return grey == levels[-1] if levels[-1] != 0 else np.zeros(grey.shape, dtype=bool)
+    return bright if high != 0 else np.zeros(grey.shape, dtype=bool)
 
 
 def _check_pixel_count(width: int, height: int, name) -> None:
@@ -92,7 +93,7 @@ def clean_mask(mask, speck_fraction: float = DEFAULT_SPECK_FRACTION) -> np.ndarr
             f"object image holds {objects.size} objects (areas {sorted(areas[objects - 1].tolist())} pixels); "
             "crop it to one object"
         )
-    cleaned = ndimage.binary_fill_holes(labels == objects[0])
+    cleaned = _filled(labels == objects[0])
     height, width = (np.ptp(np.flatnonzero(cleaned.any(axis=axis))) + 1 for axis in (1, 0))
     if min(height, width) < MIN_OBJECT_PIXELS:
         raise ValueError(f"object is only {width} x {height} pixels; it needs at least {MIN_OBJECT_PIXELS} "
@@ -100,6 +101,17 @@ def clean_mask(mask, speck_fraction: float = DEFAULT_SPECK_FRACTION) -> np.ndarr
     if cleaned[0].any() or cleaned[-1].any() or cleaned[:, 0].any() or cleaned[:, -1].any():
         raise ValueError("object touches the image border; pad the image so the whole outline is visible")
     return cleaned
+
+
+def _filled(region: np.ndarray) -> np.ndarray:
+    """``region`` with its holes filled: every background component (4-connected, as
+    ``scipy.ndimage.binary_fill_holes``) that does not reach the image border. One labelling pass, several
+    times faster than the iterated dilation of ``binary_fill_holes`` on large images."""
+    background, count = ndimage.label(~region)
+    hole = np.ones(count + 1, dtype=bool)
+    hole[0] = False  # the region itself
+    hole[np.concatenate([background[0], background[-1], background[:, 0], background[:, -1]])] = False
+    return region | hole[background]
 
 
 @dataclass(frozen=True)

@@ -47,7 +47,8 @@ def test_offsets_come_back_from_images_at_rest_and_at_2400_volts(table):
 
 
 def test_a_stroke_unlike_the_tables_is_reported_inconsistent(table):
-    shots, pose = images(table, [0.0, 2400.0], stroke_error_deg=3.0)  # 3 deg more relaxation at 2.4 kV
+    # 3 deg more relaxation at 2.4 kV; each block within the manufacturing tolerance in both images
+    shots, pose = images(table, [0.0, 2400.0], offsets_deg=[-1.5, -2.0, -1.0], stroke_error_deg=3.0)
     result = calibrate_chain(shots, make_chain(IDS, serials=SERIALS), PIXEL, pose, table=table)
     assert not result.success
     assert "differ between images" in result.message

@@ -4,10 +4,11 @@ import math
 import numpy as np
 import pytest
 
-from estimation.outline import outline_layout, outline_points, start_frame, visible
+from estimation.outline import outline_layout, outline_points, planar_centreline, start_frame, visible
 from estimation.render import render_silhouette, to_binary, to_grey
 from estimation.silhouette import silhouette_from_image
 from estimation.view import ImagePose
+from planner.kinematics import planar_chain
 
 from estimation_scenes import PIXEL
 
@@ -65,3 +66,15 @@ def test_faces_close_the_outline_and_blocks_are_labelled():
     np.testing.assert_allclose(points[tip][:, 1], 15e-3 + 10e-3 + 4 * 2.5e-3)
     assert set(layout.block[base]) == {0} and set(layout.block[tip]) == {1}
     assert np.all(np.diff(layout.block[layout.polylines[0]]) >= 0)
+
+
+@pytest.mark.parametrize("phi", [[0, 0, 0], [0, math.pi, 0], [math.pi, 0, math.pi]])
+def test_the_closed_form_planar_centreline_is_the_kinematics(phi):
+    length = [15e-3, 10e-3, 12.5e-3]
+    layout = outline_layout(length, phi, 0.75e-3)
+    theta = np.random.default_rng(2).uniform(-0.8, 0.8, (4, 3))
+    theta[0] = [0.0, 1e-9, 0.5]  # straight and nearly straight blocks
+    points, heading = planar_centreline(layout, theta)
+    shape = planar_chain(theta, length, phi, samples_per_block=layout.samples_per_block)
+    np.testing.assert_allclose(points, shape.points, atol=1e-12)
+    np.testing.assert_allclose(heading, shape.headings, atol=1e-12)
