@@ -13,7 +13,7 @@ from softblock_ros.client import wait_until
 from softblock_ros.launcher import Stack
 from softblock_ros.stack import load_stack
 
-# stack: `make test` runs these after the other tiers, as a user launches the nodes
+# stack: `make test` runs these alone, after the other tiers, as a user launches the nodes
 pytestmark = pytest.mark.stack
 
 START_TIMEOUT = 120.0  # [s] liveness bound only: the planner prepares its search at niceness 10 on a loaded host

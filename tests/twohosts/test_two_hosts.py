@@ -25,8 +25,8 @@ from recording.analysis import load
 from recording.mcap_file import recover
 
 reason = unavailable_reason()
-# stack: `make test` runs these after the other tiers, on one worker beside the demo's tests (their niceness -20
-# rig takes little CPU: a supervisor loop and a simulated supply)
+# stack: `make test` runs these alone, after the other tiers, so their niceness -20 rig cannot starve
+# another test's processes (nor another test theirs)
 pytestmark = [pytest.mark.skipif(reason is not None, reason=f"two emulated hosts: {reason}"), pytest.mark.stack]
 
 STARTUP_TIMEOUT = 120.0  # [s] two launchers and six nodes on two loaded cores
