@@ -18,6 +18,9 @@ pytestmark = pytest.mark.stack
 
 START_TIMEOUT = 120.0  # [s] liveness bound only: the planner prepares its search at niceness 10 on a loaded host
 RESEND_S = 2.0  # [s] a request without a reply is sent again after this
+# [s] liveness bound only: a clean stop is the node ending on SIGINT with status 0, however long a loaded host takes
+# (the planner, at niceness 10 beside two busy loops, took over 10 s, the launcher's default, to end)
+STOP_TIMEOUT = 60.0
 
 
 @pytest.fixture(scope="module")
@@ -58,7 +61,8 @@ def launched(tmp_path_factory):
     try:
         for name in load_stack().names:
             output = io.StringIO()
-            stacks[name] = Stack(nodes=[name], params=params, output=output, namespace=f"/smoke_{name}").start(), output
+            stacks[name] = Stack(nodes=[name], params=params, output=output, namespace=f"/smoke_{name}",
+                                 stop_timeout=STOP_TIMEOUT).start(), output
         yield stacks
     finally:
         for stack, _ in stacks.values():
