@@ -12,6 +12,7 @@ from softblock_ros.assembly_state_node import AssemblyStateNode
 from softblock_ros.hv_driver_node import HvDriverNode
 from softblock_ros.qos import LATCHED, REPAIR_HISTORY_S, stream_qos
 from softblock_ros.sim_arm_node import SimArmNode
+from softblock_ros.sim_camera_node import SimCameraNode
 
 pytestmark = pytest.mark.integration
 
@@ -52,6 +53,16 @@ def test_the_assembly_streams_keep_the_repair_window(ros_context):
     try:
         for topic in ("/assembly/state", "/assembly/markers"):
             assert_repairable(publisher_profile(node, topic), 10.0)
+    finally:
+        node.destroy_node()
+
+
+@pytest.mark.parametrize("rate_hz", [1.0, 5.0])
+def test_the_camera_stream_keeps_the_repair_window(ros_context, rate_hz):
+    """A recorder starved under load lost one of the demo's images while the camera kept only the newest."""
+    node = SimCameraNode(context=ros_context, parameter_overrides=[Parameter("rate_hz", value=rate_hz)])
+    try:
+        assert_repairable(publisher_profile(node, "/camera/silhouette"), rate_hz)
     finally:
         node.destroy_node()
 

@@ -30,7 +30,7 @@ from planner.table import load_table
 from .conversions import assembly_from_msg, channel_voltages, image_msg
 from .estimator_node import VIEW_PARAMETERS, camera_view
 from .parameters import Param, declare
-from .qos import LATCHED
+from .qos import LATCHED, stream_qos
 from .runner import run_node
 
 PARAMETERS = VIEW_PARAMETERS + (
@@ -60,7 +60,8 @@ class SimCameraNode(Node):
         self._voltages: dict[str, float] = {}
         self._drawn_scene = None  # (chain, voltage) last drawn
         self._last_image: Image | None = None
-        self._image_pub = self.create_publisher(Image, "camera/silhouette", 1)
+        # a recorder reads every image: a depth of 1 lost one to a recorder starved under load (nothing left to repair)
+        self._image_pub = self.create_publisher(Image, "camera/silhouette", stream_qos(value["rate_hz"]))
         self.create_subscription(Assembly, "assembly/current", partial(self._on_assembly, world=False), LATCHED)
         self.create_subscription(Assembly, WORLD_TOPIC, partial(self._on_assembly, world=True), LATCHED)
         self.create_subscription(HvState, "hv/state", self._on_hv_state, qos_profile_sensor_data)
