@@ -57,10 +57,10 @@ ENDING_METHODS = frozenset({"close", "abort"})
 _NOTHING_WAITING, _CLOSED = object(), object()  # what reading the channel found instead of a message
 
 
-def supply_from_spec(spec: dict, ports: list[str] | None = None) -> HvSupply:
+def supply_from_spec(spec: dict, ports: list | None = None) -> HvSupply:
     """An `HvSupply` as ``spec`` describes it (the node's parameters, JSON): ports, baudrate, channels (each the
     fields of a `ChannelConfig`), dialect, loop_rate_hz, link_timeout_s, heartbeat_timeout_s, expected_identity.
-    ``ports`` replaces the spec's (a simulated rig's ptys)."""
+    ``ports`` (device paths, URLs or port objects) replaces the spec's (a simulated rig's)."""
     channels = [ChannelConfig(**fields) for fields in spec["channels"]]
     return HvSupply(ports or spec["ports"], spec.get("baudrate"), channels, dialect=dialect(spec["dialect"]),
                     loop_rate_hz=spec["loop_rate_hz"], link_timeout_s=spec["link_timeout_s"],
@@ -303,7 +303,7 @@ def announce(line: str) -> None:
     print(line, flush=True)
 
 
-def serve_spec(spec: dict, path: str, ports: list[str] | None = None,
+def serve_spec(spec: dict, path: str, ports: list | None = None,
                extra_methods: dict[str, Callable] | None = None, announce: Callable[[str], None] = announce) -> int:
     """Real-time scheduling where permitted, the supply opened from ``spec``, then serving at ``path``; announces
     "ready <pid>" or "error: <why>" (on stdout for the node that started this process). Exit status."""

@@ -19,6 +19,15 @@ START_TIMEOUT = 30.0  # [s] for the child to print its pty path (interpreter sta
 REPLY_TIMEOUT = 10.0  # [s] for the answer to one command
 
 
+def check_address(channel: int | None, device: int | None, channels: int, devices: int) -> None:
+    """ValueError naming a ``channel`` or ``device`` (None: every one) outside a rig of ``devices`` supplies of
+    ``channels`` channels."""
+    if channel is not None and not (isinstance(channel, int) and 0 <= channel < channels):
+        raise ValueError(f"channel={channel!r}: between 0 and {channels - 1}")
+    if device is not None and not (isinstance(device, int) and 0 <= device < devices):
+        raise ValueError(f"device={device!r}: between 0 and {devices - 1}")
+
+
 class SimulatedSupplyProcess:
     """dialect: which simulator (sim_fallback.rig.SIMULATORS); devices: how many (each on its own pty); channels:
     per device, where the dialect has several."""
@@ -72,10 +81,7 @@ class SimulatedSupplyProcess:
         return reply
 
     def _address(self, channel: int | None, device: int | None) -> str:
-        if channel is not None and not (isinstance(channel, int) and 0 <= channel < self.channels):
-            raise ValueError(f"channel={channel!r}: between 0 and {self.channels - 1}")
-        if device is not None and not (isinstance(device, int) and 0 <= device < self.devices):
-            raise ValueError(f"device={device!r}: between 0 and {self.devices - 1}")
+        check_address(channel, device, self.channels, self.devices)
         return ("" if channel is None else f" {channel}") + ("" if device is None else f" device={device}")
 
     def inject(self, fault: str, channel: int | None = None, device: int | None = None) -> None:

@@ -2,18 +2,21 @@
 
 `MemoryPort(device)` is a pyserial-like port (``write``, ``read``, ``readline``, ``in_waiting``,
 ``reset_input_buffer``, ``timeout``) whose every write is answered at once by ``device.feed`` on the device's
-clock. Given to `HvSupply` with the same `hv_driver.clock.SimulatedClock`, the whole loop runs in simulated time: a
-device that stays silent makes a read wait its timeout on that clock, as a real port would; ``exchange_s`` is the
-simulated time one line takes on the wire (each write advances the clock by it), so a cycle of many exchanges takes
-time as on a real port.
+clock, in the writer's own thread. A device that stays silent makes a read wait its timeout on that clock, as a
+real port would.
+
+- On a `hv_driver.clock.SimulatedClock` shared with `HvSupply`, the whole loop runs in simulated time;
+  ``exchange_s`` is the simulated time one line takes on the wire (each write advances the clock by it), so a
+  cycle of many exchanges takes time as on a real port.
+- On the real clock, it is a supply with a processor of its own: no thread of the simulation waits to be
+  scheduled, so a host that deschedules the simulation (load, a hypervisor taking the virtual CPU) never makes
+  it answer late, as a simulator on a pty can.
 """
 from .pty_device import PtyDevice
 
 
 class MemoryPort:
     def __init__(self, device: PtyDevice, exchange_s: float = 0.0, name: str | None = None):
-        if not device.clock.simulated:
-            raise ValueError("MemoryPort: the device must run on a SimulatedClock (a real-time device needs a pty)")
         self.device, self.exchange_s = device, exchange_s
         self.name = name or f"memory:{type(device).__name__}@{id(device):x}"
         self.timeout: float = 0.1
@@ -22,7 +25,8 @@ class MemoryPort:
     def write(self, data: bytes) -> int:
         if not self.device.connected:
             raise OSError(5, "Input/output error (the cable is pulled)")
-        self.device.clock.advance(self.exchange_s)
+        if self.exchange_s:
+            self.device.clock.sleep(self.exchange_s)
         self._buffer += self.device.feed(bytes(data))
         return len(data)
 
@@ -35,7 +39,7 @@ class MemoryPort:
         if not self.device.connected:
             raise OSError(5, "Input/output error (the cable is pulled)")
         if not self._buffer:
-            self.device.clock.advance(self.timeout)
+            self.device.clock.sleep(self.timeout)
             self.device.poll()
             return b""
         chunk = bytes(self._buffer[:size])

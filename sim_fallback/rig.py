@@ -39,6 +39,20 @@ def channels_per_device(dialect: str, requested: int | None = None) -> int:
     return fixed if fixed is not None else (requested or 4)
 
 
+def make_devices(dialect: str, devices: int, channels: int | None = None, voltage_limit: float | None = None,
+                 watchdog_s: float | None = None) -> list[PtyDevice]:
+    """``devices`` simulated supplies of ``dialect`` (not started), each with its own noise seed; ``channels``
+    per device where the dialect has several; ``voltage_limit`` [V] replaces the dialect's hardware limit."""
+    if devices < 1:
+        raise ValueError(f"devices={devices}: at least 1")
+    cls = simulator(dialect)
+    defaults = cls.default_defaults
+    if voltage_limit is not None:
+        defaults = ChannelDefaults(**{**defaults.__dict__, "voltage_limit": voltage_limit})
+    return [cls(channels_per_device(dialect, channels), defaults, watchdog_s=watchdog_s, rng=k)
+            for k in range(devices)]
+
+
 def _command(devices: list[PtyDevice], words: list[str]) -> str:
     """Run one stdin command; returns its answer line (ValueError for a bad one)."""
     device = next((w for w in words if w.startswith("device=")), None)
@@ -78,12 +92,8 @@ def main(argv=None) -> int:
     parser.add_argument("--watchdog", type=float, default=0.0, help="host keep-alive [s]; 0 (default) = none")
     args = parser.parse_args(argv)
     fifo(SIMULATED_DEVICE_PRIORITY)  # before the devices' threads start, which inherit it
-    cls = simulator(args.dialect)
-    defaults = cls.default_defaults
-    if args.voltage_limit is not None:
-        defaults = ChannelDefaults(**{**defaults.__dict__, "voltage_limit": args.voltage_limit})
-    devices = [cls(channels_per_device(args.dialect, args.channels), defaults, watchdog_s=args.watchdog or None,
-                   rng=k).start() for k in range(args.devices)]
+    devices = [device.start() for device in make_devices(args.dialect, args.devices, args.channels,
+                                                           args.voltage_limit, args.watchdog or None)]
     for device in devices:
         print(device.port, flush=True)
     try:

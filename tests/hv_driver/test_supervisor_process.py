@@ -190,3 +190,42 @@ def test_a_supply_that_cannot_be_opened_is_refused_with_the_supervisors_reason(s
     bad = spec(channels=[dataclasses.asdict(ChannelConfig("front", 7))])
     with pytest.raises(HvError, match="index 7 is not on the supply"):
         RemoteSupply(SUPERVISED, bad, socket_path).open()
+
+
+def test_an_unknown_simulated_link_is_refused_naming_the_choices(socket_path):
+    bad = spec(simulated={"channels": 4, "devices": 1, "link": "usb"})
+    with pytest.raises(HvError, match="link='usb': one of memory, pty"):
+        RemoteSupply(SUPERVISED, bad, socket_path).open()
+
+
+def children(pid: int) -> list[int]:
+    with open(f"/proc/{pid}/task/{pid}/children") as listing:
+        return [int(child) for child in listing.read().split()]
+
+
+def test_a_host_that_deschedules_the_simulation_trips_no_link_fault(socket_path):
+    """A loaded host, or a hypervisor taking a virtual CPU away, can stop a simulation apart from the driver, and
+    then the driver too. The simulated supplies answer within the driver's own exchange, so neither stall makes
+    them late: nothing latches at the product's link timeout (a simulation in a process of its own, stopped for
+    longer than that timeout, made the driver latch LINK)."""
+    supply = RemoteSupply(SUPERVISED, spec(link_timeout_s=0.5), socket_path).open()
+    try:
+        token = supply.claim_control("sequencer")
+        supply.enable("front")
+        assert supply.ramp_to("front", 2400.0, token=token).wait(GENEROUS_S)
+        stalled = children(supply.pid)  # what simulates the supplies, if it runs apart from the driver
+        for pid in stalled:
+            os.kill(pid, signal.SIGSTOP)
+        try:
+            time.sleep(1.0)  # the stall itself: the simulation alone
+            os.kill(supply.pid, signal.SIGSTOP)
+            time.sleep(1.0)  # then the driver too
+        finally:
+            for pid in [supply.pid, *stalled]:
+                os.kill(pid, signal.SIGCONT)
+        assert supply.wait_cycles(10, GENEROUS_S)
+        channel = front(supply)
+        assert not channel.faults, channel.fault_text
+        assert channel.output_enabled and channel.measured_voltage > 2300.0
+    finally:
+        supply.close()

@@ -13,7 +13,8 @@ WITH_CHOICES = [(node, param) for node in NODE_SCHEMAS for param in node_schema(
 
 def test_the_enumerated_parameters_are_the_ones_expected():
     assert {(node, param.name): param.choices for node, param in WITH_CHOICES} == {
-        ("hv_driver", "backend"): ("sim", "serial"), ("hv_driver", "dialect"): tuple(DIALECTS),
+        ("hv_driver", "backend"): ("sim", "serial"), ("hv_driver", "sim_link"): ("memory", "pty"),
+        ("hv_driver", "dialect"): tuple(DIALECTS),
         ("recorder", "compression"): ("zstd", "lz4", "none")}
 
 

@@ -1,5 +1,5 @@
 """The vertical slice across processes started by the launcher: the HV driver (simulated supply) and the
-assembly-state node, driven through the custom interfaces: the latched safe voltage becomes the driver's
+assembly-state node (the simulated supply on a pty), driven through the custom interfaces: the latched safe voltage becomes the driver's
 ceiling (pub/sub, transient_local), an hv/ramp goal (action) raises the front channel, and the predicted
 front-finger angles follow the measured voltage; assembly/set (service) lowers the ceiling."""
 import io
@@ -13,6 +13,7 @@ from softblock_interfaces.msg import AssemblyState, HvState
 from softblock_interfaces.srv import SetAssembly
 from std_msgs.msg import Float64
 
+from hv_driver.config import ChannelConfig
 from planner.assembly import Assembly, Chain, PlacedBlock, load_assembly
 from planner.table import load_table
 from softblock_ros.client import ActionClient
@@ -33,8 +34,10 @@ TARGET = 1000.0  # [V]
 @pytest.fixture(scope="module")
 def stack(tmp_path_factory):
     params = tmp_path_factory.mktemp("slice") / "params.yaml"
-    # a hard maximum above every design's safe voltage (3.2-3.4 kV), so that the assembly's is the ceiling
-    params.write_text("/**/hv_driver:\n  ros__parameters:\n    backend: sim\n    slew_rate_v_per_s: 5000.0\n"
+    # the simulated supply on a pty (the driver's serial path, as with real hardware); a hard maximum above every
+    # design's safe voltage (3.2-3.4 kV), so that the assembly's is the ceiling
+    params.write_text("/**/hv_driver:\n  ros__parameters:\n    backend: sim\n    sim_link: pty\n"
+                      "    slew_rate_v_per_s: 5000.0\n"
                       "    link_timeout_s: 2.0\n    max_voltage_v: 5000.0\n")
     output = io.StringIO()
     with Stack(nodes=["hv_driver", "assembly_state"], params=params, namespace=NAMESPACE, output=output) as stack:
@@ -82,7 +85,9 @@ def test_a_ramp_goal_moves_the_predicted_front_fingers(client):
     at_rest = client.assembly_states.wait(lambda s: s.chains and s.chains[0].voltage < 1.0)
     result = ramp(client, "front", TARGET)
     assert result.success, result.message
-    assert result.final_voltage == pytest.approx(TARGET, abs=50.0)
+    # A ramp has reached its target once the readback is within the mismatch tolerance of it (the driver's
+    # contract): how far the simulated output still lags at that moment depends on the host's speed.
+    assert result.final_voltage == pytest.approx(TARGET, abs=ChannelConfig.mismatch_tolerance_v)
     moved = latest(client.assembly_states, lambda s: abs(s.chains[0].voltage - TARGET) < 50.0)
     for before, after, chain in zip(at_rest.chains, moved.chains, GRIPPER.chains):
         expected, valid = TABLE.angle_at(list(chain.design_ids), after.voltage)

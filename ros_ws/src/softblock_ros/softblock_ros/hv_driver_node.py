@@ -127,7 +127,7 @@ class HvDriverNode(LifecycleNode):
                                                         "expected_identity", "realtime_priority", "orphan_timeout_s")},
                 "keepalive_timeout_s": self._param("node_keepalive_timeout_s")}
         if self._param("backend") == "sim":
-            spec["simulated"] = {"channels": SIM_CHANNELS, "devices": self._devices}
+            spec["simulated"] = {"channels": SIM_CHANNELS, "devices": self._devices, "link": self._param("sim_link")}
         return spec
 
     def _socket_path(self) -> str:

@@ -11,8 +11,11 @@ from hv_driver.server import ORPHAN_TIMEOUT_S
 from .parameters import Param, ParameterError
 
 PARAMETERS = (
-    Param("backend", "sim", "'sim' (simulated supply on a pty) or 'serial' (the ports parameter); never swapped",
+    Param("backend", "sim", "'sim' (simulated supplies) or 'serial' (the ports parameter); never swapped",
           kind=str, choices=("sim", "serial")),
+    Param("sim_link", "memory", "backend 'sim': 'memory' (the supplies answer within the driver's exchange, "
+          "whatever the host's load) or 'pty' (a real-time process of their own on pseudo-terminals: the serial "
+          "path of real hardware, answering late when the host deschedules it)", kind=str, choices=("memory", "pty")),
     Param("dialect", IsegEdcp.name, "the supply's command set and capabilities", kind=str, choices=tuple(DIALECTS)),
     Param("ports", [], "serial devices or pyserial URLs, one per supply (backend 'serial'; 'sim' makes its own)",
           kind=str, size=(0, 16)),
