@@ -17,6 +17,7 @@ from rclpy.lifecycle import TransitionCallbackReturn
 from rcl_interfaces.msg import Log
 from rclpy.parameter import Parameter
 from ros_testing import Inbox, Spinner, call, wait_for
+from waiting import GENEROUS_S
 from softblock_interfaces.action import PulseChannels, RampChannel
 from softblock_interfaces.msg import HvChannelState, HvHeartbeat, HvState
 from softblock_interfaces.srv import ClaimControl, InjectFault, ReleaseControl
@@ -309,7 +310,7 @@ def test_a_claim_whose_reply_is_lost_is_sent_again_and_answered(ros_context, spi
     server = rclpy.create_node("lost_reply_driver", namespace="/lost_reply", context=ros_context)
     server.create_service(ClaimControl, "hv/claim_control", on_claim, callback_group=ReentrantCallbackGroup())
     client = rclpy.create_node("lost_reply_client", namespace="/lost_reply", context=ros_context)
-    control = HvControl(client, "sequencer", timeout_s=10.0)
+    control = HvControl(client, "sequencer", timeout_s=GENEROUS_S)
     spin(server, client)
     try:
         session = control.claim()

@@ -17,6 +17,7 @@ from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, ru
 from rclpy.lifecycle import TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from ros_testing import Inbox, call, wait_for
+from waiting import GENEROUS_S
 from softblock_interfaces.action import RampChannel
 from softblock_interfaces.msg import HvHeartbeat, HvState
 from softblock_interfaces.srv import ClaimControl, InjectFault, ReleaseControl
@@ -71,7 +72,7 @@ class Fuzz:
         spin(self.driver, n)
         assert self.driver.trigger_configure() == TransitionCallbackReturn.SUCCESS
         assert self.driver.trigger_activate() == TransitionCallbackReturn.SUCCESS
-        assert self.ramp.wait_for_server(timeout_sec=15.0)
+        assert self.ramp.wait_for_server(timeout_sec=GENEROUS_S)
 
 
 @pytest.fixture(scope="module")

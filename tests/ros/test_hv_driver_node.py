@@ -13,6 +13,7 @@ from lifecycle_msgs.srv import ChangeState, GetState
 from rclpy.lifecycle import TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from ros_testing import Inbox, call, wait_for
+from waiting import GENEROUS_S
 from softblock_interfaces.action import RampChannel
 from softblock_interfaces.msg import HvChannelState, HvState
 from softblock_interfaces.srv import InjectFault
@@ -65,7 +66,7 @@ class Client:
         self.control.claim()
 
     def send_ramp(self, channel, target, feedback=None):
-        assert self.ramp.wait_for_server(timeout_sec=10.0)
+        assert self.ramp.wait_for_server(timeout_sec=GENEROUS_S)
         goal = self.control.ramp_goal(channel, target)
         future = self.ramp.send_goal_async(goal, feedback_callback=feedback)
         goal = wait_for(future.done) and future.result()

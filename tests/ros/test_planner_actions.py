@@ -12,6 +12,7 @@ from action_msgs.msg import GoalStatus
 from geometry_msgs.msg import Point
 from rclpy.parameter import Parameter
 from ros_testing import call
+from waiting import GENEROUS_S
 from softblock_interfaces.action import DesignFingers, PlanReconfiguration
 from softblock_interfaces.srv import DesignFingers as DesignFingersService
 
@@ -76,7 +77,7 @@ def test_finger_design_action_reports_progress_and_matches_the_service(client):
 def send_and_cancel(client, kind, name, goal):
     """Send a goal, cancel it at its first feedback; returns (status, result)."""
     action = ActionClient(client, kind, name)
-    assert action.wait_for_server(timeout_sec=10.0)
+    assert action.wait_for_server(timeout_sec=GENEROUS_S)
     handle_box, canceled = [], threading.Event()
 
     def on_feedback(_):

@@ -12,6 +12,7 @@ from geometry_msgs.msg import Point
 from rcl_interfaces.srv import GetParameters
 from rclpy.parameter import Parameter
 from ros_testing import call, wait_for
+from waiting import GENEROUS_S
 from softblock_interfaces.srv import DesignFingers, DesignPath
 
 import planner.design
@@ -239,7 +240,7 @@ def test_other_requests_are_answered_while_an_optimization_runs(client, monkeypa
 
     monkeypatch.setattr(planner.design, "design_fingers", long_design_fingers)
     fingers_client = client.create_client(DesignFingers, "planner/design_fingers")
-    assert fingers_client.wait_for_service(timeout_sec=10.0)
+    assert fingers_client.wait_for_service(timeout_sec=GENEROUS_S)
     long_request = fingers_client.call_async(fingers_request(num_blocks=1))
     try:
         wait_for(started.is_set, what="the optimization to start")

@@ -5,6 +5,7 @@ import threading
 import pytest
 import rclpy
 from ros_testing import Inbox
+from waiting import GENEROUS_S
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
@@ -27,7 +28,7 @@ def test_an_inbox_receives_while_another_callback_of_its_node_is_running(ros_con
     node.create_service(Trigger, "slow", slow_service)
     spin(source, node)
     slow = source.create_client(Trigger, "slow")
-    assert slow.wait_for_service(timeout_sec=15.0)
+    assert slow.wait_for_service(timeout_sec=GENEROUS_S)
     slow.call_async(Trigger.Request())
     try:
         assert entered.wait(15.0)

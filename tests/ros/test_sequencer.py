@@ -13,6 +13,7 @@ from geometry_msgs.msg import PoseStamped
 from fake_hv import FakeHv
 from rclpy.parameter import Parameter
 from ros_testing import Inbox, Spinner, wait_for
+from waiting import GENEROUS_S
 from sequence_files import scaled
 from softblock_interfaces.action import RunSequence
 from softblock_interfaces.msg import SequenceEvent
@@ -59,7 +60,7 @@ def stack(ros_context, spin, tmp_path_factory):
     poses = Inbox(client, PoseStamped, "arm/pose", 100)
     action = ActionClient(client, RunSequence, "sequencer/run")
     spin(sequencer, arm, hv, client)
-    assert action.wait_for_server(timeout_sec=10.0)
+    assert action.wait_for_server(timeout_sec=GENEROUS_S)
     return {"dir": directory, "hv": hv, "events": events, "action": action, "poses": poses, "client": client}
 
 
@@ -120,7 +121,7 @@ def own_stack(ros_context, spin, directory, namespace: str, windows=LONG_WINDOWS
     action = ActionClient(client, RunSequence, "sequencer/run")
     nodes = [make_sequencer(directory, windows, context=ros_context, namespace=namespace), hv, client]
     spin(*nodes, *([make_arm(context=ros_context, namespace=namespace)] if arm else []))
-    assert action.wait_for_server(timeout_sec=10.0)
+    assert action.wait_for_server(timeout_sec=GENEROUS_S)
     return {"hv": hv, "events": events, "action": action}
 
 
@@ -266,7 +267,7 @@ def test_of_two_sequencers_started_together_neither_serves_until_one_is_stopped(
         assert servers(client, "/twins/sequencer/run") == 0
         stopped.close()  # the second sequencer ends
         wait_for(first.serving.is_set, what="the remaining sequencer serving")
-        assert action.wait_for_server(timeout_sec=10.0)
+        assert action.wait_for_server(timeout_sec=GENEROUS_S)
         status, result = Run(action, "missing").result()  # accepted by the one server, refused in its result
         assert status == GoalStatus.STATUS_ABORTED and result.message.startswith("rejected: "), result.message
     finally:

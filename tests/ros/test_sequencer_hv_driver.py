@@ -11,6 +11,7 @@ from hv_driver.supervisor import DEFAULT_HEARTBEAT_TIMEOUT_S
 from rclpy.lifecycle import TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from ros_testing import Inbox, call, wait_for
+from waiting import GENEROUS_S
 from sequence_files import scaled
 from softblock_interfaces.action import RunSequence
 from softblock_interfaces.msg import HvState, SequenceEvent
@@ -51,7 +52,7 @@ def stack(ros_context, spin, tmp_path_factory):
         "state": Inbox(client, HvState, "hv/state"),
         "events": Inbox(client, SequenceEvent, "sequencer/events", 100),
     }
-    assert stack["action"].wait_for_server(timeout_sec=10.0)
+    assert stack["action"].wait_for_server(timeout_sec=GENEROUS_S)
     return stack
 
 

@@ -9,6 +9,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from fake_hv import FakeHv
 from rclpy.parameter import Parameter
 from ros_testing import Inbox, call, wait_for
+from waiting import GENEROUS_S
 from softblock_interfaces.action import RunSequence
 from softblock_interfaces.msg import SequenceEvent
 from std_srvs.srv import Trigger
@@ -40,7 +41,7 @@ def stack(ros_context, spin, tmp_path_factory):
              "diagnostics": client.create_publisher(DiagnosticArray, "/diagnostics", 10),
              "events": Inbox(client, SequenceEvent, "sequencer/events", 100)}
     spin(sequencer, hv, client)
-    assert stack["action"].wait_for_server(timeout_sec=10.0)
+    assert stack["action"].wait_for_server(timeout_sec=GENEROUS_S)
     return stack
 
 

@@ -8,6 +8,7 @@ from action_msgs.msg import GoalStatus
 from geometry_msgs.msg import PoseStamped
 from rclpy.parameter import Parameter
 from ros_testing import Inbox, wait_for
+from waiting import GENEROUS_S
 from softblock_interfaces.action import MoveArm
 
 from softblock_ros.client import ActionClient
@@ -27,7 +28,7 @@ def arm(ros_context, spin):
     poses = Inbox(client, PoseStamped, "arm/pose", 100)
     action = ActionClient(client, MoveArm, "arm/move")
     spin(node, client)
-    assert action.wait_for_server(timeout_sec=10.0)
+    assert action.wait_for_server(timeout_sec=GENEROUS_S)
     return action, poses
 
 

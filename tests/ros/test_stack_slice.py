@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import rclpy
 from ros_testing import Inbox, call, wait_for
+from waiting import GENEROUS_S
 from softblock_interfaces.action import RampChannel
 from softblock_interfaces.msg import AssemblyState, HvState
 from softblock_interfaces.srv import SetAssembly
@@ -51,7 +52,7 @@ def client(ros_context, spin, stack):
     node.hv_states = Inbox(node, HvState, "hv/state")
     node.assembly_states = Inbox(node, AssemblyState, "assembly/state")
     node.safe_voltages = Inbox(node, Float64, "assembly/safe_voltage", LATCHED)
-    node.control = HvControl(node, "slice_client", timeout_s=15.0)
+    node.control = HvControl(node, "slice_client", timeout_s=GENEROUS_S)
     spin(node)
     node.control.claim()
     return node
@@ -65,7 +66,7 @@ def latest(inbox, predicate):
 
 def ramp(client, channel, target):
     action = ActionClient(client, RampChannel, "hv/ramp")
-    assert action.wait_for_server(timeout_sec=15.0)
+    assert action.wait_for_server(timeout_sec=GENEROUS_S)
     sent = action.send_goal_async(client.control.ramp_goal(channel, target))
     goal = wait_for(sent.done) and sent.result()
     assert goal.accepted
