@@ -44,10 +44,11 @@ BUSY = ["sh", "-c", "while :; do :; done"]
 
 
 def steal_ticks() -> dict[str, int]:
-    """Steal of all CPUs ("all") and of each ("cpu0", ...) [ticks]."""
+    """Steal of each CPU ("cpu0", ...) and their sum ("all") [ticks]. Not the kernel's "cpu" line: each line is
+    rounded down to ticks on its own, so that one could miss a part of a tick that a CPU's line counts."""
     with open("/proc/stat") as stat:
-        rows = [line.split() for line in stat if line.startswith("cpu")]
-    return {("all" if row[0] == "cpu" else row[0]): int(row[STEAL]) for row in rows}
+        per_cpu = {row[0]: int(row[STEAL]) for row in map(str.split, stat) if re.fullmatch(r"cpu\d+", row[0])}
+    return {"all": sum(per_cpu.values()), **per_cpu}
 
 
 def monitor(cpu: int, seconds: float, threshold_s: float, started, out) -> None:
