@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Every benchmark of the README, one after the other (`make bench`). Each writes JSON + PNG into
-# docs/figures/. Run inside the project environment (scripts/with_env.sh). Takes about 60-70 minutes
+# docs/figures/. Run inside the project environment (scripts/with_env.sh). Takes about 65-75 minutes
 # (two_hosts.py: about 20, root only).
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
@@ -23,6 +23,7 @@ benchmarks=(
     sequencer_gait.py
     publish_hold.py
     mcap_open.py
+    host_stalls.py
 )
 for i in "${!benchmarks[@]}"; do
     printf '\n=== [%d/%d] benchmarks/%s ===\n' "$((i + 1))" "${#benchmarks[@]}" "${benchmarks[$i]}"
