@@ -252,11 +252,15 @@ class TwoHostStack:
             if console is not None:
                 with open(self.out / f"{console.name}_console.jsonl", "w") as stream:
                     stream.writelines(json.dumps(record) + "\n" for record in console.snapshot())
-        for name, process in (("workstation_console", self.workstation and self.workstation.process),
-                              ("rig_console", self.rig and self.rig.process),
-                              *((f"{host}_launcher", p) for host, p in reversed(self.launchers.items()))):
-            if process is not None:
-                codes[name] = self.lab.stop(process, timeout=30.0)
+        # The consoles, then the sequencer (its safe stop needs the driver), then every other node at once.
+        stages = ((("workstation_console", self.workstation and self.workstation.process),
+                   ("rig_console", self.rig and self.rig.process)),
+                  (("sequencer_launcher", self.launchers.get("sequencer")),),
+                  tuple((f"{host}_launcher", self.launchers.get(host)) for host in ("workstation", "rig")))
+        for stage in stages:
+            running = [(name, process) for name, process in stage if process is not None]
+            returned = self.lab.stop_together([process for _, process in running], timeout=30.0)
+            codes.update(zip((name for name, _ in running), returned))
         return codes
 
     def __enter__(self) -> TwoHostStack:
