@@ -42,7 +42,7 @@ from netlab.stack import (RIG_NICENESS, SEQUENCER_PARAMETERS, TwoHostStack, chan
 
 FIGURES = Path(__file__).resolve().parent.parent / "docs" / "figures"
 CONFIG = Path(__file__).resolve().parent.parent / "config"
-STARTUP_TIMEOUT = 120.0  # [s] two launchers and five nodes on two loaded cores
+STARTUP_TIMEOUT = 120.0  # [s] three launchers and five nodes on two loaded cores
 GRASP_TIMEOUT = 240.0    # [s]
 SAFE_V, HIGH_V = 50.0, 2350.0
 CONDITIONS = {  # label: link condition, each direction
@@ -98,7 +98,7 @@ def partition(stack: TwoHostStack, heartbeat_timeout: float, slew_rate: float, l
     faulted = stack.rig.wait_state(lambda s: s["channels"]["back"]["faults"], 10.0, cut)
     code = process.wait(GRASP_TIMEOUT)
     ended = time.time() - cut
-    logged = driver_lost_logged(stack.logs["workstation"].read_text(), cut)
+    logged = driver_lost_logged(stack.logs["sequencer"].read_text(), cut)
     return {"reached_peak": True, "fault_latched_s": round(faulted["stamp"] - cut, 3),
             "below_50_v_s": round(safe["stamp"] - cut, 3), "bound_s": round(bound, 3),
             "load_average_1min": os.getloadavg()[0],

@@ -18,6 +18,7 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 from collections.abc import Mapping
 from dataclasses import asdict
 
@@ -110,15 +111,23 @@ class EmulatedHosts:
 
     def stop(self, process: subprocess.Popen, timeout: float | None = None) -> int:
         """SIGINT to the process group, SIGKILL after ``timeout`` (default ``stop_timeout``); the exit code."""
+        return self.stop_together([process], timeout)[0]
+
+    def stop_together(self, processes: list[subprocess.Popen], timeout: float | None = None) -> list[int]:
+        """stop() for several processes at once, so that their stops overlap: SIGINT to each group, SIGKILL to
+        those still running ``timeout`` later; their exit codes."""
         timeout = self.stop_timeout if timeout is None else timeout
-        if process.poll() is None:
-            _signal_group(process, signal.SIGINT)
+        for process in processes:
+            if process.poll() is None:
+                _signal_group(process, signal.SIGINT)
+        deadline = time.monotonic() + timeout
+        for process in processes:
             try:
-                process.wait(timeout)
+                process.wait(max(0.0, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
                 _signal_group(process, signal.SIGKILL)
                 process.wait()
-        return process.returncode
+        return [process.returncode for process in processes]
 
     def close(self) -> None:
         for process in reversed(self.processes):

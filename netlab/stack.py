@@ -9,7 +9,7 @@ Every process runs under the launcher's network switch (``--discovery-range subn
 Fast DDS limited to UDPv4: its shared-memory transport would otherwise let two processes of this one machine
 talk past the emulated link. Both hosts share this machine's cores, where on a lab bench the rig PC has its
 own: the rig's processes run at a higher priority (RIG_NICENESS) and the sequencer's timeouts are widened
-(SEQUENCER_PARAMETERS). The recorder writes into ``out_dir``. Nothing here imports ROS; the processes do.
+(SEQUENCER_PARAMETERS; restart_sequencer starts it with others). The recorder writes into ``out_dir``. Nothing here imports ROS; the processes do.
 """
 from __future__ import annotations
 
@@ -31,7 +31,10 @@ from hv_driver.supervisor import DEFAULT_PERIOD_S, SLEW_CREDIT_PERIODS
 from .emulated import EmulatedHosts
 
 RIG_NODES = ("hv_driver",)
-WORKSTATION_NODES = ("assembly_state", "planner", "sim_arm", "sequencer", "recorder")
+# The sequencer runs under a launcher of its own on the workstation, so that a test can restart it with other
+# timeouts (restart_sequencer) while the rest of the stack runs on.
+WORKSTATION_NODES = ("assembly_state", "planner", "sim_arm", "recorder")
+SEQUENCER_STARTUP_TIMEOUT = 120.0  # [s] a sequencer's start and discovery on two loaded cores
 COMMAND_TIMEOUT = 60.0  # [s] a console command, e.g. a ramp to 2.4 kV over a lossy link
 RECORDER_TIMEOUT = 60.0  # [s] a recorder's start and subscriptions on two loaded cores
 # The rig PC's processes (the driver and its simulated supply) share two cores with the workstation's and any
@@ -53,6 +56,7 @@ SEQUENCER_PARAMETERS = {"state_timeout_s": SEQUENCER_STATE_TIMEOUT_S, "server_ti
 STALL_S = 0.1
 
 
+SERVING_LOG = "[sequencer]: serving /sequencer/run"
 LOST_DRIVER_LOG = re.compile(r"^\[sequencer\] \[ERROR\] \[(\d+\.\d+)\] \[sequencer\]: HV driver lost", re.MULTILINE)
 STEP_DURATION = re.compile(r"^  (\S+) +(\d+\.\d+) s$", re.MULTILINE)  # run_sequence's result lines
 
@@ -153,6 +157,7 @@ class TwoHostStack:
         self.env = {**(env or os.environ), "FASTDDS_BUILTIN_TRANSPORTS": "UDPv4", "PYTHONUNBUFFERED": "1",
                     "ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET", "ROS_DOMAIN_ID": str(domain_id)}
         self.launchers: dict[str, subprocess.Popen] = {}
+        self._sequencer_starts = 0
         self.logs: dict[str, Path] = {}
         self.rig: Console | None = None
         self.workstation: Console | None = None
@@ -163,17 +168,42 @@ class TwoHostStack:
 
     def start(self) -> TwoHostStack:
         self.out.mkdir(parents=True, exist_ok=True)
-        self.params.write_text(yaml.safe_dump(
-            {"recorder": {"ros__parameters": {"output": str(self.out / "workstation.mcap")}},
-             "sequencer": {"ros__parameters": SEQUENCER_PARAMETERS}}))
+        recording = str(self.out / "workstation.mcap")
+        self.params.write_text(yaml.safe_dump({"recorder": {"ros__parameters": {"output": recording}}}))
         for host, nodes, niceness in (("rig", RIG_NODES, RIG_NICENESS), ("workstation", WORKSTATION_NODES, 0)):
-            command = ["nice", "-n", str(niceness), sys.executable, "-m", "softblock_ros.launcher",
-                       "--nodes", ",".join(nodes), "--discovery-range", "subnet", "--domain-id", str(self.domain_id),
-                       "--params", str(self.params)]
-            with self._log(host) as log:
-                self.launchers[host] = self.lab.start(host, command, self.env, stdout=log, stderr=subprocess.STDOUT)
+            self.launchers[host] = self._launch(host, nodes, niceness, self.params, host)
+        self.restart_sequencer(SEQUENCER_PARAMETERS)
         self.rig, self.workstation = (self.start_console(host) for host in ("rig", "workstation"))
         return self
+
+    def _launch(self, host: str, nodes: tuple[str, ...], niceness: int, params: Path,
+                log_name: str) -> subprocess.Popen:
+        command = ["nice", "-n", str(niceness), sys.executable, "-m", "softblock_ros.launcher",
+                   "--nodes", ",".join(nodes), "--discovery-range", "subnet", "--domain-id", str(self.domain_id),
+                   "--params", str(params)]
+        with self._log(log_name) as log:
+            return self.lab.start(host, command, self.env, stdout=log, stderr=subprocess.STDOUT)
+
+    def restart_sequencer(self, parameters: Mapping[str, float]) -> None:
+        """The workstation's sequencer (stopped first if running) started with ``parameters``; the output of its
+        n-th start in ``sequencer_<n>.log`` (``logs["sequencer"]``). It serves once wait_sequencer_serving returns."""
+        if "sequencer" in self.launchers:
+            self.lab.stop(self.launchers.pop("sequencer"), timeout=30.0)
+        self._sequencer_starts += 1
+        name = f"sequencer_{self._sequencer_starts}"
+        params = self.out / f"{name}_params.yaml"
+        params.write_text(yaml.safe_dump({"sequencer": {"ros__parameters": dict(parameters)}}))
+        self.launchers["sequencer"] = self._launch("workstation", ("sequencer",), 0, params, name)
+        self.logs["sequencer"] = self.logs[name]
+
+    def wait_sequencer_serving(self, timeout: float = SEQUENCER_STARTUP_TIMEOUT) -> None:
+        """Until the sequencer serves sequencer/run (it has looked for another one and found none)."""
+        deadline = time.monotonic() + timeout
+        while SERVING_LOG not in self.logs["sequencer"].read_text():
+            if self.launchers["sequencer"].poll() is not None or time.monotonic() > deadline:
+                raise TimeoutError(f"the sequencer did not serve within {timeout:g} s: "
+                                   f"{self.logs['sequencer'].read_text()[-2000:]}")
+            time.sleep(0.1)
 
     def start_console(self, host: str) -> Console:
         with self._log(f"{host}_console") as log:
@@ -222,11 +252,15 @@ class TwoHostStack:
             if console is not None:
                 with open(self.out / f"{console.name}_console.jsonl", "w") as stream:
                     stream.writelines(json.dumps(record) + "\n" for record in console.snapshot())
-        for name, process in (("workstation_console", self.workstation and self.workstation.process),
-                              ("rig_console", self.rig and self.rig.process),
-                              *((f"{host}_launcher", p) for host, p in reversed(self.launchers.items()))):
-            if process is not None:
-                codes[name] = self.lab.stop(process, timeout=30.0)
+        # The consoles, then the sequencer (its safe stop needs the driver), then every other node at once.
+        stages = ((("workstation_console", self.workstation and self.workstation.process),
+                   ("rig_console", self.rig and self.rig.process)),
+                  (("sequencer_launcher", self.launchers.get("sequencer")),),
+                  tuple((f"{host}_launcher", self.launchers.get(host)) for host in ("workstation", "rig")))
+        for stage in stages:
+            running = [(name, process) for name, process in stage if process is not None]
+            returned = self.lab.stop_together([process for _, process in running], timeout=30.0)
+            codes.update(zip((name for name, _ in running), returned))
         return codes
 
     def __enter__(self) -> TwoHostStack:

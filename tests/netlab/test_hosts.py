@@ -94,3 +94,28 @@ def test_over_a_30_percent_lossy_link_every_datagram_arrives_but_those_the_link_
     # Each datagram once; the link's counts may include a frame of the hosts' own (IPv6 neighbour discovery).
     assert len(set(arrived)) == len(arrived) and set(arrived) <= set(range(DATAGRAMS))
     assert 0.2 < 1 - len(arrived) / DATAGRAMS < 0.4, f"{len(arrived)} of {DATAGRAMS} arrived"  # the link did lose
+
+
+ENDS_ON_SIGINT = """
+import sys, threading
+print("ready", flush=True)
+try:
+    threading.Event().wait()
+except KeyboardInterrupt:
+    sys.exit(3)
+"""
+IGNORES_SIGINT = """
+import signal, threading
+signal.signal(signal.SIGINT, signal.SIG_IGN)
+print("ready", flush=True)
+threading.Event().wait()
+"""
+
+
+def test_processes_stopped_together_end_on_sigint_and_one_that_ignores_it_is_killed():
+    with EmulatedHosts(("rig", "workstation")) as lab:
+        processes = [lab.start(host, [sys.executable, "-c", program], stdout=subprocess.PIPE, text=True)
+                     for host, program in (("rig", ENDS_ON_SIGINT), ("workstation", IGNORES_SIGINT),
+                                           ("workstation", ENDS_ON_SIGINT))]
+        assert [process.stdout.readline().strip() for process in processes] == ["ready"] * 3
+        assert lab.stop_together(processes, timeout=2.0) == [3, -9, 3]
