@@ -168,6 +168,18 @@ def pair_plan(left=(78, 27), right=(19, 45), shelf=PAIR_SHELF, **kwargs):
                                                              **kwargs)
 
 
+def test_the_order_of_the_slots_changes_no_point_of_a_plan():
+    """The nested search puts the finger with the costlier search first whatever the slots' order; every
+    point keeps each chain's own finger."""
+    shelf = {2: 1, 14: 1, 40: 1, 64: 1, 71: 1}  # the fingers' searches differ in size
+    built, objects, result = pair_plan(left=(78, 27, 64), right=(19, 45, 2), shelf=shelf)
+    swapped = plan_reconfiguration(built, shelf, objects, slots=SLOTS[::-1])
+    for point, other in zip(result.points, swapped.points):
+        assert other.objective == pytest.approx(point.objective, abs=1e-12)
+        mine = {f.chain: f.cost for f in point.fingers}  # a left finger's cost differs from a right one's
+        assert {f.chain: f.cost for f in other.fingers} == pytest.approx(mine, abs=1e-9)
+
+
 def test_pair_plan_equals_brute_force_and_its_steps_rebuild_it():
     built, objects, result = pair_plan()
     assert result.success and len(result.points) == 5
