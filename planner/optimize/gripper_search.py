@@ -10,9 +10,9 @@ at most ``s`` swaps and ``rest[j]`` the convolved bounds of the fingers after fi
 (bound ``b``, ``u`` swaps, after fingers costing ``c`` with ``w`` swaps) can only improve budget ``s`` if
 ``c + b + rest[j][s - w - u] < inc[s]``; its limit is the largest such margin over ``s``, refreshed
 whenever a gripper improves. The last finger's exact front for a given leftover stock is kept and reused
-for every earlier choice that leaves the same stock. The fingers are nested in the order of their relaxed searches' sizes, largest
-first, so the finger searched again per leftover stock is the cheapest. Searches start from the relaxed fronts' fingers (the
-usual answer when the stock is ample).
+for every earlier choice that leaves the same stock. The fingers are nested in the order of their relaxed
+searches' sizes, largest first, so the finger searched again per leftover stock is the cheapest. Searches
+start from the relaxed fronts' fingers (the usual answer when the stock is ample).
 
 Complete: every budget's gripper is the optimum, and a budget without one has none. Stopped (time budget,
 callback): a budget's proven bound is the smallest over the prefixes not yet visited (plus the bounds of
