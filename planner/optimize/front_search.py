@@ -5,7 +5,10 @@ offsets, a ``ShapeTarget`` of ``planner.design.finger_problems``) grasps with it
 objective is the weighted sum of the objects' eq. (3) costs, and a finger must be collision-free for every
 object. The search reuses the compiled kernels of ``planner.optimize.finger_search``: the lookahead fields
 bound every object's cost below a prefix, per base; the minimum over an object's bases bounds that object,
-and the weighted sum of the objects' bounds bounds the finger.
+and the weighted sum of the objects' bounds bounds the finger. One tree holds every base of every object: a
+node is expanded once for all of them, and a child keeps only the bases of an object whose own bound, with
+every other object at its best base, is still below the limit (so a prefix is not searched again per
+combination of bases, and the exact costs of a complete finger are taken only at the bases that can win).
 
 A *current* finger (the robot as built) turns the search into a Pareto search: a position that does not
 keep its block is one block swap (see ``Run`` for which blocks may stay), and ``best[s]`` is the lowest
@@ -40,19 +43,22 @@ CHECK_EVERY = 64  # node expansions between time-budget / callback checks
 
 
 @njit(cache=True, nogil=True)
-def _node_bounds(problem, depth, poses, alphas, alive, leaf, scratch, out):
+def _node_bounds(problem, depth, poses, alphas, alive, leaf, scratch, out, per_base):
     """out[k] = lower bound on this object's cost of every finger continuing the node with next choice k:
-    the smallest over the object's live bases (infinite when every base is dead or proven colliding)."""
+    the smallest over the object's live bases (infinite when every base is dead or proven colliding);
+    per_base[k, b] the bound at base b alone (infinite where it is dead)."""
     count = problem[4][depth]
     out[:count] = np.inf
     for b in range(poses.shape[0]):
         if not alive[b]:
+            per_base[:count, b] = np.inf
             continue
         if leaf:
             _leaf_bounds(problem, depth, poses[b], alphas[b], scratch)
         else:
             _lookahead(problem, depth, poses[b], alphas[b], scratch)
         for k in range(count):
+            per_base[k, b] = scratch[k]
             out[k] = min(out[k], scratch[k])
 
 
@@ -85,10 +91,10 @@ def _child(problem, poses, alphas, alive, s, out_poses, out_alphas, out_alive):
 
 
 @njit(cache=True, nogil=True)
-def _leaf_exact(problem, poses, alphas, alive, s):
+def _leaf_exact(problem, poses, alphas, alive, s, cutoff):
     """(cost, base): this object's objective of the complete finger ending with shape s, at its best
-    collision-free base; (inf, -1) when it collides at every base."""
-    best, best_base = np.inf, -1
+    collision-free base; (inf, -1) when it collides at every base or costs ``cutoff`` or more at each."""
+    best, best_base = cutoff, -1
     for b in range(poses.shape[0]):
         if not alive[b]:
             continue
@@ -96,18 +102,18 @@ def _leaf_exact(problem, poses, alphas, alive, s):
         if cost < 0.0 or cost >= best or _collides(problem, poses[b], s):
             continue
         best, best_base = cost, b
-    return best, best_base
+    return (best, best_base) if best_base >= 0 else (np.inf, -1)
 
 
 @njit(cache=True, nogil=True)
 def _admissible(total, shape, current, keeps_stiff, stiff_position, releasable, swaps, limit, counts, stock,
                 stiff_counts, stiff_stock):
-    """The children of a node worth visiting, lowest bound first: (bound, shape, swaps after, whether it
-    takes a stiff block). A child is kept when its bound is below ``limit[swaps after]`` and its shape is
+    """The children of a node worth visiting, lowest bound first: (bound, shape, choice index, swaps after,
+    whether it takes a stiff block). A child is kept when its bound is below ``limit[swaps after]`` and its shape is
     still in stock (a stiff block too, where one is needed); a releasable position also offers its own
     shape with another block of it (one swap more, any block)."""
     count = len(shape)
-    bounds, shapes = np.empty(count + 1), np.empty(count + 1, np.int64)
+    bounds, shapes, index = np.empty(count + 1), np.empty(count + 1, np.int64), np.empty(count + 1, np.int64)
     afters, stiff = np.empty(count + 1, np.int64), np.empty(count + 1, np.bool_)
     m = 0
     for k in range(count):
@@ -118,13 +124,13 @@ def _admissible(total, shape, current, keeps_stiff, stiff_position, releasable, 
         if counts[s] >= stock[s]:
             continue
         if total[k] < limit[after] and (not needs_stiff or stiff_counts[s] < stiff_stock[s]):
-            bounds[m], shapes[m], afters[m], stiff[m] = total[k], s, after, needs_stiff
+            bounds[m], shapes[m], index[m], afters[m], stiff[m] = total[k], s, k, after, needs_stiff
             m += 1
         if kept and releasable and total[k] < limit[swaps + 1]:
-            bounds[m], shapes[m], afters[m], stiff[m] = total[k], s, swaps + 1, False
+            bounds[m], shapes[m], index[m], afters[m], stiff[m] = total[k], s, k, swaps + 1, False
             m += 1
     order = np.argsort(bounds[:m], kind="mergesort")
-    return bounds[order], shapes[order], afters[order], stiff[order]
+    return bounds[order], shapes[order], index[order], afters[order], stiff[order]
 
 
 CHECKPOINT, LEAF, DONE = 0, 1, 2  # why the compiled search returned
@@ -133,56 +139,87 @@ CHECKPOINT, LEAF, DONE = 0, 1, 2  # why the compiled search returned
 @njit(cache=True, nogil=True)
 def _expand(problems, weights, sizes, level, blocks, poses, alphas, alive, choices, n_choices, current, keeps_stiff,
             stiff_positions, releasable, swaps, limit, counts, stock, stiff_counts, stiff_stock, scratch, per_object,
-            total, state_bounds, state_shapes, state_afters, state_stiff, count, placements):
+            total, base_bounds, state_bounds, state_shapes, state_index, state_afters, state_stiff, count, placements):
     """The admissible children of the node at ``level`` (its object states at index ``level``), lowest bound
-    first, into the level's rows of the child lists."""
+    first, into the level's rows of the child lists; each object's bound per base and next choice into the
+    level's rows of ``base_bounds``."""
     leaf = level + 1 == blocks
     n = n_choices[level]
     total[:n] = 0.0
     for i in range(len(problems)):
         b, q = sizes[i, 0], sizes[i, 1]
         _node_bounds(problems[i], level, poses[i, level, :b], alphas[i, level, :b, :q], alive[i, level, :b], leaf,
-                     scratch, per_object)
+                     scratch, per_object, base_bounds[level, i, :n, :b])
         for k in range(n):
             total[k] += weights[i] * per_object[k]
     placements[0] += n * len(problems)
-    bounds, shapes, afters, stiff = _admissible(total[:n], choices[level, :n], current[level], keeps_stiff[level],
-                                                stiff_positions[level], releasable[level], swaps, limit, counts, stock,
-                                                stiff_counts, stiff_stock)
+    bounds, shapes, index, afters, stiff = _admissible(total[:n], choices[level, :n], current[level],
+                                                       keeps_stiff[level], stiff_positions[level], releasable[level],
+                                                       swaps, limit, counts, stock, stiff_counts, stiff_stock)
     m = len(bounds)
-    state_bounds[level, :m], state_shapes[level, :m] = bounds, shapes
+    state_bounds[level, :m], state_shapes[level, :m], state_index[level, :m] = bounds, shapes, index
     state_afters[level, :m], state_stiff[level, :m] = afters, stiff
     count[level] = m
 
 
 @njit(cache=True, nogil=True)
+def _useful_bases(weights, sizes, per_base, alive, limit, mask):
+    """mask[i, b]: base b of object i stays live below a child whose bounds per object and base are
+    ``per_base[i, :, b]``: the child's bound with object i at base b and every other object at its best base
+    is below ``limit`` (summed in the order of ``_expand``, so the best base of each object passes exactly
+    when the child's own bound does). A base that fails proves that no finger below the child with object i
+    at that base beats the limit, which only falls."""
+    n_objects = len(weights)
+    least = np.empty(n_objects)
+    for i in range(n_objects):
+        least[i] = np.inf
+        for b in range(sizes[i, 0]):
+            least[i] = min(least[i], per_base[i, b])
+    for i in range(n_objects):
+        for b in range(sizes[i, 0]):
+            mask[i, b] = False
+            if not alive[i, b]:
+                continue
+            total = 0.0
+            for j in range(n_objects):
+                total += weights[j] * (per_base[i, b] if j == i else least[j])
+            mask[i, b] = total < limit
+    return least
+
+
+@njit(cache=True, nogil=True)
 def _search_front(problems, weights, sizes, blocks, choices, n_choices, current, keeps_stiff, stiff_positions,
-                  releasable, limit, stock, stiff_stock, combos, combo_order, combo_bounds, root_poses, root_alphas,
-                  state, check_every):
+                  releasable, limit, stock, stiff_stock, share, root_bound, root_poses, root_alphas, state,
+                  check_every):
     """Resumable depth-first search (see ``FingerFrontSearch.run``): returns LEAF with a complete finger
-    below its limit in the state's leaf rows, CHECKPOINT every ``check_every`` nodes, DONE at the end."""
-    (top, combo_next, next_child, count, bounds, shapes, afters, stiff, node_swaps, path, swapped, stiff_used,
-     counts, stiff_counts, poses, alphas, alive, leaf_costs, leaf_bases, scratch, per_object, total, stats) = state
+    below its limit in the state's leaf rows, CHECKPOINT every ``check_every`` nodes, DONE at the end.
+    ``share`` (offset, stride): this search takes the root's children at those ranks of the bound order."""
+    (top, started, next_child, count, bounds, shapes, index, afters, stiff, node_swaps, path, swapped, stiff_used,
+     counts, stiff_counts, poses, alphas, alive, leaf_costs, leaf_bases, scratch, per_object, total, base_bounds,
+     mask, stats) = state
     while True:
         level = top[0]
-        if level < 0:  # the next base per object
-            if combo_next[0] >= len(combo_order):
+        if level < 0:  # the root: every base of every object live
+            if started[0] or root_bound >= limit[0]:
+                started[0] = 1
                 return DONE
-            j = combo_order[combo_next[0]]
-            combo_next[0] += 1
-            if combo_bounds[j] >= limit[0]:
-                continue
+            started[0] = 1
             for i in range(len(problems)):
                 b, q = sizes[i, 0], sizes[i, 1]
                 poses[i, 0, :b] = root_poses[i, :b]
                 alphas[i, 0, :b, :q] = root_alphas[i, :b, :q]
-                for base in range(b):
-                    alive[i, 0, base] = base == combos[j, i]
+                alive[i, 0, :b] = True
             node_swaps[0] = 0
             next_child[0] = 0
             _expand(problems, weights, sizes, 0, blocks, poses, alphas, alive, choices, n_choices, current,
                     keeps_stiff, stiff_positions, releasable, 0, limit, counts, stock, stiff_counts, stiff_stock,
-                    scratch, per_object, total, bounds, shapes, afters, stiff, count, stats[1:])
+                    scratch, per_object, total, base_bounds, bounds, shapes, index, afters, stiff, count, stats[1:])
+            m = 0
+            for k in range(share[0], count[0], share[1]):
+                bounds[0, m], shapes[0, m], index[0, m] = bounds[0, k], shapes[0, k], index[0, k]
+                afters[0, m], stiff[0, m] = afters[0, k], stiff[0, k]
+                m += 1
+            count[0] = m
             top[0] = 0
             continue
         if next_child[level] >= count[level]:  # every child done: back to the parent
@@ -198,12 +235,19 @@ def _search_front(problems, weights, sizes, blocks, choices, n_choices, current,
         s, after = shapes[level, k], afters[level, k]
         if bounds[level, k] >= limit[after]:
             continue
+        least = _useful_bases(weights, sizes, base_bounds[level, :, index[level, k]], alive[:, level], limit[after],
+                              mask)
         if level + 1 == blocks:  # a complete finger: each object at its best collision-free base
-            partial = 0.0
+            partial, rest = 0.0, 0.0
+            for i in range(len(problems)):
+                rest += weights[i] * least[i]
             for i in range(len(problems)):
                 b, q = sizes[i, 0], sizes[i, 1]
-                cost, base = _leaf_exact(problems[i], poses[i, level, :b], alphas[i, level, :b, :q],
-                                         alive[i, level, :b], s)
+                rest -= weights[i] * least[i]
+                # object i matters only below what the limit leaves it (loosened a little against rounding)
+                cutoff = (limit[after] - partial - rest) / weights[i] * (1.0 + 1e-9) + 1e-12
+                cost, base = _leaf_exact(problems[i], poses[i, level, :b], alphas[i, level, :b, :q], mask[i, :b], s,
+                                         cutoff)
                 leaf_costs[i], leaf_bases[i] = cost, base
                 partial += weights[i] * cost
                 if partial >= limit[after]:
@@ -215,7 +259,7 @@ def _search_front(problems, weights, sizes, blocks, choices, n_choices, current,
         clear = True
         for i in range(len(problems)):
             b, q = sizes[i, 0], sizes[i, 1]
-            if not _child(problems[i], poses[i, level, :b], alphas[i, level, :b, :q], alive[i, level, :b], s,
+            if not _child(problems[i], poses[i, level, :b], alphas[i, level, :b, :q], mask[i, :b], s,
                           poses[i, level + 1, :b], alphas[i, level + 1, :b, :q], alive[i, level + 1, :b]):
                 clear = False
                 break
@@ -229,7 +273,7 @@ def _search_front(problems, weights, sizes, blocks, choices, n_choices, current,
         next_child[level + 1] = 0
         _expand(problems, weights, sizes, level + 1, blocks, poses, alphas, alive, choices, n_choices, current,
                 keeps_stiff, stiff_positions, releasable, after, limit, counts, stock, stiff_counts, stiff_stock,
-                scratch, per_object, total, bounds, shapes, afters, stiff, count, stats[1:])
+                scratch, per_object, total, base_bounds, bounds, shapes, index, afters, stiff, count, stats[1:])
         top[0] = level + 1
         stats[0] += 1
         if stats[0] % check_every == 0:
@@ -301,9 +345,7 @@ class FingerFrontSearch:
         self.choices = [np.asarray(c, np.int64) for c in space.choices]
         self.scratch = np.zeros(max(len(c) for c in self.choices))
         self.roots = _object_states(self.problems)
-        self.combos, self.combo_bounds = _base_combinations(self.problems, weights, self.roots, self.scratch,
-                                                            space.num_blocks)
-        self.combo_order = np.argsort(self.combo_bounds, kind="mergesort")
+        self.root_bound = _root_bound(self.problems, weights, self.roots, self.scratch, space.num_blocks)
         self.placements = 0
         # the compiled search's view: one tuple of problems, per-position choices, per-object states padded
         self.problems_tuple = tuple(self.problems)
@@ -328,44 +370,45 @@ class FingerFrontSearch:
         size = len(self.space.theta)
         return (np.array([-1]), np.zeros(1, np.int64), np.zeros(blocks, np.int64), np.zeros(blocks, np.int64),
                 np.zeros((blocks, width)), np.zeros((blocks, width), np.int64), np.zeros((blocks, width), np.int64),
-                np.zeros((blocks, width), np.bool_), np.zeros(blocks, np.int64), np.full(blocks, -1, np.int64),
-                np.zeros(blocks, np.bool_), np.zeros(blocks, np.bool_), np.zeros(size, np.int64),
-                np.zeros(size, np.int64), np.zeros((n_objects, blocks, b, 3)), np.zeros((n_objects, blocks, b, q)),
-                np.zeros((n_objects, blocks, b), np.bool_), np.zeros(n_objects), np.zeros(n_objects, np.int64),
-                np.zeros(width), np.zeros(width), np.zeros(width), np.zeros(2, np.int64))
+                np.zeros((blocks, width), np.int64), np.zeros((blocks, width), np.bool_), np.zeros(blocks, np.int64),
+                np.full(blocks, -1, np.int64), np.zeros(blocks, np.bool_), np.zeros(blocks, np.bool_),
+                np.zeros(size, np.int64), np.zeros(size, np.int64), np.zeros((n_objects, blocks, b, 3)),
+                np.zeros((n_objects, blocks, b, q)), np.zeros((n_objects, blocks, b), np.bool_), np.zeros(n_objects),
+                np.zeros(n_objects, np.int64), np.zeros(width), np.zeros(width), np.zeros(width),
+                np.full((blocks, n_objects, width, b), np.inf), np.zeros((n_objects, b), np.bool_),
+                np.zeros(2, np.int64))
 
     def run(self, run: Run, control: RunControl, fraction=lambda done: done, workers: int = 1) -> int:
         """Search every finger whose bound stays below ``run.limit`` (read at every step: ``run.on_leaf``
         may lower it); returns the nodes expanded. ``control`` may raise Stop (``run.frontier()`` then holds
-        what is left). ``fraction`` maps the share of base combinations done to the progress reported.
-        ``workers`` > 1: the base combinations are dealt out to that many threads (the compiled search
+        what is left). ``fraction`` maps the share of the root's children done to the progress reported.
+        ``workers`` > 1: the root's children are dealt out in turn to that many threads (the compiled search
         releases the GIL), which share the limit; ``on_leaf`` and reports are then made one at a time."""
-        workers = max(1, min(workers, len(self.combo_order)))
-        shares = [np.ascontiguousarray(self.combo_order[w::workers]) for w in range(workers)]
+        workers = max(1, workers)
+        shares = [np.array([w, workers], np.int64) for w in range(workers)]
         states = [self._new_state() for _ in shares]
-        run.frames = _Pending(list(zip(states, shares)), self.combo_bounds)
+        run.frames = _Pending(states, self.root_bound)
         placed = self.placements
         control.report(fraction(0.0), float(run.limit[-1]), placed)
         common = (self.problems_tuple, self.weights, self.sizes, self.space.num_blocks, self.choices, self.n_choices,
                   np.asarray(run.current, np.int64), np.asarray(run.keeps_stiff, np.bool_),
                   np.asarray(self.space.stiff_positions, np.bool_), np.asarray(run.releasable, np.bool_), run.limit,
-                  np.asarray(run.stock, np.int64), np.asarray(run.stiff_stock, np.int64), self.combos)
+                  np.asarray(run.stock, np.int64), np.asarray(run.stiff_stock, np.int64))
         lock, stopped = threading.Lock(), []
 
         def search(share, state) -> None:
-            arguments = common + (share, self.combo_bounds, self.root_poses, self.root_alphas, state, CHECK_EVERY)
-            path, swapped, leaf_costs, leaf_bases = state[9], state[10], state[17], state[18]
+            arguments = common + (share, self.root_bound, self.root_poses, self.root_alphas, state, CHECK_EVERY)
+            path, swapped, leaf_costs, leaf_bases = state[10], state[11], state[18], state[19]
             while not stopped:
                 code = _search_front(*arguments)
                 with lock:
-                    self.placements = placed + sum(int(st[22][1]) for st in states)
+                    self.placements = placed + sum(int(st[-1][1]) for st in states)
                     try:
                         if code == LEAF:
                             run.on_leaf(Candidate(path.copy(), swapped.copy(), leaf_costs.copy(), leaf_bases.copy(),
                                                   float(self.weights @ leaf_costs)))
                         elif code == CHECKPOINT:
-                            done = sum(max(int(st[1][0]) - 1, 0) for st in states) / len(self.combo_order)
-                            control.report(fraction(min(done, 1.0)), float(run.limit[-1]), self.placements)
+                            control.report(fraction(_done(states)), float(run.limit[-1]), self.placements)
                         else:
                             return
                     except Stop as stop:
@@ -380,21 +423,35 @@ class FingerFrontSearch:
                     future.result()
         if stopped:
             raise stopped[0]
-        return sum(int(state[22][0]) for state in states)
+        return sum(int(state[-1][0]) for state in states)
+
+
+def _done(states) -> float:
+    """The share of the root's children the searches have finished."""
+    shares = []
+    for state in states:
+        top, started, next_child, count = state[:4]
+        if not started[0]:
+            shares.append(0.0)
+        elif top[0] < 0:
+            shares.append(1.0)
+        else:
+            shares.append(max(int(next_child[0]) - 1, 0) / count[0] if count[0] else 1.0)
+    return min(float(np.mean(shares)), 1.0)
 
 
 class _Pending:
-    """The children the compiled searches (their states and shares of the base combinations) have not
-    visited yet."""
+    """The children the compiled searches (their states) have not visited yet."""
 
-    def __init__(self, searches, combo_bounds):
-        self.searches, self.combo_bounds = searches, combo_bounds
+    def __init__(self, states, root_bound):
+        self.states, self.root_bound = states, root_bound
 
     def frontier(self) -> list[tuple[float, int]]:
         out = []
-        for state, share in self.searches:
-            top, combo_next, next_child, count, bounds, _, afters = state[:7]
-            out += [(float(self.combo_bounds[j]), 0) for j in share[int(combo_next[0]):]]
+        for state in self.states:
+            top, started, next_child, count, bounds, _, _, afters = state[:8]
+            if not started[0]:
+                out.append((float(self.root_bound), 0))
             for level in range(int(top[0]) + 1):
                 out += [(float(bounds[level, k]), int(afters[level, k]))
                         for k in range(next_child[level], count[level])]
@@ -501,25 +558,19 @@ def _evaluate(problems, roots, shapes):
                 break
             state = out
         else:
-            costs[i], bases[i] = _leaf_exact(problem, *state, shapes[-1])
+            costs[i], bases[i] = _leaf_exact(problem, *state, shapes[-1], np.inf)
     return costs, bases
 
 
-def _base_combinations(problems, weights, roots, scratch, blocks):
-    """Every combination of one base per object (rows of base indices) and its bound: the weighted sum of
-    each object's bound at that base (the smallest over its first blocks)."""
-    per_object = []
-    for problem, (poses, alphas, alive) in zip(problems, roots):
-        bounds = np.empty(len(alive))
-        out = np.empty(problem[4][0])
-        for b in range(len(alive)):
-            _node_bounds(problem, 0, poses, alphas, np.arange(len(alive)) == b, blocks == 1, scratch, out)
-            bounds[b] = out.min()
-        per_object.append(bounds)
-    grids = np.meshgrid(*[np.arange(len(b)) for b in per_object], indexing="ij")
-    combos = np.stack([g.reshape(-1) for g in grids], axis=1)
-    total = sum(w * b[combos[:, i]] for i, (w, b) in enumerate(zip(weights, per_object)))
-    return combos, total
+def _root_bound(problems, weights, roots, scratch, blocks) -> float:
+    """The weighted sum of each object's bound over every first block at any of its bases: every finger
+    costs at least this."""
+    total = 0.0
+    for weight, problem, (poses, alphas, alive) in zip(weights, problems, roots):
+        out, per_base = np.empty(problem[4][0]), np.empty((problem[4][0], len(alive)))
+        _node_bounds(problem, 0, poses, alphas, alive, blocks == 1, scratch, out, per_base)
+        total += weight * out.min()
+    return float(total)
 
 
 def _check_limits(space, current, stock, stiff_stock):

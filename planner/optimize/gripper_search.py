@@ -10,8 +10,9 @@ at most ``s`` swaps and ``rest[j]`` the convolved bounds of the fingers after fi
 (bound ``b``, ``u`` swaps, after fingers costing ``c`` with ``w`` swaps) can only improve budget ``s`` if
 ``c + b + rest[j][s - w - u] < inc[s]``; its limit is the largest such margin over ``s``, refreshed
 whenever a gripper improves. The last finger's exact front for a given leftover stock is kept and reused
-for every earlier choice that leaves the same stock. Searches start from the relaxed fronts' fingers (the
-usual answer when the stock is ample).
+for every earlier choice that leaves the same stock. The fingers are nested in the order of their relaxed
+searches' sizes, largest first, so the finger searched again per leftover stock is the cheapest. Searches
+start from the relaxed fronts' fingers (the usual answer when the stock is ample).
 
 Complete: every budget's gripper is the optimum, and a budget without one has none. Stopped (time budget,
 callback): a budget's proven bound is the smallest over the prefixes not yet visited (plus the bounds of
@@ -90,7 +91,18 @@ def convolve(a, b) -> np.ndarray:
 def solve_gripper_front(fingers: list[FingerProblem], stock, stiff_stock, control: RunControl,
                         fraction=lambda done: done) -> GripperFront:
     """The exact front of the fingers sharing ``stock`` / ``stiff_stock`` (blocks per shape, the same
-    shape indices in every finger's space); ``control`` may stop it (see the module doc)."""
+    shape indices in every finger's space); ``control`` may stop it (see the module doc). The nested search
+    takes the fingers whose relaxed searches placed the most blocks first: the last finger is searched again
+    for every leftover stock, so the cheapest goes there."""
+    order = sorted(range(len(fingers)), key=lambda j: -fingers[j].relaxed.nfev)
+    front = _solve_in_order([fingers[j] for j in order], stock, stiff_stock, control, fraction)
+    back = np.argsort(order)
+    front.chosen = [None if picked is None else tuple(picked[k] for k in back) for picked in front.chosen]
+    return front
+
+
+def _solve_in_order(fingers: list[FingerProblem], stock, stiff_stock, control: RunControl,
+                    fraction) -> GripperFront:
     total = sum(f.blocks for f in fingers)
     rest = [np.zeros(1)]
     for finger in reversed(fingers):

@@ -15,7 +15,7 @@ from planner.contours import extract_contours, load_catalog_object
 from planner.generated_objects import PIXEL_SIZE, lumpy_object
 from planner.objectives import COLLISION_PENALTY
 from planner.optimize import Status, design_costs, design_space
-from planner.optimize.front_search import solve_finger_front
+from planner.optimize.front_search import FingerFrontSearch, _node_bounds, solve_finger_front
 from planner.reconfigure import FingerSlot, TargetObject, plan_reconfiguration, swap_steps
 from planner.table import load_table
 from reconfigure_brute import generated_contours, plan_brute_force
@@ -83,6 +83,49 @@ def test_swap_front_equals_brute_force(objects, blocks):
             assert costs[chosen[0]] == pytest.approx(expected, abs=1e-9)
 
 
+@settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.data())
+def test_bounds_per_base_never_exceed_a_fingers_cost_and_the_front_equals_brute_force(data):
+    """Generated pairs of objects: the root's bound and each object's bound per base and first block (what
+    a child's bases are kept by) never exceed the true costs, and the certified front equals brute force."""
+    blocks = data.draw(st.sampled_from([2, 3]), label="blocks")
+    kinds = [data.draw(st.sampled_from(["ellipse", "polygon", "lumpy"]), label="kind") for _ in range(2)]
+    seeds = [data.draw(st.integers(0, 10_000), label="seed") for _ in range(2)]
+    weights = np.array([1.0, data.draw(st.sampled_from([0.4, 1.0, 2.5]), label="weight")])
+    side = data.draw(st.sampled_from(["left", "right"]), label="side")
+    targets = [design.finger_problems(generated_contours(k, s), base_offsets=OFFSETS)[side][0]
+               for k, s in zip(kinds, seeds)]
+    space = design_space(TABLE, blocks)
+    shape_of, stock = shape_stock(space, {i: 2 for i in SHELF_IDS})
+    current = np.array([shape_of[i] for i in (78, 27, 64)[:blocks]])
+    search = FingerFrontSearch(targets, weights, space)
+    usable = np.flatnonzero(stock > 0)
+    combos = np.array([c for c in itertools.product(usable, repeat=blocks)
+                       if np.all(np.bincount(c, minlength=len(stock)) <= stock)])
+    per_base = []
+    for target in targets:  # (finger, base) costs, inf where it collides
+        bases = len(target.bases)
+        shapes = np.repeat(combos, bases, axis=0)
+        costs = design_costs(target, space, shapes, np.zeros_like(shapes), np.tile(np.arange(bases), len(combos)))
+        per_base.append(np.where(costs >= COLLISION_PENALTY, np.inf, costs).reshape(len(combos), bases))
+    costs = sum(w * c.min(axis=1) for w, c in zip(weights, per_base))
+    assert search.root_bound <= costs.min() + 1e-9
+    for problem, (poses, alphas, alive), cost in zip(search.problems, search.roots, per_base):
+        first = np.asarray(space.choices[0])
+        least, bound = np.empty(len(first)), np.empty((len(first), len(alive)))
+        _node_bounds(problem, 0, poses, alphas, alive, blocks == 1, search.scratch, least, bound)
+        for k, shape in enumerate(first):
+            below = combos[:, 0] == shape
+            if below.any():
+                assert np.all(bound[k] <= cost[below].min(axis=0) + 1e-9)
+    front = solve_finger_front(targets, weights, space, current=current, stock=stock, search=search)
+    assert front.status in (Status.CERTIFIED, Status.INFEASIBLE) and front.optimal.all()
+    swaps = (combos != current).sum(axis=1)
+    for budget in range(blocks + 1):
+        expected = costs[swaps <= budget].min()
+        assert front.fun[budget] == pytest.approx(expected, abs=1e-9), budget
+
+
 def test_a_stiff_block_at_a_free_position_gives_way_when_its_kind_is_needed():
     """A shape with one stiff and one free block in stock: the free position holds the stiff one, and the
     forced-stiff position wants that shape too. Keeping it leaves no stiff block for the other position; the
@@ -123,6 +166,18 @@ def pair_plan(left=(78, 27), right=(19, 45), shelf=PAIR_SHELF, **kwargs):
                for (n, s), w in zip(PAIR_OBJECTS, (1.0, 0.7))]
     return robot(left, right), objects, plan_reconfiguration(robot(left, right), shelf, objects, slots=SLOTS,
                                                              **kwargs)
+
+
+def test_the_order_of_the_slots_changes_no_point_of_a_plan():
+    """The nested search puts the finger with the costlier search first whatever the slots' order; every
+    point keeps each chain's own finger."""
+    shelf = {2: 1, 14: 1, 40: 1, 64: 1, 71: 1}  # the fingers' searches differ in size
+    built, objects, result = pair_plan(left=(78, 27, 64), right=(19, 45, 2), shelf=shelf)
+    swapped = plan_reconfiguration(built, shelf, objects, slots=SLOTS[::-1])
+    for point, other in zip(result.points, swapped.points):
+        assert other.objective == pytest.approx(point.objective, abs=1e-12)
+        mine = {f.chain: f.cost for f in point.fingers}  # a left finger's cost differs from a right one's
+        assert {f.chain: f.cost for f in other.fingers} == pytest.approx(mine, abs=1e-9)
 
 
 def test_pair_plan_equals_brute_force_and_its_steps_rebuild_it():
