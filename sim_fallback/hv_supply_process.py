@@ -13,19 +13,10 @@ import sys
 import threading
 
 from .pty_device import FAULTS
-from .rig import channels_per_device
+from .rig import channels_per_device, check_address
 
 START_TIMEOUT = 30.0  # [s] for the child to print its pty path (interpreter start-up on a loaded machine)
 REPLY_TIMEOUT = 10.0  # [s] for the answer to one command
-
-
-def check_address(channel: int | None, device: int | None, channels: int, devices: int) -> None:
-    """ValueError naming a ``channel`` or ``device`` (None: every one) outside a rig of ``devices`` supplies of
-    ``channels`` channels."""
-    if channel is not None and not (isinstance(channel, int) and 0 <= channel < channels):
-        raise ValueError(f"channel={channel!r}: between 0 and {channels - 1}")
-    if device is not None and not (isinstance(device, int) and 0 <= device < devices):
-        raise ValueError(f"device={device!r}: between 0 and {devices - 1}")
 
 
 class SimulatedSupplyProcess:

@@ -8,10 +8,9 @@ per device), ``inject()``, ``clear_faults()``, ``stop()``. The supplies end with
 """
 from __future__ import annotations
 
-from .hv_supply_process import check_address
 from .memory_port import MemoryPort
 from .pty_device import PtyDevice
-from .rig import channels_per_device, make_devices
+from .rig import channels_per_device, check_address, make_devices
 
 
 class MemoryRig:
@@ -19,8 +18,6 @@ class MemoryRig:
     dialect has several."""
 
     def __init__(self, channels: int = 2, dialect: str = "iseg-edcp", devices: int = 1):
-        if channels < 1:
-            raise ValueError(f"channels={channels}: at least 1")
         self.dialect, self.channels = dialect, channels_per_device(dialect, channels)
         self.supplies: list[PtyDevice] = make_devices(dialect, devices, channels)
         self.ports = [MemoryPort(supply, name=f"memory:{dialect}/{k}") for k, supply in enumerate(self.supplies)]

@@ -39,12 +39,21 @@ def channels_per_device(dialect: str, requested: int | None = None) -> int:
     return fixed if fixed is not None else (requested or 4)
 
 
+def check_address(channel: int | None, device: int | None, channels: int, devices: int) -> None:
+    """ValueError naming a ``channel`` or ``device`` (None: every one) outside a rig of ``devices`` supplies of
+    ``channels`` channels."""
+    if channel is not None and not (isinstance(channel, int) and 0 <= channel < channels):
+        raise ValueError(f"channel={channel!r}: between 0 and {channels - 1}")
+    if device is not None and not (isinstance(device, int) and 0 <= device < devices):
+        raise ValueError(f"device={device!r}: between 0 and {devices - 1}")
+
+
 def make_devices(dialect: str, devices: int, channels: int | None = None, voltage_limit: float | None = None,
                  watchdog_s: float | None = None) -> list[PtyDevice]:
     """``devices`` simulated supplies of ``dialect`` (not started), each with its own noise seed; ``channels``
     per device where the dialect has several; ``voltage_limit`` [V] replaces the dialect's hardware limit."""
-    if devices < 1:
-        raise ValueError(f"devices={devices}: at least 1")
+    if devices < 1 or (channels is not None and channels < 1):
+        raise ValueError(f"channels={channels}, devices={devices}: at least 1 each")
     cls = simulator(dialect)
     defaults = cls.default_defaults
     if voltage_limit is not None:
