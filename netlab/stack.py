@@ -9,7 +9,8 @@ Every process runs under the launcher's network switch (``--discovery-range subn
 Fast DDS limited to UDPv4: its shared-memory transport would otherwise let two processes of this one machine
 talk past the emulated link. Both hosts share this machine's cores, where on a lab bench the rig PC has its
 own: the rig's processes run at a higher priority (RIG_NICENESS) and the sequencer's timeouts are widened
-(SEQUENCER_PARAMETERS; restart_sequencer starts it with others). The recorder writes into ``out_dir``. Nothing here imports ROS; the processes do.
+(SEQUENCER_PARAMETERS; restart_sequencer starts it with others). The recorder writes into ``out_dir``. Nothing
+here imports ROS; the processes do.
 """
 from __future__ import annotations
 
