@@ -36,7 +36,8 @@ DEFAULT_MIN_STIFF_ROD_DIAMETER = 0.62e-3  # [m], the D of ID 57 used for the pap
 DEFAULT_CONTOUR_SPACING = 1e-3  # [m]
 DEFAULT_BASE_OFFSETS = np.arange(0.0, 12.5e-3, 1e-3)  # outward from touching the bounding box [m]
 PATH_EXACT_OPTIONS = {"max_width": 64, "polish_starts": 1}  # 12 rotations x 84 shapes per block: narrow
-PREPARED_CONFIGURATIONS = ((4, 2), (5, 3), (5, 2))  # (blocks, stiff top) of the gripper and the benchmarks
+GRIPPER_CONFIGURATIONS = ((4, 2), (5, 3))  # (blocks, stiff top) of the paper's gripper: front and back fingers
+PREPARED_CONFIGURATIONS = (*GRIPPER_CONFIGURATIONS, (5, 2))  # and of the benchmarks
 METHODS = ("exact", "pso")
 
 

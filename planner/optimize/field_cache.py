@@ -46,7 +46,7 @@ def key_digest(parts: Iterable, modules: Iterable[str] = ()) -> str:
 def _update(digest, part) -> None:
     if isinstance(part, np.ndarray):
         digest.update(repr((part.dtype.str, part.shape)).encode())
-        digest.update(np.ascontiguousarray(part).tobytes())
+        digest.update(np.ascontiguousarray(part).reshape(-1).view(np.uint8))  # its bytes, not a copy of them
     elif isinstance(part, (tuple, list)):
         digest.update(f"<{len(part)}>".encode())
         for item in part:

@@ -55,6 +55,7 @@ from .conversions import assembly_msg, chain_from_msg
 from .hv_control import HvControl
 from .foxglove_bridge_node import SERVING
 from .launcher import OutputWatch, Stack
+from .planner_node import READY as PLANNER_READY
 from .stack import load_stack
 
 DEMO_ASSEMBLY = "assemblies/gripper.yaml"
@@ -63,6 +64,9 @@ FINGER_SETS = {  # paper Figure 5: blocks per finger, top blocks forced stiff
     "back": {"num_blocks": 5, "num_stiff_top": 3},
 }
 SERVICE_TIMEOUT = 60.0  # [s] first calls wait for the nodes to start on a loaded machine
+# [s] The planner prepares its search at niceness 10 (config/stack.yaml): beside busy loops its start takes
+# minutes, and the wait ends at once if it exits, so this bounds a hang only.
+PLANNER, PLANNER_START_TIMEOUT = "planner", 600.0
 FINGER_TIME_BUDGET = 1.0  # [s] per finger pair: the best design found by then, certified if the search ended
 FAULT_CHANNEL, FAULT = "front", "over_current"
 LIVE_VIEW = "foxglove_bridge"  # optional in the stack: the demo runs it, to watch in Foxglove
@@ -241,11 +245,19 @@ def analyse(recording: Path, out: Path, title: str = "finger grasp on the simula
 def live_view_url(stack: Stack, serving: OutputWatch, timeout: float = SERVICE_TIMEOUT) -> str | None:
     """The address the live view serves on once its node says it listens; None if the node ended first (a port
     that is taken) or said nothing within ``timeout``."""
-    deadline = time.monotonic() + timeout
-    while serving.line is None and LIVE_VIEW not in stack.dead() and time.monotonic() < deadline:
-        time.sleep(0.05)
-    found = re.search(r"ws://\S+", serving.line or "")
+    found = re.search(r"ws://\S+", stack.wait_for(serving, timeout) or "")
     return found.group(0) if found else None
+
+
+def wait_for_planner(stack: Stack, ready: OutputWatch) -> None:
+    """Return once the planner node says it is ready; ClientError if it exits first or takes longer than
+    PLANNER_START_TIMEOUT."""
+    if ready.line is None:
+        say("waiting for the planner to prepare its finger search (niced batch work: slow on a busy machine)")
+    if stack.wait_for(ready, PLANNER_START_TIMEOUT) is None:
+        ended = stack.dead().get(PLANNER)
+        raise ClientError(f"the planner ended with code {ended} before it was ready" if ended is not None else
+                          f"the planner was not ready within {PLANNER_START_TIMEOUT:g} s")
 
 
 def announce_live_view(stack: Stack, serving: OutputWatch, report: dict) -> None:
@@ -267,6 +279,7 @@ def run_stack(out: Path, params: Path, scenario, report: dict, nodes=(LIVE_VIEW,
         say(f"starting the stack on the simulated backend (node output: {out / 'stack.log'})")
         stack = Stack(nodes=[*load_stack().default_names, *nodes], params=params, output=log)
         serving = stack.watch(LIVE_VIEW, SERVING)
+        planner_ready = stack.watch(PLANNER, PLANNER_READY)
         stack.start()
         os.environ.update(stack.network.variables(os.environ))  # the demo's client joins the nodes' network
         rclpy.init()
@@ -275,6 +288,8 @@ def run_stack(out: Path, params: Path, scenario, report: dict, nodes=(LIVE_VIEW,
             wait_until(lambda: (s := client.hv_state) and len(s.channels) == 2, SERVICE_TIMEOUT, "hv/state")
             if LIVE_VIEW in nodes:
                 announce_live_view(stack, serving, report)
+            if PLANNER in stack.nodes:
+                wait_for_planner(stack, planner_ready)
             scenario(client)
         except ClientError as error:
             say(f"FAILED: {error}")

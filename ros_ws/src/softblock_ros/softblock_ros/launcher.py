@@ -63,6 +63,7 @@ class OutputWatch:
     def __init__(self, node: str, text: str):
         self.node, self.text = node, text
         self.line: str | None = None
+        self.settled = threading.Event()  # the line came, or the node's output ended without it
 
 
 class Stack:
@@ -124,14 +125,28 @@ class Stack:
             self._pumps.append(pump)
         return self
 
+    def wait_for(self, watch: OutputWatch, timeout: float) -> str | None:
+        """The watched line once its node printed it; None if the node's output ended first (it exited:
+        ``dead()`` then has its code) or ``timeout`` passed."""
+        if watch.settled.wait(timeout) and watch.line is None:
+            try:  # the output ends a moment before the process can be reaped
+                self.processes[watch.node].wait(self.stop_timeout)
+            except subprocess.TimeoutExpired:
+                pass  # a node that closed its output and lives on
+        return watch.line
+
     def _pump(self, name: str, process: subprocess.Popen) -> None:
+        watches = [watch for watch in self._watches if watch.node == name]
         for line in process.stdout:
-            for watch in self._watches:
-                if watch.node == name and watch.line is None and watch.text in line:
+            for watch in watches:
+                if watch.line is None and watch.text in line:
                     watch.line = line.rstrip("\n")
+                    watch.settled.set()
             with self._output_lock:
                 self.output.write(f"[{name}] {line}")
                 self.output.flush()
+        for watch in watches:
+            watch.settled.set()
 
     def dead(self) -> dict[str, int]:
         """Exit codes of node processes that have ended."""

@@ -38,6 +38,7 @@ from .runner import run_node, where
 DEFAULT_METHOD = "exact"
 MAX_PLAN_OBJECTS = 16  # objects of one plan goal
 MAX_BASE_OFFSETS = 64  # candidate base offsets of one object
+READY = "ready, serving"  # logged once every service and action is offered
 # Finger base frames in the object frame (x right, z up): the finger grows downward (+z -> -z) and
 # bends toward the object (+x -> +x for the left finger, -x for the right one).
 FINGER_BASE_ORIENTATION = {"left": (1.0, 0.0, 0.0, 0.0), "right": (0.0, 1.0, 0.0, 0.0)}
@@ -72,10 +73,10 @@ class PlannerNode(Node):
                                   (action.PlanReconfiguration, "planner/plan_reconfiguration", self._plan)):
             ActionServer(self, kind, name, execute_callback=partial(self._execute, kind, solve),
                          cancel_callback=lambda _goal: CancelResponse.ACCEPT, callback_group=group)
-        self.get_logger().info(f"ready, table of {len(self._table.ids)} designs")
+        self.get_logger().info(f"{READY}, table of {len(self._table.ids)} designs")
 
     def _prepare_finger_search(self) -> None:
-        configurations = [c for c in design.PREPARED_CONFIGURATIONS if c[0] <= self._settings["max_blocks"]]
+        configurations = [c for c in design.GRIPPER_CONFIGURATIONS if c[0] <= self._settings["max_blocks"]]
         started = time.perf_counter()
         design.prepare_finger_search(configurations, table=self._table)
         self.get_logger().info(f"finger search prepared for (blocks, stiff top) {configurations} "
