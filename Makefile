@@ -17,12 +17,12 @@ demo-reconfigure: setup
 # The tiers (pyproject.toml's markers), cheapest first, so that a broken basic stops the run early.
 # Integration modules stay on one worker each (--dist loadfile): they share module-wide nodes and ROS domains.
 # Their tests mostly wait for processes and messages, so four workers share the two cores (191 s -> 129 s).
-# The stack tests run alone, one at a time: two at a time beside two busy loops, the reconfiguration demo's planner
-# took over the demo's 120 s to start (stress run on 1574d89).
+# The stack tests run last, on two workers (--dist loadgroup): the two-host module on one, the one-host modules one
+# after another on the other. Their grasps mostly wait for ramps, so the two overlap (244 s -> see README).
 test: setup
 	$(PYTEST) -n 2 -m fast tests
 	$(PYTEST) -n 4 --dist loadfile -m integration tests
-	$(PYTEST) -m stack tests
+	$(PYTEST) -n 2 --dist loadgroup -m stack tests
 
 test-fast: setup
 	$(PYTEST) -n 2 -m fast tests

@@ -13,8 +13,9 @@ from softblock_ros.client import wait_until
 from softblock_ros.launcher import Stack
 from softblock_ros.stack import load_stack
 
-# stack: `make test` runs these alone, after the other tiers, as a user launches the nodes
-pytestmark = pytest.mark.stack
+# stack: `make test` runs the stack tests after the other tiers; the one-host modules share one worker, beside the
+# two-host module on the other (their grasps mostly wait for ramps, so the two overlap)
+pytestmark = [pytest.mark.stack, pytest.mark.xdist_group("one_host")]
 
 START_TIMEOUT = 120.0  # [s] liveness bound only: the planner prepares its search at niceness 10 on a loaded host
 RESEND_S = 2.0  # [s] a request without a reply is sent again after this
