@@ -12,9 +12,8 @@ at most ``s`` swaps and ``rest[j]`` the convolved bounds of the fingers after fi
 whenever a gripper improves. The last finger's exact front for a leftover stock is kept and reused for
 every earlier choice that leaves a stock differing from it only in blocks that search never wanted below its
 limit (``_KeptFronts``). The fingers are nested in the order of their relaxed searches' sizes, largest
-first, so the finger searched again per leftover stock is the cheapest; the first finger's search runs on
-two threads (the inner searches of one of its fingers run while the other thread searches on). Searches
-start from the relaxed fronts' fingers (the usual answer when the stock is ample).
+first, so the finger searched again per leftover stock is the cheapest. Each finger's search runs on two
+threads. Searches start from the relaxed fronts' fingers (the usual answer when the stock is ample).
 
 Complete: every budget's gripper is the optimum, and a budget without one has none. Stopped (time budget,
 callback): a budget's proven bound is the smallest over the prefixes not yet visited (plus the bounds of
@@ -29,7 +28,7 @@ import numpy as np
 from planner.optimize.front_search import Candidate, FingerFrontSearch, Front, FrontResult, Run, within
 from planner.optimize.result import RunControl, Status, Stop
 
-OUTER_WORKERS = 2  # threads of the first finger's search (the machine's cores)
+WORKERS = 2  # threads of each finger's search (the machine's cores)
 
 
 @dataclass(frozen=True)
@@ -209,7 +208,7 @@ def _solve_in_order(fingers: list[FingerProblem], stock, stiff_stock, control: R
                           on_leaf)
                 entry = {"j": j, "cost": cost, "swaps": swaps, "run": run, "refresh": refresh}
                 active.append(entry)
-                finger.search.run(run, control, top if j == 0 else inner)
+                finger.search.run(run, control, top if j == 0 else inner, workers=WORKERS)
                 active.remove(entry)
                 needed = run.stock_needed()
             kept.add(front, *needed)
@@ -241,7 +240,7 @@ def _solve_in_order(fingers: list[FingerProblem], stock, stiff_stock, control: R
         for candidate in finger.seeds():  # the likely answers first: good grippers to prune with
             if finger.fits(candidate, left, left_stiff):
                 on_leaf(candidate)
-        finger.search.run(run, control, top if j == 0 else inner, workers=OUTER_WORKERS if j == 0 else 1)
+        finger.search.run(run, control, top if j == 0 else inner, workers=WORKERS)
         active.remove(entry)
 
     status, begun = Status.CERTIFIED, False
