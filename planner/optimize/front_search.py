@@ -107,11 +107,13 @@ def _leaf_exact(problem, poses, alphas, alive, s, cutoff):
 
 @njit(cache=True, nogil=True)
 def _admissible(total, shape, current, keeps_stiff, stiff_position, releasable, swaps, limit, counts, stock,
-                stiff_counts, stiff_stock):
+                stiff_counts, stiff_stock, blocked):
     """The children of a node worth visiting, lowest bound first: (bound, shape, choice index, swaps after,
     whether it takes a stiff block). A child is kept when its bound is below ``limit[swaps after]`` and its shape is
     still in stock (a stiff block too, where one is needed); a releasable position also offers its own
-    shape with another block of it (one swap more, any block)."""
+    shape with another block of it (one swap more, any block). A child below its limit that the stock stops
+    lowers ``blocked[0, shape]`` (``blocked[1, shape]`` for the stiff stock) to the blocks of its shape
+    already placed."""
     count = len(shape)
     bounds, shapes, index = np.empty(count + 1), np.empty(count + 1, np.int64), np.empty(count + 1, np.int64)
     afters, stiff = np.empty(count + 1, np.int64), np.empty(count + 1, np.bool_)
@@ -121,12 +123,20 @@ def _admissible(total, shape, current, keeps_stiff, stiff_position, releasable, 
         kept = s == current
         after = swaps if kept else swaps + 1
         needs_stiff = stiff_position or (kept and keeps_stiff)
-        if counts[s] >= stock[s]:
+        wanted = total[k] < limit[after]
+        other_block = kept and releasable and total[k] < limit[swaps + 1]
+        if not (wanted or other_block):
             continue
-        if total[k] < limit[after] and (not needs_stiff or stiff_counts[s] < stiff_stock[s]):
-            bounds[m], shapes[m], index[m], afters[m], stiff[m] = total[k], s, k, after, needs_stiff
-            m += 1
-        if kept and releasable and total[k] < limit[swaps + 1]:
+        if counts[s] >= stock[s]:
+            blocked[0, s] = min(blocked[0, s], counts[s])
+            continue
+        if wanted:
+            if not needs_stiff or stiff_counts[s] < stiff_stock[s]:
+                bounds[m], shapes[m], index[m], afters[m], stiff[m] = total[k], s, k, after, needs_stiff
+                m += 1
+            else:
+                blocked[1, s] = min(blocked[1, s], stiff_counts[s])
+        if other_block:
             bounds[m], shapes[m], index[m], afters[m], stiff[m] = total[k], s, k, swaps + 1, False
             m += 1
     order = np.argsort(bounds[:m], kind="mergesort")
@@ -139,7 +149,8 @@ CHECKPOINT, LEAF, DONE = 0, 1, 2  # why the compiled search returned
 @njit(cache=True, nogil=True)
 def _expand(problems, weights, sizes, level, blocks, poses, alphas, alive, choices, n_choices, current, keeps_stiff,
             stiff_positions, releasable, swaps, limit, counts, stock, stiff_counts, stiff_stock, scratch, per_object,
-            total, base_bounds, state_bounds, state_shapes, state_index, state_afters, state_stiff, count, placements):
+            total, base_bounds, state_bounds, state_shapes, state_index, state_afters, state_stiff, count, blocked,
+            placements):
     """The admissible children of the node at ``level`` (its object states at index ``level``), lowest bound
     first, into the level's rows of the child lists; each object's bound per base and next choice into the
     level's rows of ``base_bounds``."""
@@ -155,7 +166,8 @@ def _expand(problems, weights, sizes, level, blocks, poses, alphas, alive, choic
     placements[0] += n * len(problems)
     bounds, shapes, index, afters, stiff = _admissible(total[:n], choices[level, :n], current[level],
                                                        keeps_stiff[level], stiff_positions[level], releasable[level],
-                                                       swaps, limit, counts, stock, stiff_counts, stiff_stock)
+                                                       swaps, limit, counts, stock, stiff_counts, stiff_stock,
+                                                       blocked)
     m = len(bounds)
     state_bounds[level, :m], state_shapes[level, :m], state_index[level, :m] = bounds, shapes, index
     state_afters[level, :m], state_stiff[level, :m] = afters, stiff
@@ -196,7 +208,7 @@ def _search_front(problems, weights, sizes, blocks, choices, n_choices, current,
     ``share`` (offset, stride): this search takes the root's children at those ranks of the bound order."""
     (top, started, next_child, count, bounds, shapes, index, afters, stiff, node_swaps, path, swapped, stiff_used,
      counts, stiff_counts, poses, alphas, alive, leaf_costs, leaf_bases, scratch, per_object, total, base_bounds,
-     mask, stats) = state
+     mask, blocked, stats) = state
     while True:
         level = top[0]
         if level < 0:  # the root: every base of every object live
@@ -213,7 +225,8 @@ def _search_front(problems, weights, sizes, blocks, choices, n_choices, current,
             next_child[0] = 0
             _expand(problems, weights, sizes, 0, blocks, poses, alphas, alive, choices, n_choices, current,
                     keeps_stiff, stiff_positions, releasable, 0, limit, counts, stock, stiff_counts, stiff_stock,
-                    scratch, per_object, total, base_bounds, bounds, shapes, index, afters, stiff, count, stats[1:])
+                    scratch, per_object, total, base_bounds, bounds, shapes, index, afters, stiff, count, blocked,
+                    stats[1:])
             m = 0
             for k in range(share[0], count[0], share[1]):
                 bounds[0, m], shapes[0, m], index[0, m] = bounds[0, k], shapes[0, k], index[0, k]
@@ -273,7 +286,8 @@ def _search_front(problems, weights, sizes, blocks, choices, n_choices, current,
         next_child[level + 1] = 0
         _expand(problems, weights, sizes, level + 1, blocks, poses, alphas, alive, choices, n_choices, current,
                 keeps_stiff, stiff_positions, releasable, after, limit, counts, stock, stiff_counts, stiff_stock,
-                scratch, per_object, total, base_bounds, bounds, shapes, index, afters, stiff, count, stats[1:])
+                scratch, per_object, total, base_bounds, bounds, shapes, index, afters, stiff, count, blocked,
+                stats[1:])
         top[0] = level + 1
         stats[0] += 1
         if stats[0] % check_every == 0:
@@ -323,6 +337,13 @@ class Run:
     def frontier(self) -> list[tuple[float, int]]:
         """(bound, swaps) of every child not yet visited: a stopped search proves nothing below them."""
         return [] if self.frames is None else self.frames.frontier()
+
+    def stock_needed(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per shape, the fewest blocks of it already placed when the stock (``[0]``) or the stiff stock
+        (``[1]``) stopped a child below its limit (the finger's length where it never did). Another stock
+        with at most that many of every shape stops every such child too, so a search under it, with limits
+        no higher, finds nothing this one missed (see ``gripper_search``)."""
+        return self.frames.stock_needed()
 
 
 class FingerFrontSearch:
@@ -376,7 +397,7 @@ class FingerFrontSearch:
                 np.zeros((n_objects, blocks, b, q)), np.zeros((n_objects, blocks, b), np.bool_), np.zeros(n_objects),
                 np.zeros(n_objects, np.int64), np.zeros(width), np.zeros(width), np.zeros(width),
                 np.full((blocks, n_objects, width, b), np.inf), np.zeros((n_objects, b), np.bool_),
-                np.zeros(2, np.int64))
+                np.full((2, size), blocks, np.int64), np.zeros(2, np.int64))
 
     def run(self, run: Run, control: RunControl, fraction=lambda done: done, workers: int = 1) -> int:
         """Search every finger whose bound stays below ``run.limit`` (read at every step: ``run.on_leaf``
@@ -441,10 +462,15 @@ def _done(states) -> float:
 
 
 class _Pending:
-    """The children the compiled searches (their states) have not visited yet."""
+    """The children the compiled searches (their states) have not visited yet, and where the stock stopped
+    them."""
 
     def __init__(self, states, root_bound):
         self.states, self.root_bound = states, root_bound
+
+    def stock_needed(self) -> tuple[np.ndarray, np.ndarray]:
+        least = np.min([state[-2] for state in self.states], axis=0)
+        return least[0], least[1]
 
     def frontier(self) -> list[tuple[float, int]]:
         out = []

@@ -9,10 +9,11 @@ by finger 2's search on the blocks finger 1 leaves, and so on. With ``inc[s]`` t
 at most ``s`` swaps and ``rest[j]`` the convolved bounds of the fingers after finger j, a prefix of finger j
 (bound ``b``, ``u`` swaps, after fingers costing ``c`` with ``w`` swaps) can only improve budget ``s`` if
 ``c + b + rest[j][s - w - u] < inc[s]``; its limit is the largest such margin over ``s``, refreshed
-whenever a gripper improves. The last finger's exact front for a given leftover stock is kept and reused
-for every earlier choice that leaves the same stock. The fingers are nested in the order of their relaxed
-searches' sizes, largest first, so the finger searched again per leftover stock is the cheapest. Searches
-start from the relaxed fronts' fingers (the usual answer when the stock is ample).
+whenever a gripper improves. The last finger's exact front for a leftover stock is kept and reused for
+every earlier choice that leaves a stock differing from it only in blocks that search never wanted below its
+limit (``_KeptFronts``). The fingers are nested in the order of their relaxed searches' sizes, largest
+first, so the finger searched again per leftover stock is the cheapest. Each finger's search runs on two
+threads. Searches start from the relaxed fronts' fingers (the usual answer when the stock is ample).
 
 Complete: every budget's gripper is the optimum, and a budget without one has none. Stopped (time budget,
 callback): a budget's proven bound is the smallest over the prefixes not yet visited (plus the bounds of
@@ -26,6 +27,8 @@ import numpy as np
 
 from planner.optimize.front_search import Candidate, FingerFrontSearch, Front, FrontResult, Run, within
 from planner.optimize.result import RunControl, Status, Stop
+
+WORKERS = 2  # threads of each finger's search (the machine's cores)
 
 
 @dataclass(frozen=True)
@@ -101,6 +104,36 @@ def solve_gripper_front(fingers: list[FingerProblem], stock, stiff_stock, contro
     return front
 
 
+class _KeptFronts:
+    """The last finger's exact fronts, each with the stock it was searched under and what that search needed
+    of it (``Run.stock_needed``). A kept front is the front of another leftover stock too when that stock
+    holds no more of any shape than the search needed, the front's fingers fit it, and its ceiling is no
+    higher: every finger of that stock below the ceiling was then either met by the search, or cut by a
+    bound at or above a kept finger that fits it. Leftover stocks that differ only in shapes the last finger
+    never wanted below its limit share one search."""
+
+    def __init__(self):
+        self.fronts, self.needed, self.needed_stiff, self.ceilings = [], [], [], []
+
+    def find(self, finger: FingerProblem, left, left_stiff, ceiling) -> Front | None:
+        if not self.fronts:
+            return None
+        usable = (np.all(np.asarray(self.needed) >= left, axis=1) & np.all(np.asarray(self.needed_stiff) >= left_stiff,
+                                                                           axis=1)
+                  & np.all(np.asarray(self.ceilings) >= ceiling, axis=1))
+        for k in np.flatnonzero(usable):
+            front = self.fronts[k]
+            if all(c is None or finger.fits(c, left, left_stiff) for c in front.chosen):
+                return front
+        return None
+
+    def add(self, front: Front, needed, needed_stiff) -> None:
+        self.fronts.append(front)
+        self.needed.append(needed)
+        self.needed_stiff.append(needed_stiff)
+        self.ceilings.append(front.ceiling)
+
+
 def _solve_in_order(fingers: list[FingerProblem], stock, stiff_stock, control: RunControl,
                     fraction) -> GripperFront:
     total = sum(f.blocks for f in fingers)
@@ -108,7 +141,7 @@ def _solve_in_order(fingers: list[FingerProblem], stock, stiff_stock, control: R
     for finger in reversed(fingers):
         rest.insert(0, convolve(finger.relaxed.lower_bound, rest[0]))
     inc, chosen = np.full(total + 1, np.inf), [None] * (total + 1)
-    active, cache, done = [], {}, [0.0]
+    active, kept, done = [], _KeptFronts(), [0.0]
 
     def top(share: float) -> float:  # the first finger's search tells how far the whole search is
         done[0] = share
@@ -144,13 +177,14 @@ def _solve_in_order(fingers: list[FingerProblem], stock, stiff_stock, control: R
             entry["refresh"]()
 
     def finish(j, cost, swaps, used, used_stiff, picked) -> None:
-        """The last finger: its exact front on the stock left (kept per leftover), every point offered."""
+        """The last finger: its exact front on the stock left (kept, see ``_KeptFronts``), every point
+        offered."""
         finger = fingers[j]
-        left, left_stiff = stock - used, stiff_stock - used_stiff
+        left = np.minimum(stock - used, finger.blocks)  # a finger never takes more blocks of one shape
+        left_stiff = np.minimum(stiff_stock - used_stiff, finger.blocks)
         ceiling = inc[np.minimum(swaps + np.arange(finger.blocks + 1), total)] - cost
-        key = (j, np.minimum(left, finger.blocks).tobytes(), np.minimum(left_stiff, finger.blocks).tobytes())
-        front = cache.get(key)
-        if front is None or np.any(ceiling > front.ceiling):
+        front = kept.find(finger, left, left_stiff, ceiling)
+        if front is None:
             front = Front(finger.blocks, ceiling, finger.relaxed.lower_bound)
 
             def on_leaf(candidate):
@@ -165,6 +199,7 @@ def _solve_in_order(fingers: list[FingerProblem], stock, stiff_stock, control: R
                                            or finger.fits(relaxed.candidates[v], left, left_stiff))
                    for v in range(finger.blocks + 1)):  # the relaxed front fits: it is this stock's front
                 front.ceiling[:] = np.inf
+                needed = np.full((2, len(left)), finger.blocks)
             else:
                 def refresh():
                     front.tighten(inc[np.minimum(swaps + np.arange(finger.blocks + 1), total)] - cost)
@@ -173,9 +208,10 @@ def _solve_in_order(fingers: list[FingerProblem], stock, stiff_stock, control: R
                           on_leaf)
                 entry = {"j": j, "cost": cost, "swaps": swaps, "run": run, "refresh": refresh}
                 active.append(entry)
-                finger.search.run(run, control, top if j == 0 else inner)
+                finger.search.run(run, control, top if j == 0 else inner, workers=WORKERS)
                 active.remove(entry)
-            cache[key] = front
+                needed = run.stock_needed()
+            kept.add(front, *needed)
         for candidate in front.chosen:  # a kept front: its points for this choice of the earlier fingers
             if candidate is not None:
                 offer(picked + [candidate])
@@ -204,7 +240,7 @@ def _solve_in_order(fingers: list[FingerProblem], stock, stiff_stock, control: R
         for candidate in finger.seeds():  # the likely answers first: good grippers to prune with
             if finger.fits(candidate, left, left_stiff):
                 on_leaf(candidate)
-        finger.search.run(run, control, top if j == 0 else inner)
+        finger.search.run(run, control, top if j == 0 else inner, workers=WORKERS)
         active.remove(entry)
 
     status, begun = Status.CERTIFIED, False

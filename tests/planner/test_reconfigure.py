@@ -15,7 +15,8 @@ from planner.contours import extract_contours, load_catalog_object
 from planner.generated_objects import PIXEL_SIZE, lumpy_object
 from planner.objectives import COLLISION_PENALTY
 from planner.optimize import Status, design_costs, design_space
-from planner.optimize.front_search import FingerFrontSearch, _node_bounds, solve_finger_front
+from planner.optimize.front_search import FingerFrontSearch, Front, Run, _node_bounds, solve_finger_front
+from planner.optimize.result import RunControl
 from planner.reconfigure import FingerSlot, TargetObject, plan_reconfiguration, swap_steps
 from planner.table import load_table
 from reconfigure_brute import generated_contours, plan_brute_force
@@ -124,6 +125,52 @@ def test_bounds_per_base_never_exceed_a_fingers_cost_and_the_front_equals_brute_
     for budget in range(blocks + 1):
         expected = costs[swaps <= budget].min()
         assert front.fun[budget] == pytest.approx(expected, abs=1e-9), budget
+
+
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.data())
+def test_a_front_is_the_same_under_any_stock_within_what_its_search_needed(data):
+    """What the joint search's kept fronts rest on: a search's front under a generated stock, and a fresh
+    search under another stock that holds no more of any shape than the first one needed (but maybe more
+    than it had) and still fits the front's fingers, with the same ceiling, find the same front."""
+    blocks = data.draw(st.sampled_from([2, 3]), label="blocks")
+    stiff_top = data.draw(st.integers(0, 1), label="stiff top")
+    kind, seed = data.draw(st.sampled_from(["ellipse", "polygon", "lumpy"])), data.draw(st.integers(0, 999))
+    target = design.finger_problems(generated_contours(kind, seed), base_offsets=OFFSETS)["left"][0]
+    space = design_space(TABLE, blocks, stiff_positions=range(stiff_top))
+    search = FingerFrontSearch([target], [1.0], space)
+    shape_of, _ = shape_stock(space, {})
+    stiff_ids = {d for members, stiff in zip(space.members, space.member_stiff) for d, q in zip(members, stiff) if q}
+    shelf = {d: data.draw(st.integers(0, 2), label=f"design {d}") for d in SHELF_IDS}
+    stock, stiff_stock = np.zeros(len(space.theta), np.int64), np.zeros(len(space.theta), np.int64)
+    for d, count in shelf.items():
+        stock[shape_of[d]] += count
+        stiff_stock[shape_of[d]] += count if d in stiff_ids else 0
+    current = np.array([shape_of[i] for i in (57, 27, 64)[:blocks]])
+    factor = data.draw(st.sampled_from([np.inf, 1.0, 1.05, 1.3]), label="ceiling over the unlimited optimum")
+    unlimited = solve_finger_front([target], [1.0], space, current=current, search=search)
+    ceiling = np.where(np.isfinite(unlimited.fun), unlimited.fun * factor, np.inf)
+
+    def front_under(stock, stiff_stock):
+        front = Front(blocks, ceiling)
+        run = Run(current, space.stiff_positions, np.zeros(blocks, bool), stock, stiff_stock, front.limit,
+                  front.record)
+        search.run(run, RunControl(None, None))
+        return front, run.stock_needed()
+
+    kept, (needed, needed_stiff) = front_under(stock, stiff_stock)
+    used, used_stiff = np.zeros_like(stock), np.zeros_like(stock)
+    for candidate in kept.chosen:
+        if candidate is not None:
+            used = np.maximum(used, np.bincount(candidate.shapes, minlength=len(stock)))
+            used_stiff = np.maximum(used_stiff, np.bincount(candidate.shapes[space.stiff_positions],
+                                                            minlength=len(stock)))
+    assert np.all(used <= needed) and np.all(used_stiff <= needed_stiff)  # so the draws below can fit them
+    other = np.array([data.draw(st.integers(int(u), int(n))) for u, n in zip(used, needed)])
+    other_stiff = np.array([data.draw(st.integers(int(u), int(min(n, o)))) for u, n, o in zip(used_stiff, needed_stiff,
+                                                                                               other)])
+    fresh, _ = front_under(other, other_stiff)
+    np.testing.assert_allclose(fresh.best, kept.best, rtol=0, atol=1e-12)
 
 
 def test_a_stiff_block_at_a_free_position_gives_way_when_its_kind_is_needed():
