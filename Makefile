@@ -17,12 +17,12 @@ demo-reconfigure: setup
 # The tiers (pyproject.toml's markers), cheapest first, so that a broken basic stops the run early.
 # Integration modules stay on one worker each (--dist loadfile): they share module-wide nodes and ROS domains.
 # Their tests mostly wait for processes and messages, so four workers share the two cores (191 s -> 129 s).
-# The stack tests run last, on two workers (--dist loadgroup): the two-host module on one, the one-host modules one
-# after another on the other. Their grasps mostly wait for ramps, so the two overlap (244 s -> see README).
+# The stack tests run last, on two workers (tests/conftest.py's --dist-by-directory): the two-host module on one,
+# the one-host modules (tests/e2e) one after another on the other. Both mostly wait for ramps, so they overlap.
 test: setup
 	$(PYTEST) -n 2 -m fast tests
 	$(PYTEST) -n 4 --dist loadfile -m integration tests
-	$(PYTEST) -n 2 --dist loadgroup -m stack tests
+	$(PYTEST) -n 2 --dist-by-directory -m stack tests
 
 test-fast: setup
 	$(PYTEST) -n 2 -m fast tests

@@ -11,6 +11,7 @@ import pytest
 from hypothesis import settings
 from processes import adopt_orphans, descendants, kill_tree, reap
 from ros_domains import DEFAULT_TEST_DOMAINS, domain_for
+from xdist.scheduler import LoadScopeScheduling
 
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("MPLBACKEND", "Agg")
@@ -49,6 +50,24 @@ def ros_domain_per_module():
     """A fresh domain for each module: nodes an earlier module left in the DDS graph (a killed process
     stays listed until its lease runs out) never show up in this one's topic lists."""
     os.environ["ROS_DOMAIN_ID"] = _domain(next(_MODULES))
+
+
+class DirectoryScheduling(LoadScopeScheduling):
+    """pytest-xdist sends each directory's tests to one worker (``--dist-by-directory``): the stack tier's
+    one-host modules (tests/e2e) one after another on one worker, the two-host module (tests/twohosts) on the
+    other. xdist's own ``--dist loadgroup`` does not group under pytest 9 (its nodeid suffix no longer takes)."""
+
+    def _split_scope(self, nodeid: str) -> str:
+        return nodeid.split("::", 1)[0].rpartition("/")[0]
+
+
+def pytest_addoption(parser):
+    parser.addoption("--dist-by-directory", action="store_true",
+                     help="with -n: every test directory on one worker (DirectoryScheduling)")
+
+
+def pytest_xdist_make_scheduler(config, log):
+    return DirectoryScheduling(config, log) if config.getoption("dist_by_directory") else None
 
 
 # The tiers are the markers pyproject.toml registers; tests/test_tiers.py checks that every test has one.

@@ -20,9 +20,8 @@ from recording.playback import PlaybackOptions
 from softblock_ros.recording.player_node import PlayerNode
 from softblock_ros.recording.recorder_node import RecorderNode
 
-# stack: `make test` runs the stack tests after the other tiers; the one-host modules share one worker, beside the
-# two-host module on the other (their grasps mostly wait for ramps, so the two overlap)
-pytestmark = [pytest.mark.stack, pytest.mark.xdist_group("one_host")]
+# stack: `make test` runs it after the other tiers, on a worker that runs tests/e2e one module at a time
+pytestmark = pytest.mark.stack
 
 DEMO_TIMEOUT = 240.0  # [s] liveness bound only; the demo takes about a minute on an idle 2-core machine
 FINGER_GRASP_STEPS = ["above_object", "open_back", "surround_object", "close_back", "grip_front", "lift_object",

@@ -13,9 +13,8 @@ from softblock_ros.client import wait_until
 from softblock_ros.launcher import Stack
 from softblock_ros.stack import load_stack
 
-# stack: `make test` runs the stack tests after the other tiers; the one-host modules share one worker, beside the
-# two-host module on the other (their grasps mostly wait for ramps, so the two overlap)
-pytestmark = [pytest.mark.stack, pytest.mark.xdist_group("one_host")]
+# stack: `make test` runs it after the other tiers, on a worker that runs tests/e2e one module at a time
+pytestmark = pytest.mark.stack
 
 START_TIMEOUT = 120.0  # [s] liveness bound only: the planner prepares its search at niceness 10 on a loaded host
 RESEND_S = 2.0  # [s] a request without a reply is sent again after this

@@ -25,10 +25,8 @@ from recording.analysis import load
 from recording.mcap_file import recover
 
 reason = unavailable_reason()
-# stack: `make test` runs the stack tests after the other tiers, this module on a worker of its own beside the
-# one-host modules (tests/e2e)
-pytestmark = [pytest.mark.skipif(reason is not None, reason=f"two emulated hosts: {reason}"), pytest.mark.stack,
-              pytest.mark.xdist_group("two_hosts")]
+# stack: `make test` runs these after the other tiers, on a worker of their own beside the one of tests/e2e
+pytestmark = [pytest.mark.skipif(reason is not None, reason=f"two emulated hosts: {reason}"), pytest.mark.stack]
 
 STARTUP_TIMEOUT = 120.0  # [s] three launchers and six nodes on two loaded cores
 GRASP_TIMEOUT = 240.0    # [s] the grasp takes about 50 s
