@@ -96,10 +96,11 @@ def test_over_a_30_percent_lossy_link_every_datagram_arrives_but_those_the_link_
     assert 0.2 < 1 - len(arrived) / DATAGRAMS < 0.4, f"{len(arrived)} of {DATAGRAMS} arrived"  # the link did lose
 
 
+# "ready" is said inside the try: a SIGINT right after it (the test sends it on reading the word) is caught too
 ENDS_ON_SIGINT = """
 import sys, threading
-print("ready", flush=True)
 try:
+    print("ready", flush=True)
     threading.Event().wait()
 except KeyboardInterrupt:
     sys.exit(3)
