@@ -17,12 +17,13 @@ demo-reconfigure: setup
 # The tiers (pyproject.toml's markers), cheapest first, so that a broken basic stops the run early.
 # Integration modules stay on one worker each (--dist loadfile): they share module-wide nodes and ROS domains.
 # Their tests mostly wait for processes and messages, so four workers share the two cores (191 s -> 129 s).
-# The stack tests run last, on two workers (tests/conftest.py's --dist-by-directory): the two-host module on one,
-# the one-host modules (tests/e2e) one after another on the other. Both mostly wait for ramps, so they overlap.
+# The stack tests run last, on two workers (tests/conftest.py's --dist-stack): the two-host module starts on one,
+# the demo on the other, and the other one-host modules follow on whichever runs short first. They mostly wait
+# for ramps, so they overlap.
 test: setup
 	$(PYTEST) -n 2 -m fast tests
 	$(PYTEST) -n 4 --dist loadfile -m integration tests
-	$(PYTEST) -n 2 --dist-by-directory -m stack tests
+	$(PYTEST) -n 2 --dist-stack -m stack tests
 
 test-fast: setup
 	$(PYTEST) -n 2 -m fast tests

@@ -52,22 +52,31 @@ def ros_domain_per_module():
     os.environ["ROS_DOMAIN_ID"] = _domain(next(_MODULES))
 
 
-class DirectoryScheduling(LoadScopeScheduling):
-    """pytest-xdist sends each directory's tests to one worker (``--dist-by-directory``): the stack tier's
-    one-host modules (tests/e2e) one after another on one worker, the two-host module (tests/twohosts) on the
-    other. xdist's own ``--dist loadgroup`` does not group under pytest 9 (its nodeid suffix no longer takes)."""
+TWO_HOSTS = "tests/twohosts/"
+
+
+class StackScheduling(LoadScopeScheduling):
+    """pytest-xdist's schedule of the stack tier (``--dist-stack``): each module on one worker (its tests
+    share a module-wide stack), in collection order, where the two-host module comes first (sorted there by
+    pytest_collection_modifyitems below). It takes one worker, the demo the other, and the other one-host
+    modules go to whichever worker runs short of tests first, so that the longest modules overlap. (xdist's
+    ``--dist loadgroup`` does not group under pytest 9: its nodeid suffix no longer takes.)"""
+
+    def __init__(self, config, log=None):
+        config.option.loadscopereorder = False  # keep the collection order
+        super().__init__(config, log)
 
     def _split_scope(self, nodeid: str) -> str:
-        return nodeid.split("::", 1)[0].rpartition("/")[0]
+        return nodeid.split("::", 1)[0]
 
 
 def pytest_addoption(parser):
-    parser.addoption("--dist-by-directory", action="store_true",
-                     help="with -n: every test directory on one worker (DirectoryScheduling)")
+    parser.addoption("--dist-stack", action="store_true",
+                     help="with -n: the stack tier's schedule (tests/conftest.py StackScheduling)")
 
 
 def pytest_xdist_make_scheduler(config, log):
-    return DirectoryScheduling(config, log) if config.getoption("dist_by_directory") else None
+    return StackScheduling(config, log) if config.getoption("dist_stack") else None
 
 
 # The tiers are the markers pyproject.toml registers; tests/test_tiers.py checks that every test has one.
@@ -81,6 +90,7 @@ def pytest_collection_modifyitems(config, items):
     tiers = {line.split(":")[0] for line in config.getini("markers")}
     config.stash[_TIERS_OF] = {item.nodeid: [mark.name for mark in item.iter_markers() if mark.name in tiers]
                                for item in items}
+    items.sort(key=lambda item: not item.nodeid.startswith(TWO_HOSTS))  # first; the rest keep their order
 
 
 @pytest.fixture(scope="session")

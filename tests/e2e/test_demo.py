@@ -20,7 +20,7 @@ from recording.playback import PlaybackOptions
 from softblock_ros.recording.player_node import PlayerNode
 from softblock_ros.recording.recorder_node import RecorderNode
 
-# stack: `make test` runs it after the other tiers, on a worker that runs tests/e2e one module at a time
+# stack: `make test` runs it after the other tiers, beside another stack module (tests/conftest.py)
 pytestmark = pytest.mark.stack
 
 DEMO_TIMEOUT = 240.0  # [s] liveness bound only; the demo takes about a minute on an idle 2-core machine

@@ -7,7 +7,7 @@ import sys
 import pytest
 from processes import run
 
-# stack: `make test` runs it after the other tiers, on a worker that runs tests/e2e one module at a time
+# stack: `make test` runs it after the other tiers, beside another stack module (tests/conftest.py)
 pytestmark = pytest.mark.stack
 
 DEMO_TIMEOUT = 300.0  # [s] liveness bound only; the demo takes about a minute on an idle 2-core machine

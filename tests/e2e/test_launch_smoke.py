@@ -13,7 +13,7 @@ from softblock_ros.client import wait_until
 from softblock_ros.launcher import Stack
 from softblock_ros.stack import load_stack
 
-# stack: `make test` runs it after the other tiers, on a worker that runs tests/e2e one module at a time
+# stack: `make test` runs it after the other tiers, beside another stack module (tests/conftest.py)
 pytestmark = pytest.mark.stack
 
 START_TIMEOUT = 120.0  # [s] liveness bound only: the planner prepares its search at niceness 10 on a loaded host

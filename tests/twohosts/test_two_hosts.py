@@ -25,7 +25,7 @@ from recording.analysis import load
 from recording.mcap_file import recover
 
 reason = unavailable_reason()
-# stack: `make test` runs these after the other tiers, on a worker of their own beside the one of tests/e2e
+# stack: `make test` runs these after the other tiers, first, beside the demo (tests/conftest.py)
 pytestmark = [pytest.mark.skipif(reason is not None, reason=f"two emulated hosts: {reason}"), pytest.mark.stack]
 
 STARTUP_TIMEOUT = 120.0  # [s] three launchers and six nodes on two loaded cores
