@@ -162,7 +162,9 @@ def test_a_lost_supervisor_is_reported_on_every_channel_and_refuses_every_call(s
     supply = RemoteSupply(SUPERVISED, spec(), socket_path, on_lost=reasons.append).open()
     assert front(supply).faults == Fault(0)
     os.kill(supply.pid, signal.SIGKILL)
-    wait_until(lambda: supply.lost is not None, "the supervisor's loss noticed")
+    # the loss is noted (``lost``) a moment before on_lost is called: wait for the call, the later event
+    wait_until(lambda: reasons, "the supervisor's loss reported")
+    assert supply.lost is not None
     snapshot = supply.snapshot()
     assert all(Fault.SUPERVISOR_LOST in c.faults for c in snapshot.channels)
     assert "only the supplies' own means still hold" in snapshot.channel("front").fault_text
