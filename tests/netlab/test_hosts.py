@@ -98,12 +98,12 @@ def test_over_a_30_percent_lossy_link_every_datagram_arrives_but_those_the_link_
 
 # "ready" is said inside the try: a SIGINT right after it (the test sends it on reading the word) is caught too
 ENDS_ON_SIGINT = """
-import sys, threading
+import os, threading
 try:
     print("ready", flush=True)
     threading.Event().wait()
 except KeyboardInterrupt:
-    sys.exit(3)
+    os._exit(3)  # at once: no interpreter teardown to outlast the stop's timeout on a loaded host
 """
 IGNORES_SIGINT = """
 import signal, threading
@@ -113,10 +113,15 @@ threading.Event().wait()
 """
 
 
+# [s] A generous bound for the two that end on SIGINT (2 s was missed under a loaded fresh-clone run); the one that
+# ignores SIGINT is killed after it, so this is what the test costs.
+STOP_TIMEOUT_S = 20.0
+
+
 def test_processes_stopped_together_end_on_sigint_and_one_that_ignores_it_is_killed():
     with EmulatedHosts(("rig", "workstation")) as lab:
         processes = [lab.start(host, [sys.executable, "-c", program], stdout=subprocess.PIPE, text=True)
                      for host, program in (("rig", ENDS_ON_SIGINT), ("workstation", IGNORES_SIGINT),
                                            ("workstation", ENDS_ON_SIGINT))]
         assert [process.stdout.readline().strip() for process in processes] == ["ready"] * 3
-        assert lab.stop_together(processes, timeout=2.0) == [3, -9, 3]
+        assert lab.stop_together(processes, timeout=STOP_TIMEOUT_S) == [3, -9, 3]
