@@ -28,6 +28,9 @@ from .link import Conditions
 STARTUP_TIMEOUT = 30.0  # [s] namespaces and devices on a loaded machine
 REPLY_TIMEOUT = 10.0    # [s] for one command's answer
 LINK_NICENESS = -20
+# Processes stop on SIGINT; one started from a shell that ignores it (a background job, nohup) would inherit the
+# ignoring and outlast every stop until the SIGKILL, so each starts with SIGINT at its default.
+DEFAULT_SIGINT = ["env", "--default-signal=INT"]
 
 
 class LabError(RuntimeError):
@@ -104,7 +107,7 @@ class EmulatedHosts:
     def start(self, host: str, argv: list[str], env: Mapping[str, str] | None = None,
               **popen_kwargs) -> subprocess.Popen:
         """Run ``argv`` on ``host`` in a process group of its own; it is stopped when the lab closes."""
-        process = subprocess.Popen(self.hosts[host].command(argv), env=dict(env or os.environ),
+        process = subprocess.Popen(self.hosts[host].command([*DEFAULT_SIGINT, *argv]), env=dict(env or os.environ),
                                    process_group=0, **popen_kwargs)
         self.processes.append(process)
         return process
