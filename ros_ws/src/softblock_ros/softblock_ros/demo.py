@@ -33,7 +33,7 @@ from pathlib import Path
 import rclpy
 import yaml
 from action_msgs.msg import GoalStatus
-from rclpy.executors import MultiThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import qos_profile_sensor_data
 from softblock_interfaces.action import RampChannel, RunSequence
 from softblock_interfaces.msg import HvState
@@ -106,7 +106,7 @@ class DemoClient:
         # The sequencer holds control of the HV driver during the grasp; the demo claims it for its own
         # fault drill (heartbeats while it holds it).
         self.control = HvControl(self.node, "demo", heartbeat_rate_hz=10.0, timeout_s=SERVICE_TIMEOUT)
-        self.executor = MultiThreadedExecutor(num_threads=4)
+        self.executor = SingleThreadedExecutor()  # a client: see softblock_ros.client
         self.executor.add_node(self.node)
         self._spinner = threading.Thread(target=self.executor.spin, daemon=True)
         self._spinner.start()

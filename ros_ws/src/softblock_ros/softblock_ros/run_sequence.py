@@ -18,7 +18,7 @@ import time
 
 import rclpy
 from action_msgs.msg import GoalStatus
-from rclpy.executors import MultiThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 from softblock_interfaces.action import RunSequence
 from std_srvs.srv import Trigger
@@ -72,7 +72,7 @@ class Operator:
 
 def run(sequence: str, server_timeout: float, timeout: float = 0.0) -> int:
     node = rclpy.create_node("run_sequence")
-    executor = MultiThreadedExecutor(num_threads=2)
+    executor = SingleThreadedExecutor()  # a client: see softblock_ros.client
     executor.add_node(node)
     spinner = threading.Thread(target=executor.spin, daemon=True)
     spinner.start()
