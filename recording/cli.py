@@ -31,6 +31,8 @@ def add_file_commands(commands) -> None:
     analyze = commands.add_parser("analyze", help="plots and summary of a grasp recording")
     analyze.add_argument("recording")
     analyze.add_argument("--out-dir", help="where <name>.png/.json go (default: beside it)")
+    analyze.add_argument("--no-plot", action="store_true",
+                         help="the summary only (<name>.json), no PNG: drawing takes most of the time")
 
     export = commands.add_parser("export", help="one CSV file per topic (flattened fields, SI units, time in s)")
     export.add_argument("recording")
@@ -59,7 +61,6 @@ def _recover(args) -> int:
 
 def _analyze(args) -> int:
     from .analysis import format_summary, load, summarize
-    from .analysis_plot import plot
     stem = os.path.splitext(os.path.basename(args.recording))[0]
     out_dir = args.out_dir or os.path.dirname(os.path.abspath(args.recording))
     os.makedirs(out_dir, exist_ok=True)
@@ -67,9 +68,11 @@ def _analyze(args) -> int:
     summary = summarize(data)
     with open(os.path.join(out_dir, stem + ".json"), "w", encoding="utf-8") as out:
         json.dump(summary, out, indent=2)
-    plot(data, os.path.join(out_dir, stem + ".png"), title=stem)
+    if not args.no_plot:
+        from .analysis_plot import plot
+        plot(data, os.path.join(out_dir, stem + ".png"), title=stem)
     print(format_summary(summary))
-    print(f"wrote {os.path.join(out_dir, stem)}.json and .png")
+    print(f"wrote {os.path.join(out_dir, stem)}.json{'' if args.no_plot else ' and .png'}")
     return 0
 
 

@@ -14,6 +14,7 @@ from softblock_interfaces.msg import HvChannelState
 
 from recording.analysis import analyze, fault_names, format_summary, load, summarize
 from recording.analysis_plot import plot
+from recording.cli import main as recording_main
 from recording.playback import PlaybackOptions
 from softblock_ros.recording.player_node import PlayerNode
 from softblock_ros.recording.recorder_node import RecorderNode
@@ -112,6 +113,13 @@ def test_cli_writes_png_and_json_without_the_ros_workspace_or_rclpy(grasp, tmp_p
     assert (tmp_path / "grasp.png").read_bytes().startswith(b"\x89PNG")
     assert json.loads((tmp_path / "grasp.json").read_text()) == \
         json.loads(json.dumps(analyze(grasp)))
+
+
+def test_cli_without_the_plot_writes_the_same_summary_and_no_png(grasp, tmp_path, capsys):
+    assert recording_main(["analyze", grasp, "--out-dir", str(tmp_path), "--no-plot"]) == 0
+    assert "channel front: peak 3.000 kV" in capsys.readouterr().out
+    assert json.loads((tmp_path / "grasp.json").read_text()) == json.loads(json.dumps(analyze(grasp)))
+    assert not (tmp_path / "grasp.png").exists()
 
 
 def test_unfinished_file_is_refused_with_a_hint_to_recover(tmp_path):
