@@ -9,8 +9,10 @@
 #
 # Results go to out/stress/<time>/ (or --results DIR): run-<i>.log of each failed run (and the demo's
 # stack.log) and summary.json of all runs. A run that does not end within --timeout seconds (default 3600)
-# is killed and counts as failed. ROS_DOMAIN_ID and SOFTBLOCK_TEST_DOMAINS are passed on to the runs.
+# is killed and counts as failed. ROS_DOMAIN_ID and SOFTBLOCK_TEST_DOMAINS are passed on to the runs; the runs'
+# test domains default to 100-199, so a suite run by hand beside the series (10-99) never reaches their nodes.
 set -euo pipefail
+export SOFTBLOCK_TEST_DOMAINS="${SOFTBLOCK_TEST_DOMAINS:-100-199}"
 repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 
 usage() { echo "usage: $0 N [--busy K] [--demo] [--timeout SECONDS] [--results DIR]" >&2; exit 2; }

@@ -17,10 +17,13 @@ FAST_LIMITS = dict(max_voltage_v=3000.0, slew_rate_v_per_s=8000.0, mismatch_tole
                    current_trip_a=100e-6)
 
 # On real ptys in real time the host's speed must not decide an outcome: the link window (and with it each reply's,
-# a quarter of it) and the readback window are longer than any stall of a loaded host. Their timing is tested in
-# simulated time.
+# a quarter of it) and the readback window are longer than any stall of a loaded host, and the trip is above the
+# largest charging current any gap between setpoint and output can draw from a host-ramped supply (Keithley): up to
+# max_voltage_v into 2 nF with its 10 ms lag, 2 nF x 3 kV / 10 ms = 0.6 mA (test_dialects_sim.py). The windows'
+# timing and the trip are tested in simulated time.
 REAL_TIME_LINK_TIMEOUT_S = 20.0
 REAL_TIME_MISMATCH_TIME_S = 20.0
+REAL_TIME_CURRENT_TRIP_A = 1e-3
 WAIT_S = 60.0  # [s] of the clock the rig runs on: a wait ends at its event, the deadline only when that never comes
 
 

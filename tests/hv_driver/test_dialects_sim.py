@@ -6,7 +6,7 @@ import dataclasses
 
 import pytest
 
-from dialect_rig import FAST_LIMITS, Rig
+from dialect_rig import FAST_LIMITS, REAL_TIME_CURRENT_TRIP_A, Rig
 
 from hv_driver import ChannelConfig, Fault, FaultLatchedError
 from hv_driver.clock import SimulatedClock
@@ -79,6 +79,30 @@ def test_the_keithley_trip_holds_two_setpoint_steps_bunched_by_a_late_exchange()
              for cycle in range(round(0.2 / DEFAULT_PERIOD_S), round(0.4 / DEFAULT_PERIOD_S))}
     tripped = {cycle: f"{peak * 1e6:.1f} uA" for cycle, (peak, trip_latched) in peaks.items() if trip_latched}
     assert not tripped, f"unit trip {trip * 1e6:.1f} uA exceeded with the late exchange in cycles {tripped}"
+
+
+def keithley_step_peak(trip: float, step_v: float) -> tuple[float, bool]:
+    """A Keithley unit's output switched on at 0 V and given a setpoint of ``step_v`` [V] at once, its unit trip at
+    ``trip`` [A]: the peak charging current [A] and whether the unit tripped."""
+    plant = PlantChannel(defaults=dataclasses.replace(SimulatedKeithley2290.default_defaults, current_limit=trip))
+    plant.switch_on()
+    plant.voltage_set = step_v
+    t, dt, peak = 0.0, 1e-5, 0.0
+    while t < 0.1:  # ten time constants
+        t += dt
+        plant.step(t, dt)
+        peak = max(peak, plant.current)
+    return peak, plant.current_trip
+
+
+def test_the_real_time_trip_holds_the_largest_setpoint_step_a_keithley_can_get():
+    """test_driver_pty.py ramps in real time on a host that may be loaded. Whatever the host's timing, the output
+    lags a setpoint by 10 ms into 2 nF, so no gap between them (at most max_voltage_v) draws the real-time trip; the
+    simulated-time trip is exceeded by such a step, which only a host's timing could make."""
+    margin, step_v = Keithley2290.capabilities.device_current_margin, FAST_LIMITS["max_voltage_v"]
+    peak, tripped = keithley_step_peak(margin * REAL_TIME_CURRENT_TRIP_A, step_v)
+    assert not tripped, f"the {step_v:g} V step drew {peak * 1e6:.0f} uA"
+    assert keithley_step_peak(margin * FAST_LIMITS["current_trip_a"], step_v)[1]
 
 
 @pytest.mark.parametrize("fault", list(MATRIX))

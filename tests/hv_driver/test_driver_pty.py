@@ -9,7 +9,8 @@ import sys
 import textwrap
 
 import pytest
-from dialect_rig import FAST_LIMITS, REAL_TIME_LINK_TIMEOUT_S, REAL_TIME_MISMATCH_TIME_S, WAIT_S, Rig, all_off, ramp_both
+from dialect_rig import (FAST_LIMITS, REAL_TIME_CURRENT_TRIP_A, REAL_TIME_LINK_TIMEOUT_S, REAL_TIME_MISMATCH_TIME_S,
+                         WAIT_S, Rig, all_off, ramp_both)
 from waiting import GENEROUS_S
 
 from hv_driver import ControlError, Fault, FaultLatchedError
@@ -23,7 +24,8 @@ REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 @pytest.mark.parametrize("name", list(DIALECTS))
 def test_every_dialect_ramps_both_channels_on_real_ptys(name, wait_until):
     """The loop in its own thread, each simulator serving a real pty in real time."""
-    made = Rig(name, {**FAST_LIMITS, "mismatch_time_s": REAL_TIME_MISMATCH_TIME_S},
+    made = Rig(name, {**FAST_LIMITS, "mismatch_time_s": REAL_TIME_MISMATCH_TIME_S,
+                      "current_trip_a": REAL_TIME_CURRENT_TRIP_A},
                link_timeout_s=REAL_TIME_LINK_TIMEOUT_S)
     try:
         made.check_ramps_both_channels(lambda predicate: wait_until(predicate, "the outputs' ramp"))

@@ -153,7 +153,9 @@ def test_hv_fault_mid_sequence_stops_in_the_safe_state(stack, hv):
 
 
 def test_a_silent_driver_fails_the_step_naming_the_lost_driver(ros_context, spin, tmp_path):
-    """The default state timeout: the test only waits for the lapse, which a loaded host can only delay."""
+    """A short state timeout. Which step the lapse falls in depends on the host's speed, so the test asserts only
+    what holds in any step after the silence began: once the driver is lost, every channel counts as live and
+    ramps to 0 V, in an order the driver's executor decides."""
     own = own_stack(ros_context, spin, tmp_path, "/silent_driver", windows={**LONG_WINDOWS, "state_timeout_s": 2.0})
     hv = own["hv"]
     run = Run(own["action"], scaled("finger_grasp", tmp_path, speed=2.0))
@@ -163,8 +165,8 @@ def test_a_silent_driver_fails_the_step_naming_the_lost_driver(ros_context, spin
     assert status == GoalStatus.STATUS_ABORTED and not result.success
     assert result.failed_step not in ("", "above_object", "open_back")  # a step after the driver fell silent
     assert "HV driver lost: no hv/state for" in result.message, result.message
-    assert "safe state" in result.message  # its ramp service still answered: the back fingers ramped down
-    assert hv.ramps[-1] == ("back", 0.0) and channels_off(hv)
+    assert "safe state: arm stopped, ['front', 'back'] channel(s) ramped to 0 V" in result.message
+    assert sorted(hv.ramps[-2:]) == [("back", 0.0), ("front", 0.0)] and channels_off(hv)  # its ramps still answered
 
 
 def test_cancel_mid_sequence_ramps_down_and_reports_canceled(stack, hv):

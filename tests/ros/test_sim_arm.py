@@ -1,5 +1,6 @@
 """Simulated arm node through a real rclpy action client: moves with feedback, publishes arm/pose,
 brakes and holds on cancel, a newer goal preempts, bad targets are aborted with the reason."""
+import os
 import threading
 
 import pytest
@@ -10,6 +11,7 @@ from rclpy.parameter import Parameter
 from ros_testing import Inbox, wait_for
 from waiting import GENEROUS_S
 from softblock_interfaces.action import MoveArm
+from unique_identifier_msgs.msg import UUID
 
 from softblock_ros.client import ActionClient
 from softblock_ros.conversions import pose_msg
@@ -117,3 +119,59 @@ def test_simulation_steps_from_several_threads_never_see_time_run_backwards(ros_
         thread.join()
     node.destroy_node()
     assert errors == []
+
+
+class ScriptedGoalHandle:
+    """A goal handle the test drives by hand, to order acceptance and execution as a loaded executor might."""
+
+    def __init__(self, position, max_speed=0.0):
+        self.request = MoveArm.Goal(target=PoseStamped(pose=pose_msg(position, DOWN)), max_speed=max_speed)
+        self.goal_id = UUID(uuid=list(os.urandom(16)))
+        self.is_cancel_requested = False
+        self.outcome = None
+
+    def execute(self):
+        pass  # the test runs the execute callback itself
+
+    def publish_feedback(self, feedback):
+        pass
+
+    def succeed(self):
+        self.outcome = "succeeded"
+
+    def abort(self):
+        self.outcome = "aborted"
+
+
+def test_the_goal_accepted_last_wins_whichever_execute_callback_starts_first(ros_context):
+    """Under load, the executor can start the older goal's execute callback after the newer one's: the arm must
+    still follow the order of acceptance."""
+    node = SimArmNode(context=ros_context)
+    older, newer = ScriptedGoalHandle((0.45, 0.0, 0.9), max_speed=CRAWL_M_PER_S), ScriptedGoalHandle((0.45, 0.0, 0.3))
+    for handle in (older, newer):
+        node._server._handle_accepted_callback(handle)
+    results = {}
+    stepping = threading.Event()
+
+    def step():
+        while not stepping.is_set():
+            node._on_timer()
+            stepping.wait(0.01)
+
+    def execute(handle):
+        results[handle] = node._server._execute_callback(handle)
+
+    stepper = threading.Thread(target=step)
+    stepper.start()
+    try:
+        for handle in (newer, older):  # the newer goal's callback starts first
+            runner = threading.Thread(target=execute, args=(handle,), daemon=True)
+            runner.start()
+            runner.join(timeout=GENEROUS_S)
+            assert not runner.is_alive(), f"the goal to z={handle.request.target.pose.position.z} never finished"
+    finally:
+        stepping.set()
+        stepper.join()
+        node.destroy_node()
+    assert (newer.outcome, results[newer].message) == ("succeeded", "reached")
+    assert (older.outcome, results[older].message) == ("aborted", "preempted by a newer goal")

@@ -1,8 +1,8 @@
 """Simulated arm node: action `arm/move` (MoveArm) and `arm/pose` (PoseStamped) at `publish_rate_hz`.
 
 The motion model is sim_fallback.arm (straight line, trapezoidal speed, slerped orientation). A real
-arm is bridged by serving the same action and topic (see docs/sequences.md). A new goal preempts
-the running one; a cancel brakes the arm to rest and holds. Targets must be in `frame_id` (no TF).
+arm is bridged by serving the same action and topic (see docs/sequences.md). The goal accepted last
+preempts the running one; a cancel brakes the arm to rest and holds. Targets must be in `frame_id` (no TF).
 """
 import threading
 import time
@@ -10,7 +10,7 @@ import time
 from geometry_msgs.msg import Pose as PoseMsg
 from geometry_msgs.msg import PoseStamped
 from rclpy.action import ActionServer, CancelResponse
-from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from sim_fallback.arm import ArmLimits, Pose, SimulatedArm
@@ -56,13 +56,18 @@ class SimArmNode(Node):
                                  ArmLimits(**{param.name: value[param.name] for param in LIMITS}))
         self._lock = threading.Lock()
         self._stepped = threading.Condition(self._lock)
-        self._active_goal = None
+        self._newest_goal = None  # the goal that owns the arm: the one accepted last
+        self._refusals = {}  # goal id -> why the goal's target was refused
         self._last_step = time.monotonic()
-        group = ReentrantCallbackGroup()
         self._pose_pub = self.create_publisher(PoseStamped, "arm/pose", stream_qos(value["publish_rate_hz"]))
         self.create_timer(1.0 / value["publish_rate_hz"], self._on_timer)  # default group: one step at a time
+        # Requests are handled one at a time, in arrival order, and a goal takes the arm when it is accepted, so
+        # the newest goal wins however the executor orders the execute callbacks (they run as tasks, outside
+        # this group).
         self._server = ActionServer(self, MoveArm, "arm/move", execute_callback=self._execute,
-                                    cancel_callback=lambda _: CancelResponse.ACCEPT, callback_group=group)
+                                    handle_accepted_callback=self._on_accepted,
+                                    cancel_callback=lambda _: CancelResponse.ACCEPT,
+                                    callback_group=MutuallyExclusiveCallbackGroup())
 
     def _on_timer(self) -> None:
         with self._lock:  # the clock is read under the lock: concurrent steps never see time run backwards
@@ -75,7 +80,7 @@ class SimArmNode(Node):
         msg.header.stamp = self.get_clock().now().to_msg()
         self._pose_pub.publish(msg)
 
-    def _execute(self, goal_handle) -> MoveArm.Result:
+    def _on_accepted(self, goal_handle) -> None:
         goal = goal_handle.request
         frame = goal.target.header.frame_id or self._frame_id
         try:
@@ -84,15 +89,22 @@ class SimArmNode(Node):
             target = from_msg(goal.target.pose)
             with self._lock:
                 self._arm.move_to(target, goal.max_speed)  # [m/s]
-                self._active_goal = goal_handle
-        except ValueError as error:
+                self._newest_goal = goal_handle
+        except ValueError as error:  # a refused goal preempts nothing
+            self._refusals[bytes(goal_handle.goal_id.uuid)] = str(error)
+        goal_handle.execute()
+
+    def _execute(self, goal_handle) -> MoveArm.Result:
+        refusal = self._refusals.pop(bytes(goal_handle.goal_id.uuid), None)
+        if refusal is not None:
             goal_handle.abort()
-            return MoveArm.Result(success=False, message=str(error), final_pose=to_msg(self._arm.pose))
+            return MoveArm.Result(success=False, message=refusal, final_pose=to_msg(self._arm.pose))
+        target = from_msg(goal_handle.request.target.pose)
         stopping = False
         while True:
             with self._lock:
                 self._stepped.wait(timeout=0.5)
-                pose, moving, preempted = self._arm.pose, self._arm.moving, self._active_goal is not goal_handle
+                pose, moving, preempted = self._arm.pose, self._arm.moving, self._newest_goal is not goal_handle
                 if goal_handle.is_cancel_requested and not preempted and not stopping:
                     self._arm.stop()
                     stopping = True
