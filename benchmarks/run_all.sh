@@ -20,6 +20,7 @@ benchmarks=(
     hv_fault_bounds.py
     recorder_load.py
     ros_nodes.py
+    node_cpu.py
     sequencer_gait.py
     publish_hold.py
     mcap_open.py

@@ -4,7 +4,7 @@ the operator's `sequencer/operator_done` with the estimator's verdict (`operator
 inactive, every output off, while an operator swaps blocks).
 
 Nothing here blocks on the executor: goals are sent with futures whose callbacks set a
-threading.Event, so the engine can wait in an action-execute thread of a MultiThreadedExecutor.
+threading.Event, so the engine can wait in a thread of its own while the executor's thread serves the callbacks.
 """
 from __future__ import annotations
 

@@ -20,8 +20,8 @@ import time
 
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
+from rclpy.task import Future
 from softblock_interfaces.action import RunSequence
 from softblock_interfaces.msg import SequenceEvent
 
@@ -120,7 +120,7 @@ class SequencerNode(Node):
             self.standing_by.set()
             return
         self.destroy_timer(self._look)
-        self._server = ActionServer(self, RunSequence, "sequencer/run", execute_callback=self._execute,
+        self._server = ActionServer(self, RunSequence, "sequencer/run", execute_callback=self._execute_in_thread,
                                     goal_callback=self._on_goal, cancel_callback=self._on_cancel,
                                     callback_group=group)
         self.standing_by.clear()
@@ -199,6 +199,23 @@ class SequencerNode(Node):
         else:
             self.get_logger().info(text)
 
+    async def _execute_in_thread(self, goal_handle) -> RunSequence.Result:
+        """The sequence blocks a thread of its own for its whole run; the executor's single thread awaits its
+        result meanwhile and serves hv/state, the heartbeat and the action clients' replies (a
+        MultiThreadedExecutor would do the same at several times the CPU: rclpy 7.1's wakes its thread many
+        times per callback)."""
+        result, executor = Future(), self.executor
+
+        def run() -> None:
+            try:
+                result.set_result(self._execute(goal_handle))
+            except BaseException as error:  # the awaiting task raises it, logged by the executor's spinner
+                result.set_exception(error)
+            finally:
+                executor.wake()  # a Future does not wake the executor that awaits it
+        threading.Thread(target=run, name=f"sequence {goal_handle.request.sequence}", daemon=True).start()
+        return await result
+
     def _execute(self, goal_handle) -> RunSequence.Result:
         try:
             try:
@@ -235,13 +252,11 @@ class SequencerNode(Node):
 
 
 def main(args=None) -> int:
-    # The goal's execute callback blocks one thread for the whole sequence; the others serve hv/state,
-    # the heartbeat timer and the action clients' responses (several per pulse-train edge).
     def make_node() -> SequencerNode:
         node = SequencerNode()
         node.stop_safely_on_signals()
         return node
-    return run_node(make_node, "sequencer", lambda: MultiThreadedExecutor(num_threads=8), args=args)
+    return run_node(make_node, "sequencer", args=args)  # a SingleThreadedExecutor: see _execute_in_thread
 
 
 if __name__ == "__main__":
