@@ -20,9 +20,12 @@ os.environ.setdefault("ROS_PYTHON_CHECK_FIELDS", "1")
 
 # Hypothesis' deadline per example (200 ms by default) is a wall-clock assertion: on a loaded host it fails
 # correct code (seen: 260 ms for a pure geometry example at a load average of 20). Examples are bounded by
-# pytest-timeout instead, as every test is.
-settings.register_profile("suite", deadline=None)
-settings.load_profile("suite")
+# pytest-timeout instead, as every test is. The suite draws the same examples on every run, so that a run's outcome
+# never depends on its luck; HYPOTHESIS_PROFILE=explore draws new ones on every run (1000 where a test sets no count)
+# to hunt for counterexamples: keep each one found as an @example.
+settings.register_profile("suite", deadline=None, derandomize=True)
+settings.register_profile("explore", deadline=None, max_examples=1000)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "suite"))
 
 # Parallel runs never cross-talk: each pytest-xdist worker owns a block of the domains (10-99 by default)
 # and gives each of its modules the next one, counted from an offset derived from the run's id (a plain

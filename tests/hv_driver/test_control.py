@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from hv_driver import ChannelConfig, ControlError, Fault, Supervisor
@@ -267,17 +267,21 @@ def test_a_beat_sent_after_the_silence_lapsed_is_refused():
        beats=st.lists(st.tuples(st.floats(min_value=0.001, max_value=3.0), st.floats(min_value=0.0, max_value=10.0)),
                       min_size=1, max_size=60),
        cycle=st.floats(min_value=0.001, max_value=1.0))
+@example(timeout=2.0, beats=[(1.75, 1.0), (0.5, 0.0)], cycle=0.8125)  # a delayed beat holds back the next one
 def test_control_lapses_exactly_when_the_client_stops_sending_whatever_the_stalls(timeout, beats, cycle):
     """Heartbeats sent after random gaps, each taken in after a random delay (the supervisor stalled, the beat waiting
-    in its channel), at the latest by the next control cycle, which judges only after what was sent before it has been
-    taken in. The session lapses when, and only when, the time between two beats sent (or from the last one to a
-    cycle) exceeds the timeout: stalls neither end a live client's session nor delay a dead one's lapse."""
+    in its channel behind those sent before it: one client's beats arrive in order), at the latest by the next control
+    cycle, which judges only after what was sent before it has been taken in. The session lapses when, and only when,
+    the time between two beats sent (or from the last one to a cycle) exceeds the timeout: stalls neither end a live
+    client's session nor delay a dead one's lapse."""
     supervisor = Supervisor([CONFIG], link_timeout_s=1e9, heartbeat_timeout_s=timeout)
     token = supervisor.claim_control("sequencer", 0.0)
     supervisor.heartbeat(0.0, token)
     sent = np.cumsum([gap for gap, _ in beats])
     cycles = np.arange(1, int((sent[-1] + timeout) / cycle) + 3) * cycle
-    events = [(min(at + delay, cycles[np.searchsorted(cycles, at)]), 0, at) for at, (_, delay) in zip(sent, beats)]
+    taken_in = np.maximum.accumulate([min(at + delay, cycles[np.searchsorted(cycles, at)])
+                                      for at, (_, delay) in zip(sent, beats)])  # first in, first out
+    events = [(when, 0, at) for when, at in zip(taken_in, sent)]
     events += [(now, 1, now) for now in cycles]
     for now, is_cycle, at in sorted(events):  # a beat taken in at a cycle's time comes before its judgement
         if not is_cycle:
