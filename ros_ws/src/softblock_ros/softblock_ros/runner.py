@@ -37,6 +37,10 @@ def _stop_quietly(signum, frame) -> None:
 
 
 RCLError = rclpy_implementation.RCLError
+# rclpy's signal handling wakes the executor and shuts the context down, in that order and not as one step: a wake
+# that lands before the shutdown lets spin see a live context and wait again, with nothing left to wake it (seen:
+# about one Ctrl-C in ten left an idle node spinning). Spin therefore waits at most this long before it looks again.
+STOP_CHECK_PERIOD_S = 0.25
 _RCL_SOURCE = re.compile(r",? at /\S+:\d+")  # rcl's ", at /project/src/parse.c:258" after each cause
 
 
@@ -112,7 +116,7 @@ def spin_logging_errors(executor: Executor, logger, keep_spinning: Callable[[], 
     spin builds it afresh without that entity."""
     while executor.context.ok() and keep_spinning():
         try:
-            executor.spin_once()
+            executor.spin_once(timeout_sec=STOP_CHECK_PERIOD_S)
         except (KeyboardInterrupt, ExternalShutdownException):
             raise
         except Exception as error:  # any callback error: the node must keep serving
