@@ -18,6 +18,7 @@ from recording.analysis import analyze
 from recording.mcap_file import describe
 from recording.playback import PlaybackOptions
 from softblock_ros.recording.player_node import PlayerNode
+from softblock_ros.recording.qos_metadata import RECORD_DEPTH
 from softblock_ros.recording.recorder_node import RecorderNode
 
 # stack: `make test` runs it after the other tiers, beside another stack module (tests/conftest.py)
@@ -78,6 +79,24 @@ def test_demo_fault_drill_switches_the_output_off_with_a_named_fault(demo):
     assert any(f["channel"] == "front" and "over_current" in f["faults"] for f in recorded), recorded
 
 
+class RecorderPacedPlayer(PlayerNode):
+    """A player that publishes a message only once the recorder holds all but half a queue of those before it.
+
+    The recorder's queues keep the newest RECORD_DEPTH samples of a topic; a recorder that the host slows below
+    the replay's rate would lose the oldest. Paced by what the recorder holds, the replay slows down with it
+    instead, so what is recorded does not depend on the host's speed."""
+
+    def __init__(self, path, options, recorded, **kwargs):
+        super().__init__(path, options, **kwargs)
+        self._recorded, self._sent = recorded, 0
+
+    def _publish(self, channel, message) -> None:
+        wait_until(lambda: self._sent - self._recorded() <= RECORD_DEPTH // 2, 120.0,
+                   "the recorder to catch up with the replay")
+        super()._publish(channel, message)
+        self._sent += 1
+
+
 def test_demo_recording_replayed_and_recorded_again_gives_the_same_analysis(demo, tmp_path):
     _, out = demo
     original = str(out / "run.mcap")
@@ -86,10 +105,11 @@ def test_demo_recording_replayed_and_recorded_again_gives_the_same_analysis(demo
     rclpy.init(context=context)
     # State topics under their own names, so the analysis reads the same topics; neither node logs to /rosout,
     # so the recorded /rosout holds the replayed logs only.
-    player = PlayerNode(original, PlaybackOptions(rate=4.0, include_state=True), context=context,
-                        enable_rosout=False)
     recorder = RecorderNode(replayed, context=context, enable_rosout=False,
                             parameter_overrides=[Parameter("discovery_period_s", value=0.1)])
+    player = RecorderPacedPlayer(original, PlaybackOptions(rate=4.0, include_state=True),
+                                 lambda: sum(list(recorder.writer.message_counts.values())), context=context,
+                                 enable_rosout=False)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(player)
     executor.add_node(recorder)
