@@ -180,6 +180,48 @@ def test_a_node_that_destroys_entities_while_it_is_spun_keeps_being_served(ros_c
         sys.setswitchinterval(switch_interval)
 
 
+CALLBACK_RUNNING_AT_THE_STOP = textwrap.dedent("""
+    import os, signal, threading, time
+    import rclpy
+    from rclpy.executors import MultiThreadedExecutor
+    from rclpy.node import Node
+    from softblock_ros.runner import run_node
+
+    class BusyAtTheStop(Node):
+        \"\"\"Its one timer callback is running when the stop comes, and goes on for up to 2 s.\"\"\"
+        def __init__(self):
+            super().__init__("busy_at_the_stop")
+            self.destroyed = threading.Event()
+            self.timer = self.create_timer(0.01, self.tick)
+
+        def tick(self):
+            self.timer.cancel()
+            os.kill(os.getpid(), signal.SIGTERM)
+            deadline = time.monotonic() + 20.0
+            while rclpy.ok() and time.monotonic() < deadline:
+                time.sleep(0.01)
+            destroyed = self.destroyed.wait(2.0)
+            print("destroyed while its callback ran" if destroyed else "callback ended first", flush=True)
+
+        def destroy_node(self):
+            self.destroyed.set()
+            return super().destroy_node()
+
+    raise SystemExit(run_node(BusyAtTheStop, "busy_at_the_stop", executor=lambda: MultiThreadedExecutor(2)))
+""")
+
+
+def test_a_callback_running_at_the_stop_ends_before_the_node_is_destroyed():
+    """Seen in a launch smoke test of the HV driver node (a multi-threaded executor): after Ctrl-C the node was
+    destroyed while a worker thread's callback still used it ("cannot use Destroyable because destruction was
+    requested"), and the executor, never shut down, raised from its __del__ at exit (a traceback on stderr)."""
+    probe = subprocess.run([sys.executable, "-c", CALLBACK_RUNNING_AT_THE_STOP], capture_output=True, text=True,
+                           timeout=60)
+    assert probe.returncode == 0, probe.stderr
+    assert probe.stdout.strip() == "callback ended first", probe.stdout + probe.stderr
+    assert "Traceback" not in probe.stderr, probe.stderr
+
+
 def test_spin_ends_when_the_context_is_shut_down_without_a_wake():
     """rclpy's signal handling wakes the executor before it shuts the context down; when the wake comes first, spin
     sees a live context and waits again, and the shutdown itself wakes nothing (seen: about one SIGINT in ten left

@@ -41,6 +41,9 @@ RCLError = rclpy_implementation.RCLError
 # that lands before the shutdown lets spin see a live context and wait again, with nothing left to wake it (seen:
 # about one Ctrl-C in ten left an idle node spinning). Spin therefore waits at most this long before it looks again.
 STOP_CHECK_PERIOD_S = 0.25
+# After the stop, callbacks still running on an executor's other threads end before their node is destroyed; one
+# that takes longer than this is not waited for (the launcher's stop timeout bounds the rest).
+CALLBACK_END_TIMEOUT_S = 10.0
 _RCL_SOURCE = re.compile(r",? at /\S+:\d+")  # rcl's ", at /project/src/parse.c:258" after each cause
 
 
@@ -128,6 +131,16 @@ def spin_logging_errors(executor: Executor, logger, keep_spinning: Callable[[], 
                          "the node keeps running", throttle_duration_sec=1.0)
 
 
+def shut_down_after_its_callbacks(executor: Executor, logger) -> None:
+    """``executor.shutdown()`` once the callbacks still running on its threads have ended (at most
+    CALLBACK_END_TIMEOUT_S). rclpy 7.1's shutdown means to wait for them but skips the wait (it tests the flag it has
+    just set), so the wait is made here, on the executor's own record of running callbacks."""
+    if not executor._work_tracker.wait(CALLBACK_END_TIMEOUT_S):
+        logger.warning(f"callbacks still running {CALLBACK_END_TIMEOUT_S:g} s after the stop; the node is "
+                       "destroyed under them")
+    executor.shutdown(timeout_sec=0)
+
+
 def run_node(make_node: Callable[[], Node], name: str, executor: Callable[[], Executor] = SingleThreadedExecutor,
              args=None) -> int:
     """Spin the node built by ``make_node``; exit status 1 when it cannot start (bad configuration or file).
@@ -140,7 +153,7 @@ def run_node(make_node: Callable[[], Node], name: str, executor: Callable[[], Ex
     except ValueError as error:
         print(f"[FATAL] [{name}]: cannot start: {error}", file=sys.stderr)
         return 1
-    node = None
+    node = spinner = None
     try:
         node = make_node()
         spinner = executor()
@@ -160,6 +173,8 @@ def run_node(make_node: Callable[[], Node], name: str, executor: Callable[[], Ex
         rclpy.logging.get_logger(name).fatal(f"cannot start: {problem}")
         return 1
     finally:
+        if spinner is not None:
+            shut_down_after_its_callbacks(spinner, node.get_logger())
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
