@@ -26,8 +26,10 @@ class ActionClient(rclpy.action.ActionClient):
     """
 
     def __init__(self, *args, **kwargs):
-        super().__init__(*args, **kwargs)
+        # Before rclpy's __init__, which hands the client to the node's executor: an executor thread may take its
+        # data (a latched goal status) at once, and a take that raised left the node's callback group busy for good.
         self._request_lock = threading.RLock()
+        super().__init__(*args, **kwargs)
 
     def take_data(self):
         with self._request_lock:
