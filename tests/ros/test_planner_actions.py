@@ -167,9 +167,9 @@ def test_a_canceled_plan_keeps_its_bounds(client):
 
 
 def test_a_bad_plan_goal_is_refused_with_the_reason(client):
-    # One action client for the seven goals: a goal-accepted reply is lost when the server writes it before its
-    # DDS discovery of a new client's reply reader has finished (seen once in `make test`: a 10 s timeout on the
-    # second goal, each goal then having a client of its own). Only the first goal can still meet that race.
+    # One action client for the seven goals (seen once in `make test`, each goal then having a client of its own: a
+    # 10 s timeout on the second goal; a new client could then be taken from before it was whole, see
+    # softblock_ros.client.ActionClient).
     action = ActionClient(client, PlanReconfiguration, "planner/plan_reconfiguration")
     status, result = run_action(action, plan_goal(finger_sides=["left", "up"]), 60.0)
     assert status == GoalStatus.STATUS_ABORTED and not result.success
