@@ -107,7 +107,7 @@ def test_demo_recording_replayed_and_recorded_again_gives_the_same_analysis(demo
     # so the recorded /rosout holds the replayed logs only.
     recorder = RecorderNode(replayed, context=context, enable_rosout=False,
                             parameter_overrides=[Parameter("discovery_period_s", value=0.1)])
-    player = RecorderPacedPlayer(original, PlaybackOptions(rate=4.0, include_state=True),
+    player = RecorderPacedPlayer(original, PlaybackOptions(rate=40.0, include_state=True),
                                  lambda: sum(list(recorder.writer.message_counts.values())), context=context,
                                  enable_rosout=False)
     executor = SingleThreadedExecutor(context=context)

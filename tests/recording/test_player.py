@@ -81,6 +81,31 @@ def test_replay_in_order_and_latched_topic_reaches_a_late_subscriber(ros_context
     assert late[0].name == "replayed"
 
 
+BURST = 200  # latched samples recorded at one instant: many times the latched publisher's depth
+
+
+def test_a_burst_on_a_latched_topic_reaches_a_subscriber_whole(ros_context, tmp_path):
+    # A latched publisher keeps only its depth of samples; a replay that writes faster than they are sent and
+    # acknowledged lost the oldest (the demo's /rosout, replayed fast, came back a few logs short).
+    path = write_recording(str(tmp_path / "burst.mcap"),
+                           [("/assembly/current", assembly(f"a{i}"), START) for i in range(BURST)],
+                           {"/assembly/current": LATCHED})
+    player = PlayerNode(path, PlaybackOptions(include_state=True), context=ros_context)
+    listener = rclpy.create_node("listener", context=ros_context)
+    received = collect(listener, Assembly, "/assembly/current", QoSProfile(depth=BURST))
+    spinner = Spinner(ros_context, player, listener)
+    try:
+        publisher, = player.publishers_by_channel.values()
+        wait_for(lambda: publisher.get_subscription_count() >= 1, "listener matched")
+        player.start()
+        wait_for(player.finished.is_set, "end of playback")
+        wait_for(lambda: len(received) == BURST, "every latched sample")
+    finally:
+        spinner.close()
+        player.destroy_node()
+    assert [m.name for m in received] == [f"a{i}" for i in range(BURST)]
+
+
 def test_topic_filters_and_start_offset_select_what_is_played(ros_context, grasp_recording):
     options = PlaybackOptions(rate=20.0, include="^/(hv|sequencer)/", exclude="events$",
                               start_offset_s=10 * STEP / 1e9)

@@ -12,9 +12,10 @@ import threading
 
 import rclpy
 from builtin_interfaces.msg import Time
+from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.qos import QoSProfile
+from rclpy.qos import HistoryPolicy, QoSProfile
 from rosgraph_msgs.msg import Clock
 
 from recording.playback import STATE_NAMESPACE, PlaybackClock, PlaybackOptions, Recording, play
@@ -25,6 +26,10 @@ from recording.qos_profiles import parse_offered_qos
 
 from .qos_metadata import playback_qos
 
+# [s] liveness bound only: how long a latched topic's replay waits for its subscribers' acknowledgements before it
+# goes on (with a warning) past a subscriber that has stopped answering
+ACKNOWLEDGEMENT_TIMEOUT_S = 10.0
+
 
 class PlayerNode(Node):
     def __init__(self, path: str, options: PlaybackOptions | None = None, **kwargs):
@@ -33,6 +38,7 @@ class PlayerNode(Node):
         self.options.validate()
         self.recording = Recording(path)
         self.publishers_by_channel = {}
+        self._unacknowledged: dict[int, int] = {}  # channel id -> samples written since all were acknowledged
         self.skipped: dict[str, str] = {}
         self._announce_command_topics()
         self._announce_state_topics()
@@ -104,7 +110,22 @@ class PlayerNode(Node):
             self.finished.set()
 
     def _publish(self, channel, message) -> None:
-        self.publishers_by_channel[channel.id].publish(message.data)
+        publisher = self.publishers_by_channel[channel.id]
+        if publisher.qos_profile.history == HistoryPolicy.KEEP_LAST:
+            self._wait_for_room(channel.topic, publisher, channel.id)
+        publisher.publish(message.data)
+
+    def _wait_for_room(self, topic: str, publisher, channel_id: int) -> None:
+        """A latched publisher keeps only its depth of samples (what a late joiner gets): a sample written into a
+        full history pushes out the oldest, sent or not. Before that write, wait until its subscribers hold every
+        sample, so that a fast replay's burst loses none (volatile topics keep all: playback_qos)."""
+        if self._unacknowledged.get(channel_id, 0) >= publisher.qos_profile.depth:
+            if not publisher.wait_for_all_acked(Duration(seconds=ACKNOWLEDGEMENT_TIMEOUT_S)):
+                self.get_logger().warning(
+                    f"{topic}: a subscriber acknowledged nothing for {ACKNOWLEDGEMENT_TIMEOUT_S:g} s; "
+                    "it may miss samples of this burst")
+            self._unacknowledged[channel_id] = 0
+        self._unacknowledged[channel_id] = self._unacknowledged.get(channel_id, 0) + 1
 
     def _publish_clock(self) -> None:
         if not self._thread.is_alive():

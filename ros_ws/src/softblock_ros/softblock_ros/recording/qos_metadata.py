@@ -62,7 +62,8 @@ def playback_qos(recorded: list[dict]) -> QoSProfile:
     """Publisher QoS that offers what the recorded publishers offered. A volatile topic's publisher keeps every
     sample until it is sent: the stack publishes asynchronously (see softblock_ros), and a burst of a replay
     outran the sending thread, whose history then dropped samples never sent (a replayed recording came back
-    short). A latched topic keeps its recorded depth, which is what a late joiner gets."""
+    short). A latched topic keeps its recorded depth, which is what a late joiner gets; the player lets no write
+    push a sample its subscribers have not acknowledged out of that depth (PlayerNode._wait_for_room)."""
     reliable = not recorded or _all_offer(recorded, "reliability", "reliable")
     latched = _all_offer(recorded, "durability", "transient_local")
     depth = max([int(p.get("depth") or 0) for p in recorded] + [PLAYBACK_DEPTH])
