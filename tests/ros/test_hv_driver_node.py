@@ -1,6 +1,9 @@
 """HV driver node through real rclpy clients: lifecycle services, the ramp action to 2.4 kV and back,
 injected faults in hv/state and /diagnostics, the assembly's safe voltage, e-stop during streamed ramps,
 configured channels the supply does not have, hv/state in order."""
+import subprocess
+import sys
+import textwrap
 import threading
 import time
 
@@ -239,3 +242,36 @@ def test_hv_state_stays_in_order_when_a_publish_is_slow(active):
         active.driver._state_pub = publisher
     stamps = [m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for m in list(active.state.messages)]
     assert all(b > a for a, b in zip(stamps, stamps[1:])), "hv/state arrived out of order"
+
+
+STOPPED_WHILE_ACTIVATING = textwrap.dedent("""
+    import os, signal, time
+    import rclpy
+    from softblock_ros import hv_driver_node
+
+    activate = hv_driver_node.HvDriverNode.trigger_activate
+
+    def activate_then_ctrl_c(node):
+        \"\"\"Ctrl-C lands as the activation ends: rclpy then fails the transition's last step (its event).\"\"\"
+        activate(node)
+        os.kill(os.getpid(), signal.SIGINT)
+        while rclpy.ok():
+            time.sleep(0.01)
+        return activate(node)  # raises RCLError on the shut-down context, as the event's publish did
+
+    hv_driver_node.HvDriverNode.trigger_activate = activate_then_ctrl_c
+    # a namespace of its own: the supervisor's socket (hv_driver.socket_path) is not the module's driver's
+    raise SystemExit(hv_driver_node.main(["--ros-args", "-r", "__ns:=/stopped_while_activating"]))
+""")
+
+
+def test_a_stop_during_the_autostart_closes_the_supply_so_its_supervisor_ends_with_the_node():
+    """Seen in a launcher stop right after the driver said "configured": the stop landed as the activation ended, the
+    node was never destroyed, its supervisor process took that for a node lost (outputs latched NODE_LOST) and held the
+    launcher's output pipe, until its orphan timeout, after the stack had stopped."""
+    # run() returns once the probe and its supervisor (which shares the probe's stderr) have both ended
+    probe = subprocess.run([sys.executable, "-c", STOPPED_WHILE_ACTIVATING], capture_output=True, text=True,
+                           timeout=120)
+    assert probe.returncode == 0, probe.stderr
+    assert "stopped while starting" in probe.stderr, probe.stderr
+    assert "NODE_LOST" not in probe.stderr, probe.stderr

@@ -331,10 +331,15 @@ class HvDriverNode(LifecycleNode):
 def main(args=None) -> int:
     def make_node():
         node = HvDriverNode()
-        if node.get_parameter("autostart").value:
-            if node.trigger_configure() != SUCCESS or node.trigger_activate() != SUCCESS:
-                node.destroy_node()
+        try:
+            if node.get_parameter("autostart").value and (
+                    node.trigger_configure() != SUCCESS or node.trigger_activate() != SUCCESS):
                 raise ValueError("autostart: configure/activate failed (see the log above)")
+        except BaseException:
+            # also a Ctrl-C landing in a transition (rclpy raises from the shut-down context): run_node never gets
+            # this node, so it is destroyed here, which closes the supply and ends its supervisor process
+            node.destroy_node()
+            raise
         return node
     # Threads for the ramp goals (each waits on its ramp), services and the state timer.
     return run_node(make_node, "hv_driver", lambda: MultiThreadedExecutor(num_threads=8), args=args)
