@@ -4,6 +4,7 @@ confirmation; a line typed while nothing waits confirms nothing."""
 import subprocess
 import sys
 import threading
+import time
 
 import pytest
 import rclpy
@@ -19,19 +20,24 @@ from softblock_ros.run_sequence import Operator
 pytestmark = pytest.mark.integration
 
 TIMEOUT = 120.0  # [s] liveness bound only
+REPLY_DELAY_S = 0.5  # [s] after the sequence's end: the stand-in answers a confirmation only then
 PROMPT = "build assembly 'asymmetric_gripper': finger front_left, position 2: remove design 57, insert design 15"
 
 
 @pytest.fixture
 def sequencer(ros_context, spin):
-    """A stand-in sequencer: its one step asks the operator and succeeds once sequencer/operator_done is called."""
+    """A stand-in sequencer: its one step asks the operator and succeeds once sequencer/operator_done is called.
+    Its reply to the confirmation leaves after the sequence has ended: the order a loaded sequencer may answer in
+    (seen: run_sequence printed the result and exited before the reply came, and the reply was never printed)."""
     node = rclpy.create_node("sequencer", context=ros_context)
-    group, confirmed, confirmations = ReentrantCallbackGroup(), threading.Event(), []
+    group, confirmed, finished, confirmations = ReentrantCallbackGroup(), threading.Event(), threading.Event(), []
 
     def operator_done(request, response):
         confirmations.append(confirmed.is_set())
         response.success, response.message = not confirmed.is_set(), "swap confirmed; waiting for the camera"
         confirmed.set()
+        finished.wait(TIMEOUT)
+        time.sleep(REPLY_DELAY_S)
         return response
 
     def execute(goal):
@@ -39,6 +45,7 @@ def sequencer(ros_context, spin):
                                                    description=PROMPT, phase="awaiting_operator"))
         confirmed.wait(TIMEOUT)
         goal.succeed()
+        finished.set()
         return RunSequence.Result(success=confirmed.is_set(), message="the swap was verified",
                                   step_names=["swap"], step_durations=[1.0])
 
@@ -63,7 +70,8 @@ def test_enter_typed_into_run_sequence_confirms_the_awaited_swap(sequencer):
     finally:
         stop(run, TIMEOUT)
     assert run.returncode == 0, out + err
-    assert "operator: swap confirmed; waiting for the camera" in out
+    reply, result = out.find("operator: swap confirmed; waiting for the camera"), out.find("the swap was verified")
+    assert 0 <= reply < result, out  # the reply, then the result
     assert sequencer == [False]  # confirmed once
 
 

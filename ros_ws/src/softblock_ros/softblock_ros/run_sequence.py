@@ -35,6 +35,9 @@ class Operator:
         self._done = node.create_client(Trigger, "sequencer/operator_done")
         self._keyboard = keyboard
         self._asked = threading.Event()
+        # held from a confirmation's request until its reply is printed: the swap it confirms may end the sequence,
+        # and with it this program, before the reply comes in
+        self._confirming = threading.Lock()
         self._keyboard_lost = threading.Event()  # standard input cannot be read (closed, or not a terminal's)
 
     def print_feedback(self, message) -> None:
@@ -61,13 +64,19 @@ class Operator:
             if not self._asked.is_set():
                 print("operator: no swap is asked for now", flush=True)
                 continue
-            self._asked.clear()
-            try:
-                reply = call_service(self._done, Trigger.Request(), SERVICE_TIMEOUT)
-                print(f"operator: {reply.message}", flush=True)
-            except ClientError as error:
-                print(f"operator: confirmation not delivered: {error}", file=sys.stderr, flush=True)
-                self._asked.set()
+            with self._confirming:
+                self._asked.clear()
+                try:
+                    reply = call_service(self._done, Trigger.Request(), SERVICE_TIMEOUT)
+                    print(f"operator: {reply.message}", flush=True)
+                except ClientError as error:
+                    print(f"operator: confirmation not delivered: {error}", file=sys.stderr, flush=True)
+                    self._asked.set()
+
+    def wait_for_confirmation(self) -> None:
+        """Until the reply to a confirmation on its way is printed (a confirmation waits at most SERVICE_TIMEOUT)."""
+        if self._confirming.acquire(timeout=SERVICE_TIMEOUT):
+            self._confirming.release()
 
 
 def run(sequence: str, server_timeout: float, timeout: float = 0.0) -> int:
@@ -80,14 +89,15 @@ def run(sequence: str, server_timeout: float, timeout: float = 0.0) -> int:
     threading.Thread(target=operator.listen, daemon=True).start()
     try:
         return send(ActionClient(node, RunSequence, "sequencer/run"), sequence, server_timeout, timeout,
-                    operator.print_feedback)
+                    operator.print_feedback, operator.wait_for_confirmation)
     finally:
         executor.shutdown(timeout_sec=5.0)
         spinner.join(timeout=5.0)
         node.destroy_node()
 
 
-def send(client: ActionClient, sequence: str, server_timeout: float, timeout: float, print_feedback) -> int:
+def send(client: ActionClient, sequence: str, server_timeout: float, timeout: float, print_feedback,
+         before_result) -> int:
     if not client.wait_for_server(timeout_sec=server_timeout):
         print(f"no sequencer/run server within {server_timeout:g} s", file=sys.stderr)
         return 3
@@ -113,6 +123,7 @@ def send(client: ActionClient, sequence: str, server_timeout: float, timeout: fl
         print("timed out, canceling ..." if isinstance(reason, TimeoutError) else "canceling ...", flush=True)
         handle.cancel_goal_async()
         done.wait()
+    before_result()
     response = result_future.result()
     result = response.result
     for name, duration in zip(result.step_names, result.step_durations):
