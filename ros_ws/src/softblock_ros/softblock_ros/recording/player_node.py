@@ -122,8 +122,8 @@ class PlayerNode(Node):
         if self._unacknowledged.get(channel_id, 0) >= publisher.qos_profile.depth:
             if not publisher.wait_for_all_acked(Duration(seconds=ACKNOWLEDGEMENT_TIMEOUT_S)):
                 self.get_logger().warning(
-                    f"{topic}: a subscriber acknowledged nothing for {ACKNOWLEDGEMENT_TIMEOUT_S:g} s; "
-                    "it may miss samples of this burst")
+                    f"{topic}: not every subscriber acknowledged the samples written within "
+                    f"{ACKNOWLEDGEMENT_TIMEOUT_S:g} s; a slow one may miss some of this burst")
             self._unacknowledged[channel_id] = 0
         self._unacknowledged[channel_id] = self._unacknowledged.get(channel_id, 0) + 1
 
