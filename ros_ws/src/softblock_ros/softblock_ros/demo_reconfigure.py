@@ -106,9 +106,10 @@ def shelf() -> dict[int, int]:
     return {design_id: SHELF_COUNT for design_id in load_table().ids.tolist()}
 
 
-def plan_front_pair(client: ReconfigureClient, max_swaps: int, time_budget: float) -> dict:
-    """The planner's plan from the robot as built (assembly/current) to the target object; a dict of the Pareto
-    points, the chosen point's target assembly and its swaps."""
+def plan_front_pair(client: ReconfigureClient, built, max_swaps: int, time_budget: float) -> dict:
+    """The planner's plan from the robot as built to the target object; a dict of the Pareto points, the chosen
+    point's target assembly and its swaps. The goal names the robot: the planner's own copy of assembly/current may
+    not have arrived yet, or may still be the one from before the designs were loaded."""
     catalog = load_yaml_file(OBJECTS_CATALOG)[TARGET_OBJECT]
     stock = shelf()
     goal = PlanReconfiguration.Goal(
@@ -116,7 +117,7 @@ def plan_front_pair(client: ReconfigureClient, max_swaps: int, time_budget: floa
         object_image_paths=[str(OBJECTS_CATALOG.parent / catalog["file"])],
         pixel_sizes=[float(catalog["pixel_size_m"])], finger_chains=[c for c, _, _ in FRONT_PAIR],
         finger_sides=[s for _, s, _ in FRONT_PAIR], finger_stiff_top=[n for _, _, n in FRONT_PAIR],
-        time_budget=time_budget, max_swaps=max_swaps)
+        time_budget=time_budget, max_swaps=max_swaps, robot=assembly_msg(built, load_table()))
     say(f"planning the front pair for the {TARGET_OBJECT} object from the robot as built, shelf of {SHELF_COUNT} "
         f"blocks of every design, at most {max_swaps} swaps, {time_budget:g} s budget "
         "(planner/plan_reconfiguration)")
@@ -254,7 +255,7 @@ def run(out: Path, max_swaps: int, time_budget: float) -> int:
         fingers, report["designs"] = design_gripper(client, BUILT_FOR)
         built = load_designs_into_gripper(client, fingers, name=f"{BUILT_FOR}_gripper")
         client.build(built, changes_view=False)  # the world holds what was built (as believed)
-        plan = plan_front_pair(client, max_swaps, time_budget)
+        plan = plan_front_pair(client, built, max_swaps, time_budget)
         report["plan"] = {k: plan[k] for k in ("points", "solve_time_s", "message")}
         report["plan"]["swaps"] = [swap.describe() for swap in plan["swaps"]]
         plot_pareto(plan["points"], max_swaps, out / "pareto.png")
