@@ -112,20 +112,20 @@ class PlayerNode(Node):
     def _publish(self, channel, message) -> None:
         publisher = self.publishers_by_channel[channel.id]
         if publisher.qos_profile.history == HistoryPolicy.KEEP_LAST:
-            self._wait_for_room(channel.topic, publisher, channel.id)
+            self._wait_for_room(channel, publisher)
         publisher.publish(message.data)
 
-    def _wait_for_room(self, topic: str, publisher, channel_id: int) -> None:
+    def _wait_for_room(self, channel, publisher) -> None:
         """A latched publisher keeps only its depth of samples (what a late joiner gets): a sample written into a
         full history pushes out the oldest, sent or not. Before that write, wait until its subscribers hold every
         sample, so that a fast replay's burst loses none (volatile topics keep all: playback_qos)."""
-        if self._unacknowledged.get(channel_id, 0) >= publisher.qos_profile.depth:
+        if self._unacknowledged.get(channel.id, 0) >= publisher.qos_profile.depth:
             if not publisher.wait_for_all_acked(Duration(seconds=ACKNOWLEDGEMENT_TIMEOUT_S)):
                 self.get_logger().warning(
-                    f"{topic}: not every subscriber acknowledged the samples written within "
+                    f"{channel.topic}: not every subscriber acknowledged the samples written within "
                     f"{ACKNOWLEDGEMENT_TIMEOUT_S:g} s; a slow one may miss some of this burst")
-            self._unacknowledged[channel_id] = 0
-        self._unacknowledged[channel_id] = self._unacknowledged.get(channel_id, 0) + 1
+            self._unacknowledged[channel.id] = 0
+        self._unacknowledged[channel.id] = self._unacknowledged.get(channel.id, 0) + 1
 
     def _publish_clock(self) -> None:
         if not self._thread.is_alive():
