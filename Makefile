@@ -18,8 +18,8 @@ demo-reconfigure: setup
 # Integration modules stay on one worker each (--dist loadfile): they share module-wide nodes and ROS domains.
 # Their tests mostly wait for processes and messages, so four workers share the two cores (191 s -> 129 s).
 # The stack tests run last, on two workers (tests/conftest.py's --dist-stack): the two-host module starts on one,
-# the demo on the other, and the other one-host modules follow on whichever runs short first. They mostly wait
-# for ramps, so they overlap.
+# the demo on the other, and the other one-host modules follow in the order that keeps both about equally long.
+# They mostly wait for ramps, so they overlap.
 test: setup
 	$(PYTEST) -n 2 -m fast tests
 	$(PYTEST) -n 4 --dist loadfile -m integration tests

@@ -55,15 +55,22 @@ def ros_domain_per_module():
     os.environ["ROS_DOMAIN_ID"] = _domain(next(_MODULES))
 
 
-TWO_HOSTS = "tests/twohosts/"
+# The stack tier's modules in the order its schedule hands them out (pytest_collection_modifyitems sorts them so;
+# any other module follows). The two longest (two-host ~110 s, demo ~85 s) start, one on each worker. xdist gives
+# the next module to the first worker left with two tests to run: the two-host one, whose last test then still
+# has ~40 s to go, so that one gets the short launch smoke tests and the demo's worker the reconfiguration demo
+# (~30 s). In the other order the two-host worker took the 30 s demo as well: 145 s instead of ~120 s.
+STACK_ORDER = ("tests/twohosts/", "tests/e2e/test_demo.py", "tests/e2e/test_launch_smoke.py")
+
+
+def _stack_rank(nodeid: str) -> int:
+    return next((rank for rank, prefix in enumerate(STACK_ORDER) if nodeid.startswith(prefix)), len(STACK_ORDER))
 
 
 class StackScheduling(LoadScopeScheduling):
     """pytest-xdist's schedule of the stack tier (``--dist-stack``): each module on one worker (its tests
-    share a module-wide stack), in collection order, where the two-host module comes first (sorted there by
-    pytest_collection_modifyitems below). It takes one worker, the demo the other, and the other one-host
-    modules go to whichever worker runs short of tests first, so that the longest modules overlap. (xdist's
-    ``--dist loadgroup`` does not group under pytest 9: its nodeid suffix no longer takes.)"""
+    share a module-wide stack), in collection order, which STACK_ORDER sets. (xdist's ``--dist loadgroup`` does
+    not group under pytest 9: its nodeid suffix no longer takes.)"""
 
     def __init__(self, config, log=None):
         config.option.loadscopereorder = False  # keep the collection order
@@ -93,7 +100,7 @@ def pytest_collection_modifyitems(config, items):
     tiers = {line.split(":")[0] for line in config.getini("markers")}
     config.stash[_TIERS_OF] = {item.nodeid: [mark.name for mark in item.iter_markers() if mark.name in tiers]
                                for item in items}
-    items.sort(key=lambda item: not item.nodeid.startswith(TWO_HOSTS))  # first; the rest keep their order
+    items.sort(key=lambda item: _stack_rank(item.nodeid))  # stable: within a rank, the collection order
 
 
 @pytest.fixture(scope="session")
