@@ -269,8 +269,10 @@ def test_the_launcher_refuses_a_namespace_rcl_refuses(capsys):
                                        "(letters, digits and '_' after each '/')\n")
 
 
-@pytest.mark.parametrize("flag", ["--help", "-h"])
-@pytest.mark.parametrize("node", load_stack().nodes, ids=lambda node: node.name)
+# Every node is asked once; the two spellings, which reach the one check (runner._asks_for_help), alternate.
+@pytest.mark.parametrize("node, flag", [(node, ("--help", "-h")[index % 2])
+                                        for index, node in enumerate(load_stack().nodes)],
+                         ids=lambda value: getattr(value, "name", value))
 def test_help_prints_the_nodes_parameters_and_starts_nothing(node, flag):
     """Old: the nodes ignored --help and started (an HV driver among them); every node of the stack is asked."""
     result = subprocess.run([sys.executable, "-m", node.module, *node.arguments, flag], capture_output=True, text=True,
