@@ -88,21 +88,19 @@ def run(sequence: str, server_timeout: float, timeout: float = 0.0) -> int:
     operator = Operator(node)
     threading.Thread(target=operator.listen, daemon=True).start()
     try:
-        return send(ActionClient(node, RunSequence, "sequencer/run"), sequence, server_timeout, timeout,
-                    operator.print_feedback, operator.wait_for_confirmation)
+        return send(ActionClient(node, RunSequence, "sequencer/run"), sequence, server_timeout, timeout, operator)
     finally:
         executor.shutdown(timeout_sec=5.0)
         spinner.join(timeout=5.0)
         node.destroy_node()
 
 
-def send(client: ActionClient, sequence: str, server_timeout: float, timeout: float, print_feedback,
-         before_result) -> int:
+def send(client: ActionClient, sequence: str, server_timeout: float, timeout: float, operator: Operator) -> int:
     if not client.wait_for_server(timeout_sec=server_timeout):
         print(f"no sequencer/run server within {server_timeout:g} s", file=sys.stderr)
         return 3
     done = threading.Event()
-    goal_future = client.send_goal_async(RunSequence.Goal(sequence=sequence), feedback_callback=print_feedback)
+    goal_future = client.send_goal_async(RunSequence.Goal(sequence=sequence), feedback_callback=operator.print_feedback)
     goal_future.add_done_callback(lambda _: done.set())
     if not done.wait(server_timeout):
         print(f"no goal response from sequencer/run within {server_timeout:g} s", file=sys.stderr)
@@ -123,7 +121,7 @@ def send(client: ActionClient, sequence: str, server_timeout: float, timeout: fl
         print("timed out, canceling ..." if isinstance(reason, TimeoutError) else "canceling ...", flush=True)
         handle.cancel_goal_async()
         done.wait()
-    before_result()
+    operator.wait_for_confirmation()
     response = result_future.result()
     result = response.result
     for name, duration in zip(result.step_names, result.step_durations):
